@@ -24,3 +24,32 @@ def require_shared(path: Path) -> Path:
 @pytest.fixture
 def brno_dir() -> Path:
     return require_shared(BRNO)
+
+
+# A small two-way motorway rendered with cuboid vehicles (exact silhouettes): 12 s at 12.5 fps, 480x270 (a few
+# seconds to render). Shared by the run, pipelines and speedometer tests; rendered once per session and flow.
+CUBOID_SCENE = {"base": "highway_day", "duration": 12, "seed": 4, "camera": {"resolution": [480, 270]},
+                "traffic": {"flow": 600, "speed_std": 15}, "imaging": {"fps": 12.5, "noise": 1.0}}
+
+
+def _render_cuboid_clip(tmp_path_factory, flow: int) -> Path:
+    from gst_trafficcal.synth.generate import generate
+    from gst_trafficcal.synth.scenario import scenario_from_dict
+    from gst_trafficcal.synth.traffic import cuboid_models
+
+    scene = {**CUBOID_SCENE, "traffic": {**CUBOID_SCENE["traffic"], "flow": flow}}
+    out = tmp_path_factory.mktemp(f"cuboid_clip_{flow}")
+    generate(scenario_from_dict(scene), out, box_vehicles=True, model_factory=cuboid_models())
+    return out
+
+
+@pytest.fixture(scope="session")
+def cuboid_clip(tmp_path_factory) -> Path:
+    """Folder of the cuboid clip (video.mp4, calibration.json, gt_data.pkl, ...) at 600 vehicles/h."""
+    return _render_cuboid_clip(tmp_path_factory, 600)
+
+
+@pytest.fixture(scope="session")
+def cuboid_clip_dense(tmp_path_factory) -> Path:
+    """The same clip at 1500 vehicles/h: enough edges on vehicles for VP2 within 8 s."""
+    return _render_cuboid_clip(tmp_path_factory, 1500)

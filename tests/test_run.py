@@ -14,24 +14,14 @@ import pytest
 from gst_trafficcal.brnocompspeed import load_results
 from gst_trafficcal.calibration import load_calibration
 from gst_trafficcal.outputs import read_events, read_events_csv
-from gst_trafficcal.synth.generate import generate
-from gst_trafficcal.synth.scenario import scenario_from_dict
-from gst_trafficcal.synth.traffic import cuboid_models
 
 pytestmark = pytest.mark.gst
 
-# a small two-way motorway: 12 s at 12.5 fps, 480x270, cuboid vehicles (renders in a few seconds)
-SCENE = {"base": "highway_day", "duration": 12, "seed": 4, "camera": {"resolution": [480, 270]},
-         "traffic": {"flow": 600, "speed_std": 15}, "imaging": {"fps": 12.5, "noise": 1.0}}
-
-
-_box_model = cuboid_models()
 
 @pytest.fixture(scope="module")
-def clip(tmp_path_factory) -> Path:
-    out = tmp_path_factory.mktemp("clip")
-    generate(scenario_from_dict(SCENE), out, box_vehicles=True, model_factory=_box_model)
-    return out
+def clip(cuboid_clip) -> Path:
+    """The shared cuboid clip (tests/conftest.py)."""
+    return cuboid_clip
 
 
 def trafficcal(*args: str) -> subprocess.CompletedProcess:
