@@ -17,20 +17,11 @@ from gst_trafficcal.gst.element import register_plugin_file  # noqa: E402
 from gst_trafficcal.gst.env import gst_environment  # noqa: E402
 from gst_trafficcal.gst.pipeline import PipelineError, run_pipeline  # noqa: E402
 from gst_trafficcal.outputs import read_events, read_events_csv  # noqa: E402
-from gst_trafficcal.synth.generate import generate  # noqa: E402
 from gst_trafficcal.synth.groundtruth import read_jsonl  # noqa: E402
-from gst_trafficcal.synth.scenario import scenario_from_dict  # noqa: E402
-from gst_trafficcal.synth.traffic import cuboid_models
 
 ROOT = Path(__file__).resolve().parents[1]
 ELEMENTS = ROOT / "elements" / "python"
 TEST_PLUGINS = ROOT / "tests" / "gst_plugins" / "python"
-# a small two-way motorway: 12 s at 12.5 fps, 480x270, ten cuboid vehicles (exact silhouettes)
-SCENE = {"base": "highway_day", "duration": 12, "seed": 4, "camera": {"resolution": [480, 270]},
-         "traffic": {"flow": 600, "speed_std": 15}, "imaging": {"fps": 12.5, "noise": 1.0}}
-
-
-_box_model = cuboid_models()
 
 @pytest.fixture(scope="module", autouse=True)
 def _elements() -> None:
@@ -42,10 +33,8 @@ def _elements() -> None:
 
 
 @pytest.fixture(scope="module")
-def clip(tmp_path_factory) -> Path:
-    out = tmp_path_factory.mktemp("clip")
-    generate(scenario_from_dict(SCENE), out, box_vehicles=True, model_factory=_box_model)
-    return out
+def clip(cuboid_clip) -> Path:
+    return cuboid_clip
 
 
 def source(clip: Path) -> str:
@@ -91,7 +80,8 @@ def detector(clip: Path) -> str:
 def implicit(clip, tmp_path_factory):
     """The short form: detector ! speedometer (it tracks itself), calibration from the clip's true calibration.json."""
     out = tmp_path_factory.mktemp("implicit")
-    return out, *measure(clip, out, detector(clip), f"calibration-file={clip / 'calibration.json'}")
+    return out, *measure(clip, out, detector(clip), f"calibration-file={clip / 'calibration.json'} "
+                                                    f"frames-file={out / 'frames.jsonl'}")
 
 
 def test_speeds_match_the_ground_truth(clip, implicit):
@@ -145,6 +135,36 @@ def test_speed_structure_on_the_rois(implicit):
         assert v == pytest.approx(final[oid], abs=1e-9)
 
 
+def test_frames_file_has_every_tracked_vehicle_per_frame(implicit):
+    """frames-file: one line per frame with tracked vehicles (box, id, reference point, 3D box, current speed),
+    the same values the ROI metadata carried downstream."""
+    import json
+
+    out, run, events, results = implicit
+    lines = [json.loads(ln) for ln in (out / "frames.jsonl").read_text().splitlines()]
+    sink = {round(f.pts * 1e9): f for f in run.frames if any(r.object_id is not None for r in f.rois)}
+    assert len(lines) == len(sink) >= 50
+    speeds_seen, refs_seen = {}, 0
+    for line in lines:
+        frame = sink[line["timestamp"]]
+        rois = {r.object_id: r for r in frame.rois if r.object_id is not None}
+        assert sorted(o["id"] for o in line["objects"]) == sorted(rois) and line["resolution"] == {
+            "width": 480, "height": 270}
+        for o in line["objects"]:
+            r = rois[o["id"]]
+            assert o["x"] == round(max(r.box[0], 0)) and o["y"] == round(max(r.box[1], 0))
+            assert o["trafficcal-vehicle"]["t"] == pytest.approx(frame.pts)
+            if "ref_x" in o["trafficcal-vehicle"]:
+                refs_seen += 1
+                assert o["trafficcal-vehicle"]["ref_x"] == pytest.approx(r.params["trafficcal-vehicle"]["ref_x"])
+            if "speed" in o:
+                assert o["speed"]["speed_kmh"] == pytest.approx(r.params["speed"]["speed_kmh"])
+                speeds_seen[o["id"]] = o["speed"]["speed_kmh"]
+    assert refs_seen >= 100
+    final = {e.id: e.speed_kmh for e in events if e.measured}
+    assert len(speeds_seen) >= 12 and all(speeds_seen[i] == pytest.approx(final[i]) for i in speeds_seen)
+
+
 def test_explicit_tracker_gives_the_same_numbers(clip, implicit, tmp_path):
     out, run, events, results = implicit
     run2, events2, results2 = measure(clip, tmp_path, f"tcroisource calibration-file={clip / 'calibration.json'} ! "
@@ -191,6 +211,16 @@ def test_full_disk_is_an_error_naming_the_file_and_keeps_what_was_measured(clip,
     assert len(kept) >= 1  # the vehicle whose line could not go to /dev/full still reached the CSV
 
 
+def test_frames_file_on_a_full_disk_is_an_error_and_the_vehicles_are_kept(clip, tmp_path):
+    events_path = tmp_path / "events.jsonl"
+    with pytest.raises(PipelineError, match="/dev/full"):
+        run_pipeline(f"{source(clip)} ! {detector(clip)} ! speedometer calibration-file={clip / 'calibration.json'} "
+                     f"frames-file=/dev/full events-file={events_path} ! appsink name=sink")
+    kept = read_events(events_path).events
+    # the first frame with vehicles fails; the vehicles in view when the pipeline stopped are still written
+    assert kept and all(e.measured or e.reason for e in kept), kept
+
+
 def test_bad_calibration_file_is_a_clear_error(clip, tmp_path):
     bad = tmp_path / "bad.json"
     bad.write_text("{not json")
@@ -219,7 +249,7 @@ def test_gst_inspect_documents_every_property(tmp_path):
     env = dict(os.environ, **gst_environment(), GST_REGISTRY=str(tmp_path / "registry.bin"))
     text = subprocess.run(["gst-inspect-1.0", "speedometer"], env=env, capture_output=True, text=True,
                           timeout=120).stdout
-    for prop in ("events-file", "results-file", "csv-file", "calibration-file", "scale", "tau",
+    for prop in ("events-file", "results-file", "csv-file", "frames-file", "calibration-file", "scale", "tau",
                  "min-track-length", "vehicle-timeout"):
         assert prop in text
 

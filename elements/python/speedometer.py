@@ -14,7 +14,9 @@ waiting are written unmeasured, with the reason.
 
 Output per frame: a ``"speed"`` {speed_kmh, label, model_name, confidence} structure on the ROI of every vehicle
 with a current estimate.  Per vehicle that leaves: a ``trafficcal-speed`` element message (the event's fields) and
-a line in ``events-file`` (JSON lines) / ``csv-file``; ``results-file`` gets the BrnoCompSpeed results JSON
+a line in ``events-file`` (JSON lines) / ``csv-file``; per frame with tracked vehicles, a line in ``frames-file``
+(gvametaconvert's shape: box, track id, ``"trafficcal-vehicle"`` with the reference point and 3D box, ``"speed"``);
+``results-file`` gets the BrnoCompSpeed results JSON
 (rewritten atomically now and then and at end of stream).  A failed write (full disk) stops the pipeline with an
 error naming the file; every vehicle written before stays in the files.
 """
@@ -37,6 +39,9 @@ class Speedometer(TrafficcalTransform):
         "events-file": (str, "Events file", "JSON-lines file, one object per vehicle that left (empty: none)", "",
                         _RW),
         "csv-file": (str, "CSV file", "CSV file, one row per vehicle that left (empty: none)", "", _RW),
+        "frames-file": (str, "Frames file", "JSON-lines file, one line per frame with vehicles: each vehicle's "
+                        "box, track id, reference point and 3D box ('trafficcal-vehicle') and current speed "
+                        "('speed'), in gvametaconvert's shape (empty: none)", "", _RW),
         "results-file": (str, "Results file", "BrnoCompSpeed results JSON (camera_calibration + cars with "
                          "frames/posX/posY), rewritten atomically (empty: none)", "", _RW),
         "calibration-file": (str, "Calibration file", "Calibration JSON used when no calibration with scale "
@@ -59,6 +64,7 @@ class Speedometer(TrafficcalTransform):
     def _reset(self):
         self._meter = None
         self._outputs = None
+        self._frames = None
         self._results_t = None
         self._fps_fixed = False
         self._file_cal = None
@@ -84,6 +90,10 @@ class Speedometer(TrafficcalTransform):
             # opened now so that an unwritable path fails at start; the frame rate is set from the caps
             self._outputs = VehicleOutputs(self.events_file or None, self.csv_file or None,
                                            self.results_file or None, fps=25.0)
+            if self.frames_file:
+                from gst_trafficcal.outputs import FrameJsonlWriter
+
+                self._frames = FrameJsonlWriter(self.frames_file, skip_empty=True)
         except Exception as exc:  # bad properties / unreadable calibration / unwritable file: readable error
             self.post_error(f"speedometer: {exc}")
             return False
@@ -171,6 +181,8 @@ class Speedometer(TrafficcalTransform):
                 update_roi_params(buffer, roi.meta_id, "speed", speed_params(live, s.label))
         if not self._emit(out.finished):
             return Gst.FlowReturn.ERROR
+        if self._frames is not None and labelled and not self._write_frame(buffer, t):
+            return Gst.FlowReturn.ERROR
         if out.finished and self.results_file and (self._results_t is None or t - self._results_t >= _RESULTS_EVERY):
             self._results_t = t
             if not self._write_results():
@@ -248,6 +260,21 @@ class Speedometer(TrafficcalTransform):
             self._outputs.brno.fps = 1.0 / statistics.median(self._dts)
             self._fps_fixed = True
 
+    def _write_frame(self, buffer, t):
+        """One line of ``frames-file``: this frame's vehicle ROIs as they leave (with 'speed' when known)."""
+        from gst_trafficcal.errors import InputError
+        from gst_trafficcal.gst.meta import read_vehicle_rois
+
+        rois = [r for r in read_vehicle_rois(buffer, self.frame_size) if r.object_id is not None]
+        try:
+            self._frames.write(rois, self.frame_size, t)
+        except InputError as exc:
+            if not self._failed:
+                self.post_error(f"speedometer: {exc}")
+            self._failed = True
+            return False
+        return True
+
     def _write_results(self):
         from gst_trafficcal.errors import InputError
 
@@ -281,6 +308,14 @@ class Speedometer(TrafficcalTransform):
     def _close(self, report=True):
         from gst_trafficcal.errors import InputError
 
+        if self._frames is not None:
+            frames, self._frames = self._frames, None
+            try:
+                frames.close()
+            except InputError as exc:
+                if report and not self._failed:
+                    self.post_error(f"speedometer: {exc}")
+                self._failed = True
         if self._outputs is not None:
             outputs, self._outputs = self._outputs, None
             try:
