@@ -110,3 +110,30 @@ def test_gst_launch_documents_every_property():
     assert out.returncode == 0, out.stderr
     for prop in ("calibration-file", "mode", "min-duration", "max-duration", "downscale", "focal-range", "horizon-max", "method"):
         assert prop in out.stdout
+
+
+def test_element_and_cli_calibrate_a_clip_alike(tmp_path):
+    """The element (Y plane of the decoder's I420) and `calibrate_video` (the CLI's path: OpenCV's FFmpeg decode of
+    the same file) analyse the same luma frames with the same timestamps, so they give the same calibration."""
+    import cv2
+
+    from gst_trafficcal.diamond import angle_between
+    from gst_trafficcal.geometry import homogeneous
+    from gst_trafficcal.vanishing.calibrator import CalibratorConfig, calibrate_video
+
+    clip = tmp_path / "cuboids.mp4"
+    writer = cv2.VideoWriter(str(clip), cv2.VideoWriter_fourcc(*"mp4v"), FPS, (W, H))
+    for f in cached_scene(24.0):
+        writer.write(cv2.cvtColor(f, cv2.COLOR_GRAY2BGR))
+    writer.release()
+    cli = calibrate_video(clip, CalibratorConfig(min_duration=8.0, max_duration=60.0)).calibration
+    run = run_pipeline(f"filesrc location={clip} ! decodebin ! videoconvert ! video/x-raw,format=I420 ! "
+                       f"vpdetect {FAST} ! appsink name=sink")
+    elem = run.frames[-1].calibration
+    assert cli.state == elem.state == "vps"
+    a, b = cli.camera, elem.camera
+    for p, q in ((a.vp1, b.vp1), (a.vp2, b.vp2)):
+        assert angle_between(homogeneous(p), homogeneous(q), a.pp, a.focal) < 1e-4
+    # (BGR -> COLOR_BGR2GRAY in the CLI, as before, moved the focal length by 0.05 % and VP1 by 0.15 px here)
+    assert abs(a.focal - b.focal) < 1e-5 * a.focal
+    assert cli.confidence["seconds"] == pytest.approx(elem.confidence["seconds"], abs=1e-6)

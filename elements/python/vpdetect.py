@@ -49,14 +49,18 @@ class VpDetect(TrafficcalTransform):
         self._learner = None
         self._frames = 0
         self._fps = 25.0
+        self._format = "I420"
 
     def on_caps(self, info):
         from gst_trafficcal.calibration import Calibration, load_calibration
         from gst_trafficcal.cli.calibrate import parse_focal_range
         from gst_trafficcal.vanishing.calibrator import CalibratorConfig, VPCalibrator
 
+        from gst_trafficcal.gst.buffers import format_name
+
         if info.fps_n > 0 and info.fps_d > 0:
             self._fps = info.fps_n / info.fps_d
+        self._format = format_name(info)
         if self.mode not in MODES:
             self.post_error(f"vpdetect: unknown mode {self.mode!r} (expected one of {', '.join(MODES)})")
             return
@@ -101,6 +105,7 @@ class VpDetect(TrafficcalTransform):
 
     def transform_frame(self, buffer):
         from gst_trafficcal.gst.buffers import pts_seconds
+        from gst_trafficcal.vanishing.frames import luma
 
         learner = self._learner
         if learner is None or learner.done:
@@ -109,8 +114,10 @@ class VpDetect(TrafficcalTransform):
         if t is None:
             t = self._frames / self._fps
         self._frames += 1
-        with self.gray(buffer) as gray:
-            changed = learner.add(gray, t)
+        # the luma plane, computed by the same function as for files (trafficcal calibrate): the Y plane of
+        # I420/NV12/GRAY8 as it is, colour formats converted to BT.601 limited-range luma
+        with self.planes(buffer) as planes:
+            changed = learner.add(luma(planes[0], self._format), t)
         if changed:
             self._publish(learner.calibration)
         return Gst.FlowReturn.OK

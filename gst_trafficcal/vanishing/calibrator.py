@@ -44,6 +44,7 @@ class CalibratorConfig:
     method: str = "edgelets"        # VP2 evidence: "edgelets" (paper) or "gradient" (ITS15 baseline)
     edgelet_blur: float = 1.0        # Gaussian sigma before Sobel for edgelets (0: 3x3 kernel; VP2 3.6° -> 2.8°)
     orientation: str = "subpixel"   # edgelet orientation: "subpixel" (default), "svd" (paper) or "tensor"
+    edgelet_along: int = 8          # half length (px) along the edge of the sub-pixel orientation window (see docs)
     min_duration: float = 20.0      # never declare before this much video
     max_duration: float = 180.0     # give up (state failed) when not converged after this much video
     check_interval: float = 5.0     # peaks are re-estimated this often
@@ -175,7 +176,8 @@ class VPCalibrator:
             return
         small = _resize(gray, self.edge_scale)
         if self.cfg.method == "edgelets":
-            e = detect_edgelets(small, self._fg, orientation=self.cfg.orientation, blur=self.cfg.edgelet_blur)
+            e = detect_edgelets(small, self._fg, orientation=self.cfg.orientation, blur=self.cfg.edgelet_blur,
+                                along=self.cfg.edgelet_along)
         else:
             e = detect_gradient_edgels(small, self._fg)
         if self.cfg.method == "edgelets":
@@ -342,7 +344,8 @@ def _angle(p: np.ndarray, q: np.ndarray, ds: DiamondSpace) -> float:
 
 @dataclass
 class VideoCalibration:
-    """Result of :func:`calibrate_video`: the calibration, the calibrator (evidence, status) and a frame."""
+    """Result of :func:`calibrate_video`: the calibration, the calibrator (evidence, status) and the first frame
+    in colour (BGR, for the grid picture)."""
 
     calibration: Calibration
     calibrator: VPCalibrator
@@ -355,44 +358,26 @@ def calibrate_video(path, config: CalibratorConfig | None = None, progress=None,
                     stop_when_done: bool = True) -> VideoCalibration:
     """Calibrate a video file (OpenCV decoding, times from the container's timestamps).
 
+    Frames are analysed as their luma plane (:mod:`.frames`), exactly what the element sees on YUV caps.
     ``progress(frame_index, frame_count, status)`` is called for every frame.  Raises InputError for a missing
     or undecodable file; an empty or static video gives state ``failed`` with the reason.
     """
     import time
-    from pathlib import Path
 
-    from ..fileio import open_video
+    from .frames import luma_frames
 
-    path = Path(path)
-    cap = open_video(path)
-    fps = cap.get(cv2.CAP_PROP_FPS) or 25.0
-    fps = fps if 1.0 <= fps <= 1000.0 else 25.0
-    count = int(cap.get(cv2.CAP_PROP_FRAME_COUNT) or 0)
-    w, h = int(cap.get(cv2.CAP_PROP_FRAME_WIDTH)), int(cap.get(cv2.CAP_PROP_FRAME_HEIGHT))
-    if w <= 0 or h <= 0:
-        raise InputError(f"{path}: cannot read the frame size (corrupt or not a video)")
-    cal = VPCalibrator((w, h), config)
-    frame = None
+    frames = luma_frames(path)
+    cal = VPCalibrator(frames.size, config)
     n = 0
     busy = 0.0
-    try:
-        while True:
-            ok, bgr = cap.read()
-            if not ok:
-                break
-            msec = cap.get(cv2.CAP_PROP_POS_MSEC)
-            t = msec / 1000.0 if n and msec > 0 else n / fps
-            gray = cv2.cvtColor(bgr, cv2.COLOR_BGR2GRAY) if bgr.ndim == 3 else bgr
-            frame = bgr
-            start = time.perf_counter()
-            cal.add(gray, t)
-            busy += time.perf_counter() - start
-            n += 1
-            if progress is not None:
-                progress(n, count, cal.status())
-            if stop_when_done and cal.done:
-                break
-    finally:
-        cap.release()
+    for t, gray in frames:
+        start = time.perf_counter()
+        cal.add(gray, t)
+        busy += time.perf_counter() - start
+        n += 1
+        if progress is not None:
+            progress(n, frames.count, cal.status())
+        if stop_when_done and cal.done:
+            break
     result = cal.finish()
-    return VideoCalibration(result, cal, frame, n, busy)
+    return VideoCalibration(result, cal, frames.first_bgr, n, busy)

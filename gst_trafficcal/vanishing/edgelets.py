@@ -107,7 +107,8 @@ def _crop(gray: np.ndarray, mask: np.ndarray | None):
 
 
 def detect_edgelets(gray: np.ndarray, mask: np.ndarray | None = None, threshold: float = 6.0,
-                    max_seeds: int = 1500, orientation: str = "subpixel", blur: float = 0.0) -> Edgelets:
+                    max_seeds: int = 1500, orientation: str = "subpixel", blur: float = 0.0,
+                    along: int = RADIUS) -> Edgelets:
     """Edgelets of a grey image, seeds restricted to ``mask`` (uint8, any size, resized to the image).
 
     ``orientation="svd"`` is the paper's (first singular vector of X).  On a pixel grid it is biased by
@@ -142,7 +143,7 @@ def detect_edgelets(gray: np.ndarray, mask: np.ndarray | None = None, threshold:
     l2 = np.maximum(0.5 * (sxx + syy) - root, 1e-12)
     theta = 0.5 * np.arctan2(2 * sxy, sxx - syy)  # first eigenvector of XᵀX = first singular vector of X
     if orientation == "subpixel":
-        theta = _subpixel_orientation(mag, ys, xs, theta)
+        theta = _subpixel_orientation(mag, ys, xs, theta, along=along)
     elif orientation == "tensor":
         oy, ox = ys[:, None] + _DY.astype(np.int64)[None, :], xs[:, None] + _DX.astype(np.int64)[None, :]
         gxk, gyk = gx[oy, ox].astype(np.float64), gy[oy, ox].astype(np.float64)
@@ -159,7 +160,7 @@ _OFF = np.arange(-RADIUS, RADIUS + 1)
 
 
 def _subpixel_orientation(mag: np.ndarray, ys: np.ndarray, xs: np.ndarray, theta0: np.ndarray,
-                          min_support: int = 3) -> np.ndarray:
+                          min_support: int = 3, along: int = RADIUS) -> np.ndarray:
     """Edge directions (radians) from the sub-pixel ridge of ``mag`` in the 9x9 patch of each seed.
 
     For edges closer to horizontal (by ``theta0``) each column's maximum is refined with a parabola across
@@ -169,18 +170,30 @@ def _subpixel_orientation(mag: np.ndarray, ys: np.ndarray, xs: np.ndarray, theta
     than ``min_support`` columns remain, the paper's orientation ``theta0`` is kept.  (Dropping edgelets with
     fewer than 6 supporting columns, i.e. corners and curves, was tried: no measurable change of VP2.)
     """
-    patch = mag[ys[:, None, None] + _OFF[None, :, None], xs[:, None, None] + _OFF[None, None, :]].astype(np.float64)
     horiz = np.abs(np.cos(theta0)) >= np.abs(np.sin(theta0))
-    patch = np.where(horiz[:, None, None], patch, np.swapaxes(patch, 1, 2))  # ridge along the columns axis
+    alo = np.arange(-along, along + 1)
+    pad = 2 * along + RADIUS
+    padded = cv2.copyMakeBorder(mag, pad, pad, pad, pad, cv2.BORDER_CONSTANT, value=0)
+    yc, xc = ys + pad, xs + pad
+    # (n, across, along): rows across the edge, columns along it (transposed for steep edges); each column's
+    # window is centred on the first estimate of the edge, so long windows follow slanted edges
+    slope = np.where(horiz, np.tan(theta0), 1.0 / np.where(horiz, 1.0, np.tan(theta0)))
+    shift = np.rint(slope[:, None] * alo[None, :]).astype(np.int64)
+    shift = np.clip(shift, -along, along)
+    across = _OFF[None, :, None] + shift[:, None, :]
+    rr = np.where(horiz[:, None, None], yc[:, None, None] + across, yc[:, None, None] + alo[None, None, :])
+    cc = np.where(horiz[:, None, None], xc[:, None, None] + alo[None, None, :], xc[:, None, None] + across)
+    patch = padded[rr, cc].astype(np.float64)
     n, size = len(patch), 2 * RADIUS + 1
+    ncol = 2 * along + 1
     r = np.argmax(patch, axis=1)
     rc = np.clip(r, 1, size - 2)
-    ii, jj = np.arange(n)[:, None], np.arange(size)[None, :]
+    ii, jj = np.arange(n)[:, None], np.arange(ncol)[None, :]
     lo, c, hi = patch[ii, rc - 1, jj], patch[ii, rc, jj], patch[ii, rc + 1, jj]
     den = lo - 2 * c + hi
     sub = np.clip(np.where(den < 0, 0.5 * (lo - hi) / np.where(den < 0, den, -1.0), 0.0), -0.5, 0.5)
-    yy = rc + sub - RADIUS
-    xx = np.broadcast_to(_OFF[None, :].astype(np.float64), yy.shape)
+    yy = rc + sub - RADIUS + shift
+    xx = np.broadcast_to(alo[None, :].astype(np.float64), yy.shape)
     w = c * (c > 0.5 * c.max(axis=1, keepdims=True)) * (r > 0) * (r < size - 1)
     t = _tls_angle(w, xx, yy)
     # second pass without the ridge points off the first line (another edge meeting this one in the patch)
