@@ -10,6 +10,13 @@ directions, true camera), relative focal error, BrnoCompSpeed distance-ratio err
 gt_data.pkl segments (``evaluation.evaluate_calibration``: mean of |r_est - r_true| / r_true), seconds of
 video to convergence, and the analysis speed in frames per second (the calibrator alone, decoding excluded).
 Target of issue 4: mean ratio error <= 0.05 and median <= 0.02 over the suite with <= 3 min of video.
+
+``--replays session0_center,...`` (or ``all``: the 12 recordings of sessions 0-3) adds the BrnoCompSpeed
+replays: ``trafficcal synth`` replays of each recording with the camera of its ManualCalib+ManualScale
+calibration (the recipe and the busiest windows of benchmarks/scale.py, reused from ``--replay-work``, e.g.
+/tmp/replays).  They are scored twice: against the recording's measured segments (its gt_data.pkl; the
+rendering camera itself is not exact against them, its own error is printed as ``render cam``) and against the
+rendering camera (the distances it gives for the same segments: what a perfect vpdetect would reach).
 """
 
 from __future__ import annotations
@@ -52,6 +59,7 @@ def score(scene: Path, method: str, max_duration: float) -> dict:
     cam = res.calibration.camera
     if cam is None:
         return row
+    row["_camera"] = cam
     f = truth.focal
     row.update(
         vp1_deg=angle_between(homogeneous(cam.vp1), homogeneous(truth.vp1), truth.pp, f),
@@ -62,6 +70,39 @@ def score(scene: Path, method: str, max_duration: float) -> dict:
     rep = evaluate_calibration(load_gt_data(scene / "gt_data.pkl"), cam)
     row.update(ratio_mean=rep.ratio_rel_pct.mean / 100, ratio_median=rep.ratio_rel_pct.median / 100)
     return row
+
+
+def _scale_bench():
+    """benchmarks/scale.py as a module (its replay recipe and REPLAY_STARTS)."""
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("_scale_bench", Path(__file__).with_name("scale.py"))
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
+
+def score_replay(scene: Path, method: str, max_duration: float) -> dict:
+    """:func:`score` on a replay, plus the ratio errors against the rendering camera and of that camera."""
+    import dataclasses
+
+    row = score(scene, method, max_duration)
+    gt = load_gt_data(scene / "gt_data.pkl")
+    truth = load_calibration(scene / "calibration.json").camera
+    own = evaluate_calibration(gt, truth)
+    row.update(render_mean=own.ratio_rel_pct.mean / 100, render_median=own.ratio_rel_pct.median / 100)
+    cam = _camera_of(row)
+    if cam is not None:
+        plane = truth.plane_distance(gt.distances_p1, gt.distances_p2)
+        ideal = dataclasses.replace(gt, distances=tuple(dataclasses.replace(d, distance=float(x))
+                                                         for d, x in zip(gt.distances, plane)))
+        rep = evaluate_calibration(ideal, cam)
+        row.update(vs_render_mean=rep.ratio_rel_pct.mean / 100, vs_render_median=rep.ratio_rel_pct.median / 100)
+    return row
+
+
+def _camera_of(row: dict):
+    return row.get("_camera")
 
 
 def speed_1080p(scene: Path, seconds: float = 40.0) -> float:
@@ -90,45 +131,74 @@ def speed_1080p(scene: Path, seconds: float = 40.0) -> float:
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--presets", default=DEFAULT_PRESETS)
+    ap.add_argument("--presets", default=DEFAULT_PRESETS, help="synth presets ('' for none)")
     ap.add_argument("--duration", type=float, default=120.0, help="seconds rendered per preset")
     ap.add_argument("--max-duration", type=float, default=180.0)
     ap.add_argument("--methods", default="edgelets,gradient")
     ap.add_argument("--work", type=Path, default=Path("out/bench_calib"))
     ap.add_argument("--boxes", action="store_true", help="render cuboid vehicles (faster)")
+    ap.add_argument("--replays", default="", help="BrnoCompSpeed replays: session0_center,... or all")
+    ap.add_argument("--replay-work", type=Path, default=Path("out/replays"), help="replay renders (reused)")
     ap.add_argument("--json", type=Path, default=None)
     ap.add_argument("--speed", action="store_true", help="also measure fps on 1080p frames (first preset)")
     args = ap.parse_args()
+    methods = args.methods.split(",")
     rows = []
-    for preset in args.presets.split(","):
+    for preset in [p for p in args.presets.split(",") if p]:
         scene = render(preset, args.duration, args.work / preset, args.boxes)
-        for method in args.methods.split(","):
+        for method in methods:
             row = score(scene, method, args.max_duration)
             rows.append(row)
             print(_fmt(row), flush=True)
-    for method in args.methods.split(","):
-        ok = [r for r in rows if r["method"] == method and "ratio_mean" in r]
-        n = sum(r["method"] == method for r in rows)
-        if ok:
-            means = np.array([r["ratio_mean"] for r in ok])
-            print(f"{method:9s} converged {len(ok)}/{n}  ratio error over scenes: mean {means.mean():.4f} "
-                  f"median {np.median(means):.4f}  VP1 {np.mean([r['vp1_deg'] for r in ok]):.2f} deg  "
-                  f"VP2 {np.mean([r['vp2_deg'] for r in ok]):.2f} deg  focal {np.mean([r['focal_err'] for r in ok]):.3f}")
-        else:
-            print(f"{method:9s} converged 0/{n}")
+    _summary([r for r in rows if "render_mean" not in r], methods, "synth presets")
+    if args.replays:
+        sb = _scale_bench()
+        names = list(sb.REPLAY_STARTS) if args.replays == "all" else args.replays.split(",")
+        replay_rows = []
+        for name in names:
+            scene = sb.render_replay(name, args.replay_work)
+            for method in methods:
+                row = score_replay(scene, method, args.max_duration)
+                replay_rows.append(row)
+                print(_fmt(row), flush=True)
+        _summary(replay_rows, methods, "replays, vs recording", "ratio_mean")
+        _summary(replay_rows, methods, "replays, vs rendering camera", "vs_render_mean")
+        own = [r["render_mean"] for r in replay_rows if r["method"] == methods[0]]
+        print(f"rendering cameras vs recordings: mean {np.mean(own):.4f} median {np.median(own):.4f}")
+        rows += replay_rows
     if args.speed:
         first = args.work / args.presets.split(",")[0]
         print(f"VPCalibrator on 1920x1080 grey frames: {speed_1080p(first):.0f} fps (decoding excluded)")
     if args.json:
-        args.json.write_text(json.dumps(rows, indent=1))
+        args.json.write_text(json.dumps([{k: v for k, v in r.items() if not k.startswith("_")} for r in rows],
+                                        indent=1))
+
+
+def _summary(rows: list[dict], methods: list[str], label: str, key: str = "ratio_mean") -> None:
+    for method in methods:
+        ok = [r for r in rows if r["method"] == method and key in r]
+        n = sum(r["method"] == method for r in rows)
+        if not n:
+            continue
+        if ok:
+            means = np.array([r[key] for r in ok])
+            print(f"{label}: {method:9s} converged {len(ok)}/{n}  ratio error over scenes: mean {means.mean():.4f} "
+                  f"median {np.median(means):.4f}  VP1 {np.mean([r['vp1_deg'] for r in ok]):.2f} deg  "
+                  f"VP2 {np.mean([r['vp2_deg'] for r in ok]):.2f} deg  focal {np.mean([r['focal_err'] for r in ok]):.3f}")
+        else:
+            print(f"{label}: {method:9s} converged 0/{n}")
 
 
 def _fmt(r: dict) -> str:
     if "ratio_mean" not in r:
         return f"{r['scene']:18s} {r['method']:9s} {r['state']:7s} {r['reason']}  ({r['fps']:.0f} fps)"
-    return (f"{r['scene']:18s} {r['method']:9s} VP1 {r['vp1_deg']:6.2f} deg  VP2 {r['vp2_deg']:6.2f} deg  "
+    text = (f"{r['scene']:18s} {r['method']:9s} VP1 {r['vp1_deg']:6.2f} deg  VP2 {r['vp2_deg']:6.2f} deg  "
             f"focal {r['focal_err']:6.3f}  ratio mean {r['ratio_mean']:.4f} median {r['ratio_median']:.4f}  "
             f"after {r['seconds']:5.1f} s  {r['fps']:5.0f} fps")
+    if "vs_render_mean" in r:
+        text += (f"  | vs render cam {r['vs_render_mean']:.4f} / {r['vs_render_median']:.4f}"
+                 f"  (render cam {r['render_mean']:.4f} / {r['render_median']:.4f})")
+    return text
 
 
 if __name__ == "__main__":
