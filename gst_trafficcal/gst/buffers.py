@@ -74,14 +74,44 @@ def video_info_from_caps(caps: Gst.Caps | str) -> GstVideo.VideoInfo:
     return info
 
 
+@dataclass(frozen=True)
+class _InfoFacts:
+    """What the frame accessors read from a VideoInfo: reading it through PyGObject costs tens of microseconds
+    per field, which every element paid several times per frame (profiled: ~1 ms per 1080p frame in the chain)."""
+
+    info: GstVideo.VideoInfo  # kept so that the id() key cannot be reused by another object
+    format: str
+    format_id: int
+    size: tuple[int, int]
+    offsets: tuple[int, ...]
+    strides: tuple[int, ...]
+
+
+_FACTS: dict[int, _InfoFacts] = {}
+
+
+def _facts(info: GstVideo.VideoInfo) -> _InfoFacts:
+    """The cached :class:`_InfoFacts` of ``info`` (VideoInfo objects are not changed after negotiation here)."""
+    f = _FACTS.get(id(info))
+    if f is not None and f.info is info:
+        return f
+    if len(_FACTS) > 64:  # one per negotiated caps and element; old ones are dropped
+        _FACTS.clear()
+    fid = info.finfo.format
+    f = _FACTS[id(info)] = _InfoFacts(info, GstVideo.VideoFormat.to_string(fid), int(fid),
+                                      (int(info.width), int(info.height)),
+                                      tuple(int(v) for v in info.offset), tuple(int(v) for v in info.stride))
+    return f
+
+
 def format_name(info: GstVideo.VideoInfo) -> str:
     """Format name of ``info`` such as ``"I420"``."""
-    return GstVideo.VideoFormat.to_string(info.finfo.format)
+    return _facts(info).format
 
 
 def frame_size(info: GstVideo.VideoInfo) -> tuple[int, int]:
     """(width, height) in pixels."""
-    return int(info.width), int(info.height)
+    return _facts(info).size
 
 
 @dataclass(frozen=True)
@@ -97,14 +127,15 @@ class PlaneLayout:
 
 def plane_layouts(buffer: Gst.Buffer, info: GstVideo.VideoInfo) -> list[PlaneLayout]:
     """Plane layouts of ``buffer``: from its GstVideoMeta when present, else from ``info``."""
-    fmt = format_name(info)
+    facts = _facts(info)
+    fmt = facts.format
     if fmt not in _PLANES:
         raise ValueError(f"unsupported video format {fmt!r} (supported: {', '.join(SUPPORTED_FORMATS)})")
-    width, height = frame_size(info)
-    offsets, strides = list(info.offset), list(info.stride)
+    width, height = facts.size
+    offsets, strides = facts.offsets, facts.strides
     vmeta = GstVideo.buffer_get_video_meta(buffer)
     if vmeta is not None:
-        if (vmeta.width, vmeta.height) != (width, height) or vmeta.format != info.finfo.format:
+        if (vmeta.width, vmeta.height) != (width, height) or int(vmeta.format) != facts.format_id:
             raise ValueError(
                 f"buffer video meta {vmeta.width}x{vmeta.height} does not match caps {width}x{height} {fmt}"
             )
@@ -191,12 +222,18 @@ def frame_gray(buffer: Gst.Buffer, info: GstVideo.VideoInfo) -> Iterator[np.ndar
     ``with`` block only); for BGR/RGB/BGRx a converted copy (ITU-R 601 luma, as cv2).
     """
     fmt = format_name(info)
+    if fmt in ("GRAY8", "I420", "NV12"):  # the luma plane only (no views of the chroma planes)
+        layout = plane_layouts(buffer, info)[0]
+        with _mapped(buffer, False) as data:
+            gray = _plane_view(data, layout)
+            try:
+                yield gray
+            finally:
+                del gray
+        return
     with frame_planes(buffer, info) as planes:
-        if fmt in ("GRAY8", "I420", "NV12"):
-            gray = planes[0]
-        else:
-            code = {"BGR": cv2.COLOR_BGR2GRAY, "RGB": cv2.COLOR_RGB2GRAY, "BGRx": cv2.COLOR_BGRA2GRAY}[fmt]
-            gray = cv2.cvtColor(planes[0], code)
+        code = {"BGR": cv2.COLOR_BGR2GRAY, "RGB": cv2.COLOR_RGB2GRAY, "BGRx": cv2.COLOR_BGRA2GRAY}[fmt]
+        gray = cv2.cvtColor(planes[0], code)
         try:
             yield gray
         finally:
