@@ -2,7 +2,8 @@
 
 The pipeline is the product's own chain (what ``gst-launch-1.0`` runs, so the numbers are the same)::
 
-    filesrc ! decodebin ! videoconvert ! I420 ! vpdetect ! vehicledetect ! tracker [! bbscale] ! speedometer
+    filesrc ! decodebin ! videoconvert ! I420 ! queue ! vpdetect ! vehicledetect ! queue ! tracker [! bbscale]
+      ! speedometer
       [! trafficoverlay ! x264enc ! mp4mux ! filesink overlay.mp4]
 
 run in-process by :mod:`gst_trafficcal.gst.runner` (progress from the pipeline's position and duration).
@@ -47,13 +48,21 @@ class RunPaths:
     evaluation = property(lambda self: self.out / "evaluation.json")
 
 
+QUEUE = "queue max-size-buffers=4 max-size-bytes=0 max-size-time=0"
+
+
 def pipeline_description(video: Path, paths: RunPaths, calibration: Path | None = None, detector: Path | None = None,
-                         overlay: bool = True, bbscale: bool = False) -> str:
-    """The gst-launch description ``trafficcal run`` plays (also printed, so it can be re-run by hand)."""
+                         overlay: bool = True, bbscale: bool = False, queues: bool = True) -> str:
+    """The gst-launch description ``trafficcal run`` plays (also printed, so it can be re-run by hand).
+
+    With ``queues`` two ``queue`` elements split the chain into three streaming threads (decoding; vpdetect and
+    vehicledetect; tracker onwards), so the stages run on more than one core; the numbers do not change (every
+    element still sees every buffer and the calibration events in stream order).
+    """
     vp = f"vpdetect mode=fixed calibration-file={quote(calibration)}" if calibration else "vpdetect"
     det = f"vehicledetect model={quote(detector)}" if detector else "vehicledetect"
-    chain = [f"filesrc location={quote(video)}", "decodebin", "videoconvert", "video/x-raw,format=I420", vp, det,
-             "tracker"]
+    chain = [f"filesrc location={quote(video)}", "decodebin", "videoconvert", "video/x-raw,format=I420",
+             *([QUEUE] if queues else []), vp, det, *([QUEUE] if queues else []), "tracker"]
     if bbscale:
         chain.append("bbscale")
     chain.append(f"speedometer events-file={quote(paths.events)} csv-file={quote(paths.csv)} "

@@ -1,0 +1,467 @@
+"""End-to-end benchmark of the product: ``trafficcal run`` on synthetic scenes and BrnoCompSpeed replays, scored
+with the BrnoCompSpeed evaluator (the same code as ``trafficcal eval``).
+
+Modes (``--modes``):
+
+* ``auto`` — fully automatic, nothing from the ground truth: ``trafficcal run VIDEO --no-overlay``, i.e.
+  ``vpdetect ! vehicledetect ! tracker ! bbscale ! speedometer``.  A scene whose vanishing points or scale did not
+  converge is reported as such; its vehicles are unmeasured and count as missed in the pooled recall.
+* ``manual`` — the same chain with the paper's ManualCalib + ManualScale calibration (``trafficcal
+  calibrate-manual`` from the ground-truth markings, given as ``--calibration``): separates the tracking/speed
+  error from the calibration error.  On replays this is the rendering camera itself.
+
+Per scene and mode: mean / median / 95th / 99th percentile absolute speed error of matched valid cars
+(BrnoCompSpeed median mode), recall, false positives, the calibration's distance-ratio error (mean relative, as
+``benchmarks/calibration.py``), its scale error against the scene's camera (true camera for synth, rendering
+camera for replays), wall-clock and CPU-time frames per second.  Prints a markdown table against the paper's
+numbers and writes JSON.
+
+Scenes: synth presets rendered into ``--syn-work/<preset>`` (``trafficcal synth --preset P --duration D``; the
+calibration benchmark's /tmp/syn renders are reused); replays of sessions 0–3 from ``--replays/<session>_<view>``
+(the lead's /tmp/replays), rendered into ``--work/replays`` by the same recipe when absent (``trafficcal
+calibrate-manual`` then ``trafficcal synth --scenario`` with a ``replay:`` block, docs/synth.md).
+
+``--throughput VIDEO``: only the throughput measurement on one 1920x1080 H.264 video: decode-only pipelines
+(``filesrc ! decodebin ! fakesink``, and with ``videoconvert`` to I420) and the product chain, each run by
+``gst-launch-1.0`` in the same invocation; prints wall and CPU-time fps and the chain/decode ratio.
+
+    nice -n 10 .venv/bin/python benchmarks/end_to_end.py --json /tmp/e2e_bench/end_to_end.json
+    nice -n 10 .venv/bin/python benchmarks/end_to_end.py --throughput /tmp/replays/session0_center/video.mp4
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+import time
+from collections import Counter
+from concurrent.futures import ProcessPoolExecutor
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+TRAFFICCAL = [sys.executable, "-m", "gst_trafficcal"]
+BRNO = ROOT.parent / "shared" / "data" / "brnocompspeed"
+SYNTH_PRESETS = "highway_day,right_side_oneway,high_camera,vp2_far"
+# busiest window of each recording (start in seconds, vehicles in it), as chosen for /tmp/replays/starts.txt
+REPLAY_STARTS = {
+    "session0_center": 20.0, "session0_left": 75.0, "session0_right": 20.0,
+    "session1_center": 1060.1, "session1_left": 1013.9, "session1_right": 1060.6,
+    "session2_center": 3029.5, "session2_left": 3013.4, "session2_right": 3020.2,
+    "session3_center": 356.3, "session3_left": 389.4, "session3_right": 422.3,
+}
+# the paper (Sochor et al. 2017, Tables 4 and 6) on the real BrnoCompSpeed videos; it reports the 99th percentile
+PAPER = {"auto": {"mean": 1.10, "median": 0.97, "p99": 3.05, "recall": 0.863, "ratio": 0.09},
+         "manual": {"mean": 1.35, "median": 0.95, "p99": 4.84}}
+
+
+@dataclass
+class Scene:
+    name: str
+    kind: str  # "synth" | "replay"
+    folder: Path  # video.mp4, gt_data.pkl, calibration.json (true / rendering camera)
+
+
+@dataclass
+class Row:
+    scene: str
+    kind: str
+    mode: str
+    frames: int = 0
+    seconds: float = 0.0  # of video
+    wall_s: float = 0.0
+    cpu_s: float = 0.0
+    state: str = ""  # the calibration the run ended with: state (source)
+    has_vps: bool = False
+    has_scale: bool = False
+    ratio_err: float | None = None  # mean relative distance-ratio error of the run's calibration (gt segments)
+    ratio_err_scene: float | None = None  # same, the segments' lengths as the scene's camera measures them
+    reference_ratio_err: float | None = None  # same for the scene's true / rendering camera
+    scale_err_pct: float | None = None  # λ / λ_scene − 1
+    vehicles: int = 0
+    measured: int = 0
+    unmeasured: dict[str, int] = field(default_factory=dict)
+    errors_kmh: list[float] = field(default_factory=list)  # matched valid cars
+    truth_errors_kmh: list[float] = field(default_factory=list)  # signed, every measured vehicle vs the rendering
+    recall: float | None = None
+    false_positives: int | None = None
+    matched_valid: int = 0
+    gt_valid: int = 0
+    failure: str = ""
+
+    def stat(self, what: str) -> float | None:
+        return _stat(np.asarray(self.errors_kmh), what)
+
+
+def _stat(e: np.ndarray, what: str) -> float | None:
+    if not e.size:
+        return None
+    return float({"mean": np.mean, "median": np.median}.get(what, lambda x: np.percentile(x, float(what[1:])))(e))
+
+
+# --------------------------------------------------------------------------- scenes
+
+
+def _run(cmd: list, **kw) -> subprocess.CompletedProcess:
+    return subprocess.run([str(c) for c in cmd], capture_output=True, text=True, **kw)
+
+
+def synth_scene(preset: str, syn_work: Path, duration: float) -> Scene:
+    out = syn_work / preset
+    if not (out / "video.mp4").is_file() or not (out / "gt_data.pkl").is_file():
+        proc = _run([*TRAFFICCAL, "synth", "--preset", preset, "--duration", duration, "--out", out,
+                     "--no-progress"])
+        if proc.returncode:
+            raise SystemExit(f"rendering {preset} failed: {proc.stderr[-800:]}")
+    return Scene(preset, "synth", out)
+
+
+def replay_scene(name: str, replays: Path, work: Path) -> Scene | None:
+    """The lead's render in ``replays`` when complete, else rendered into ``work/replays`` (same recipe)."""
+    for folder in (replays / name, work / "replays" / name):
+        if (folder / "video.mp4").is_file() and (folder / "gt_data.pkl").is_file():
+            return Scene(name, "replay", folder)
+    gt = BRNO / name / "gt_data.pkl"
+    if not gt.is_file():
+        print(f"skipping {name}: {gt} is absent", file=sys.stderr)
+        return None
+    out = work / "replays" / name
+    cfg = work / "replays" / "cfg"
+    cfg.mkdir(parents=True, exist_ok=True)
+    proc = _run([*TRAFFICCAL, "calibrate-manual", "--gt", gt, "-o", cfg / f"cal_{name}.json"])
+    if proc.returncode:
+        raise SystemExit(f"calibrate-manual {name} failed: {proc.stderr[-800:]}")
+    duration = 120 if name.startswith("session3") else 60  # session 3 is sparse
+    (cfg / f"{name}.yaml").write_text(
+        f"duration: {duration}\nimaging: {{fps: 25}}\nlighting: {{preset: overcast}}\nreplay:\n"
+        f"  gt_data: {gt}\n  calibration: cal_{name}.json\n  start: {REPLAY_STARTS[name]}\n")
+    tmp = out.with_name(name + ".tmp")
+    proc = _run([*TRAFFICCAL, "synth", "--scenario", cfg / f"{name}.yaml", "--out", tmp, "--no-progress"])
+    if proc.returncode:
+        raise SystemExit(f"rendering replay {name} failed: {proc.stderr[-800:]}")
+    tmp.rename(out)
+    return Scene(name, "replay", out)
+
+
+# --------------------------------------------------------------------------- one run
+
+
+def timed(cmd: list, env: dict | None = None) -> tuple[int, str, float, float]:
+    """(return code, stderr tail, wall seconds, CPU seconds user+system of the process and its children)."""
+    t0 = time.perf_counter()
+    with open(os.devnull, "wb") as devnull:
+        proc = subprocess.Popen([str(c) for c in cmd], stdout=devnull, stderr=subprocess.PIPE, env=env)
+        err = proc.stderr.read().decode("utf-8", "replace")
+        _, status, usage = os.wait4(proc.pid, 0)
+    proc.returncode = os.waitstatus_to_exitcode(status)
+    return proc.returncode, err[-1500:], time.perf_counter() - t0, usage.ru_utime + usage.ru_stime
+
+
+def frame_count(video: Path) -> int:
+    import cv2
+
+    cap = cv2.VideoCapture(str(video))
+    try:
+        return int(cap.get(cv2.CAP_PROP_FRAME_COUNT))
+    finally:
+        cap.release()
+
+
+def run_scene(scene: Scene, mode: str, work: Path, fresh: bool = False) -> Row:
+    """``trafficcal run`` on one scene in one mode (unless an earlier run's outputs are there and not ``fresh``:
+    its ``run.json`` keeps the timing), scored against the scene's gt_data.pkl."""
+    from gst_trafficcal.brnocompspeed import load_gt_data, load_results
+    from gst_trafficcal.calibration import load_calibration
+    from gst_trafficcal.errors import InputError
+    from gst_trafficcal.evaluation import evaluate_calibration, evaluate_speeds, prepare_tracks
+    from gst_trafficcal.outputs import read_events
+
+    out = work / scene.name / mode
+    out.mkdir(parents=True, exist_ok=True)
+    row = Row(scene.name, scene.kind, mode, frames=frame_count(scene.folder / "video.mp4"))
+    reference = load_calibration(scene.folder / "calibration.json")
+    size = reference.image_size
+    done = out / "run.json"
+    if fresh or not done.is_file():
+        done.unlink(missing_ok=True)
+        cmd = [*TRAFFICCAL, "run", scene.folder / "video.mp4", "--out", out, "--no-overlay"]
+        if mode == "manual":
+            cal_path = out.parent / "manual_calibration.json"
+            proc = _run([*TRAFFICCAL, "calibrate-manual", "--gt", scene.folder / "gt_data.pkl", "--image-size",
+                         f"{size[0]}x{size[1]}", "-o", cal_path])
+            if proc.returncode:
+                row.failure = f"calibrate-manual: {proc.stderr.strip().splitlines()[-1:]}"
+                return row
+            cmd += ["--calibration", cal_path]
+        rc, err, wall, cpu = timed(cmd)
+        failure = "" if not rc else (" ".join(ln for ln in err.splitlines() if ln.startswith("trafficcal:"))[-400:]
+                                     or err[-400:])
+        done.write_text(json.dumps({"wall_s": wall, "cpu_s": cpu, "failure": failure}) + "\n")
+    timing = json.loads(done.read_text())
+    row.wall_s, row.cpu_s, row.failure = timing["wall_s"], timing["cpu_s"], timing["failure"]
+    gt = load_gt_data(scene.folder / "gt_data.pkl")
+    row.gt_valid = sum(c.valid for c in gt.cars)
+    row.seconds = row.frames / gt.fps
+    row.reference_ratio_err = evaluate_calibration(gt, reference.camera).ratio_rel_pct.mean / 100
+    try:
+        events = read_events(out / "vehicles.jsonl").events
+    except InputError:
+        events = []
+    row.vehicles, row.measured = len(events), sum(e.measured for e in events)
+    row.unmeasured = dict(Counter(e.reason for e in events if not e.measured).most_common())
+    cal_file = out / "calibration.json"
+    cal = load_calibration(cal_file) if cal_file.is_file() else None
+    if cal is None:
+        row.state = "none"
+        return row
+    row.state = f"{cal.state} ({cal.source})"
+    cam = cal.camera
+    row.has_vps = cam is not None
+    row.has_scale = cam is not None and cam.scale is not None
+    if cam is None:
+        return row
+    row.ratio_err = evaluate_calibration(gt, cam).ratio_rel_pct.mean / 100
+    row.ratio_err_scene = evaluate_calibration(as_measured_by(gt, reference.camera), cam).ratio_rel_pct.mean / 100
+    if not row.has_scale or not (out / "system.json").is_file():
+        return row
+    if reference.camera.scale:
+        row.scale_err_pct = 100 * (cam.scale / reference.camera.scale - 1)
+    prepared = prepare_tracks(load_results(out / "system.json"), gt, width=size[0], height=size[1])
+    row.truth_errors_kmh = truth_errors(scene.folder / "frames.jsonl", events, out / "system.json", size)
+    sp = evaluate_speeds(gt, prepared, cam)
+    row.errors_kmh = [float(v) for v in sp.errors_abs_kmh]
+    row.recall, row.false_positives, row.matched_valid = sp.recall, sp.false_positives, sp.matched_valid
+    return row
+
+
+def as_measured_by(gt, camera):
+    """``gt`` with each segment's length as ``camera`` measures it: on replays the segments are the recording's
+    real measurements, which even the rendering camera misses by ~0.025 in distance ratio; against these the
+    error is the one towards the camera that rendered the video."""
+    from dataclasses import replace
+
+    plane = camera.plane_distance(gt.distances_p1, gt.distances_p2)
+    return replace(gt, distances=tuple(replace(d, distance=float(v)) for d, v in zip(gt.distances, plane)))
+
+
+def truth_errors(frames_jsonl: Path, events: list, results_json: Path, size: tuple[int, int]) -> list[float]:
+    """Signed speed error of every measured vehicle against the rendered vehicle its reference points follow.
+
+    The renders' per-frame truth (frames.jsonl: reference point and speed of each vehicle) scores every measured
+    vehicle, not only those BrnoCompSpeed's matching keeps (a car must be tracked between its measurement lines,
+    which on the synth presets lie far down the road). A vehicle counts as following a rendered one when the
+    median distance between their reference points over the frames they share is below 5 % of the image width
+    and they share at least half of the track's frames; unmatched measured vehicles are left out (counted as
+    false positives by the evaluator instead).
+    """
+    from gst_trafficcal.brnocompspeed import load_results
+    from gst_trafficcal.synth.groundtruth import read_jsonl
+
+    if not frames_jsonl.is_file():
+        return []
+    truth: dict[int, dict[int, tuple[float, float, float]]] = {}
+    for r in read_jsonl(frames_jsonl):
+        truth.setdefault(int(r["id"]), {})[int(r["frame"])] = (*r["ref"], float(r["speed_kmh"]))
+    tracks = {t.id: t for t in load_results(results_json).cars}
+    out = []
+    for e in events:
+        tr = tracks.get(e.id)
+        if not e.measured or tr is None:
+            continue
+        frames = np.round(tr.frames).astype(int)
+        best = (0.05 * size[0], None)
+        for recs in truth.values():
+            common = [(k, f) for k, f in enumerate(frames) if f in recs]
+            if len(common) < max(2, len(frames) // 2):
+                continue
+            ref = np.array([recs[f] for _, f in common])
+            d = float(np.median(np.hypot(*(ref[:, :2] - tr.pos[[k for k, _ in common]]).T)))
+            if d < best[0]:
+                best = (d, float(np.median(ref[:, 2])))
+        if best[1] is not None:
+            out.append(e.speed_kmh - best[1])
+    return out
+
+
+# --------------------------------------------------------------------------- tables
+
+
+def _f(v, fmt: str = ".2f") -> str:
+    return "–" if v is None or v != v else format(v, fmt)
+
+
+def scene_table(rows: list[Row]) -> str:
+    lines = ["| scene | mode | calibration | ratio err vs segments / vs scene camera (scene camera's) | λ err % | vehicles (measured) | "
+             "mean / median / p95 km/h | recall | FP | every measured vehicle: n, mean / p95 km/h | fps wall / CPU |",
+             "|---|---|---|---|---|---|---|---|---|---|---|"]
+    for r in rows:
+        if r.failure and not r.vehicles:
+            cal = f"run failed: {r.failure}"
+        elif not r.has_vps:
+            cal = "no VPs: " + r.state
+        elif not r.has_scale:
+            cal = "no scale: " + r.state
+        else:
+            cal = r.state
+        lines.append(
+            f"| {r.scene} | {r.mode} | {cal} | {_f(r.ratio_err, '.3f')} / {_f(r.ratio_err_scene, '.3f')} "
+            f"({_f(r.reference_ratio_err, '.3f')}) | "
+            f"{_f(r.scale_err_pct, '+.1f')} | {r.vehicles} ({r.measured}) | {_f(r.stat('mean'))} / "
+            f"{_f(r.stat('median'))} / {_f(r.stat('p95'))} | {_f(r.recall, '.3f')} "
+            f"({r.matched_valid}/{r.gt_valid}) | {_f(r.false_positives, 'd')} | {len(r.truth_errors_kmh)}, "
+            f"{_f(_stat(np.abs(r.truth_errors_kmh), 'mean'))} / {_f(_stat(np.abs(r.truth_errors_kmh), 'p95'))} | "
+            f"{_f(r.frames / r.wall_s if r.wall_s else None, '.1f')} / {_f(r.frames / r.cpu_s if r.cpu_s else None, '.1f')} |")
+    return "\n".join(lines)
+
+
+def pooled(rows: list[Row]) -> dict:
+    """Over all scenes of a group: errors pooled over matched cars; recall counts scenes without a scale as
+    missing every car; fps over all frames."""
+    e = np.concatenate([np.asarray(r.errors_kmh) for r in rows]) if rows else np.zeros(0)
+    te = np.abs(np.concatenate([np.asarray(r.truth_errors_kmh) for r in rows])) if rows else np.zeros(0)
+    gt_valid = sum(r.gt_valid for r in rows)
+    conv = [r for r in rows if r.has_scale]
+    frames = sum(r.frames for r in rows)
+    ratios = [r.ratio_err for r in rows if r.ratio_err is not None]
+    return {"scenes": len(rows), "with_scale": len(conv), "with_vps": sum(r.has_vps for r in rows),
+            "cars": int(e.size), **{k: _stat(e, k) for k in ("mean", "median", "p95", "p99")},
+            "truth": {"vehicles": int(te.size), **{k: _stat(te, k) for k in ("mean", "median", "p95")}},
+            "recall": sum(r.matched_valid for r in rows) / gt_valid if gt_valid else None,
+            "recall_converged": (sum(r.matched_valid for r in conv) / max(1, sum(r.gt_valid for r in conv))
+                                 if conv else None),
+            "false_positives": sum(r.false_positives or 0 for r in rows),
+            "fp_per_min": (sum(r.false_positives or 0 for r in conv) / (sum(r.seconds for r in conv) / 60)
+                           if conv and sum(r.seconds for r in conv) else None),
+            "ratio_err_mean": float(np.mean(ratios)) if ratios else None,
+            "fps_wall": frames / sum(r.wall_s for r in rows) if rows and sum(r.wall_s for r in rows) else None,
+            "fps_cpu": frames / sum(r.cpu_s for r in rows) if rows and sum(r.cpu_s for r in rows) else None}
+
+
+def summary_table(rows: list[Row]) -> tuple[str, dict]:
+    lines = ["| scenes | mode | with VPs / scale | cars | mean | median | p95 | p99 km/h | recall (converged) | FP | "
+             "ratio err | every measured vehicle: n, mean / p95 km/h | fps wall / CPU |",
+             "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
+    out = {}
+    for kind in ("synth", "replay"):
+        for mode in ("auto", "manual"):
+            sel = [r for r in rows if r.kind == kind and r.mode == mode]
+            if not sel:
+                continue
+            p = out[f"{kind}/{mode}"] = pooled(sel)
+            lines.append(f"| {kind} ({p['scenes']}) | {mode} | {p['with_vps']} / {p['with_scale']} | {p['cars']} | "
+                         f"{_f(p['mean'])} | {_f(p['median'])} | {_f(p['p95'])} | {_f(p['p99'])} | "
+                         f"{_f(p['recall'], '.3f')} ({_f(p['recall_converged'], '.3f')}) | {p['false_positives']} "
+                         f"({_f(p['fp_per_min'], '.2f')}/min) | "
+                         f"{_f(p['ratio_err_mean'], '.3f')} | {p['truth']['vehicles']}, {_f(p['truth']['mean'])} / "
+                         f"{_f(p['truth']['p95'])} | {_f(p['fps_wall'], '.1f')} / {_f(p['fps_cpu'], '.1f')} |")
+    a, m = PAPER["auto"], PAPER["manual"]
+    lines.append(f"| paper, real BrnoCompSpeed | auto (EdgeLetsCalib + BBScaleReg) | | | {a['mean']:.2f} | "
+                 f"{a['median']:.2f} | – | {a['p99']:.2f} | {a['recall']:.3f} | 1.91/min | {a['ratio']:.2f} | | |")
+    lines.append(f"| paper, real BrnoCompSpeed | manual (ManualCalib + ManualScale) | | | {m['mean']:.2f} | "
+                 f"{m['median']:.2f} | – | {m['p99']:.2f} | | | | | |")
+    return "\n".join(lines), out
+
+
+# --------------------------------------------------------------------------- throughput
+
+
+def throughput(video: Path, work: Path) -> dict:
+    """Decode-only and product-chain fps on ``video``, each a gst-launch-1.0 process in this invocation."""
+    from gst_trafficcal.cli.run import RunPaths, pipeline_description, quote
+    from gst_trafficcal.gst.env import elements_dir, gst_environment
+
+    env = dict(os.environ, **gst_environment())
+    frames = frame_count(video)
+    out = work / "throughput"
+    out.mkdir(parents=True, exist_ok=True)
+    src = f"filesrc location={quote(video)} ! decodebin"
+    bbscale = (elements_dir() / "python" / "bbscale.py").exists()
+    pipelines = {
+        "decode": f"{src} ! fakesink",
+        "decode+videoconvert": f"{src} ! videoconvert ! video/x-raw,format=I420 ! fakesink",
+        "chain, one thread": pipeline_description(video, RunPaths(out), overlay=False, bbscale=bbscale,
+                                                  queues=False),
+        "chain": pipeline_description(video, RunPaths(out), overlay=False, bbscale=bbscale),
+    }
+    res = {"video": str(video), "frames": frames, "pipelines": {}}
+    for name, desc in pipelines.items():
+        rc, err, wall, cpu = timed(["gst-launch-1.0", "-q", *_split(desc)], env=env)
+        if rc:
+            raise SystemExit(f"{name} failed: {err}")
+        res["pipelines"][name] = {"description": desc, "wall_s": wall, "cpu_s": cpu, "fps_wall": frames / wall,
+                                  "fps_cpu": frames / cpu}
+        print(f"{name:20s} {frames / wall:7.1f} fps wall ({wall:.1f} s)  {frames / cpu:7.1f} fps per CPU-second "
+              f"({cpu:.1f} s CPU)", flush=True)
+    p = res["pipelines"]
+    res["ratio_wall"] = p["chain"]["fps_wall"] / p["decode+videoconvert"]["fps_wall"]
+    res["ratio_cpu"] = p["chain"]["fps_cpu"] / p["decode+videoconvert"]["fps_cpu"]
+    print(f"chain / decode+videoconvert: {res['ratio_wall']:.3f} wall, {res['ratio_cpu']:.3f} CPU; "
+          f"target: >= 25 fps end to end ({'met' if p['chain']['fps_wall'] >= 25 else 'not met'} "
+          f"at {p['chain']['fps_wall']:.1f} fps wall)")
+    return res
+
+
+def _split(desc: str) -> list[str]:
+    import shlex
+
+    return shlex.split(desc)
+
+
+# --------------------------------------------------------------------------- main
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--work", type=Path, default=Path("/tmp/e2e_bench"), help="run outputs (and replays rendered here)")
+    ap.add_argument("--syn-work", type=Path, default=Path("/tmp/syn"), help="synth renders, one folder per preset")
+    ap.add_argument("--replays", type=Path, default=Path("/tmp/replays"), help="pre-rendered replays, if any")
+    ap.add_argument("--synth", default=SYNTH_PRESETS, help="comma-separated presets ('' for none)")
+    ap.add_argument("--scene", type=Path, action="append", default=[],
+                    help="an extra rendered synth folder (video.mp4, gt_data.pkl, calibration.json), e.g. the "
+                         "demo's out/demo/scene; repeatable")
+    ap.add_argument("--duration", type=float, default=60.0, help="seconds of a synth render made here")
+    ap.add_argument("--replay", default="all", help="comma-separated session<S>_<view> names, 'all' or ''")
+    ap.add_argument("--modes", default="auto,manual")
+    ap.add_argument("--jobs", type=int, default=1, help="scenes run at the same time")
+    ap.add_argument("--fresh", action="store_true", help="re-run scenes already run into --work (default: re-score their outputs)")
+    ap.add_argument("--json", type=Path, default=None, help="write every row and the pooled figures here")
+    ap.add_argument("--throughput", type=Path, default=None, metavar="VIDEO",
+                    help="only measure decode-only vs chain fps on this video")
+    a = ap.parse_args()
+    a.work.mkdir(parents=True, exist_ok=True)
+    if a.throughput is not None:
+        res = throughput(a.throughput, a.work)
+        if a.json:
+            a.json.write_text(json.dumps(res, indent=2) + "\n")
+        return
+    scenes = [synth_scene(p, a.syn_work, a.duration) for p in a.synth.split(",") if p]
+    scenes += [Scene(f"{d.parent.name}/{d.name}", "synth", d) for d in a.scene]
+    names = list(REPLAY_STARTS) if a.replay == "all" else [n for n in a.replay.split(",") if n]
+    scenes += [s for s in (replay_scene(n, a.replays, a.work) for n in names) if s is not None]
+    jobs = [(scene, mode) for scene in scenes for mode in a.modes.split(",") if mode]
+    rows = []
+    with ProcessPoolExecutor(a.jobs) as pool:
+        for row in pool.map(run_scene, *zip(*jobs), [a.work] * len(jobs), [a.fresh] * len(jobs)):
+            rows.append(row)
+            print(f"{row.scene} {row.mode}: {row.vehicles} vehicles, {row.measured} measured, mean error "
+                  f"{_f(row.stat('mean'))} km/h, recall {_f(row.recall, '.3f')}, calibration {row.state}"
+                  f"{', ' + row.failure if row.failure else ''}", flush=True)
+            if a.json:  # partial results survive an interrupted run
+                a.json.write_text(json.dumps({"rows": [asdict(r) for r in rows]}, indent=2, default=str) + "\n")
+    print(scene_table(rows))
+    table, pooled_figs = summary_table(rows)
+    print()
+    print(table)
+    if a.json:
+        a.json.parent.mkdir(parents=True, exist_ok=True)
+        a.json.write_text(json.dumps({"command": " ".join(sys.argv), "rows": [asdict(r) for r in rows],
+                                      "pooled": pooled_figs, "paper": PAPER}, indent=2, default=str) + "\n")
+
+
+if __name__ == "__main__":
+    main()
