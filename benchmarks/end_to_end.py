@@ -93,6 +93,7 @@ class Row:
     matched_valid: int = 0
     gt_valid: int = 0
     failure: str = ""
+    warnings: list[str] = field(default_factory=list)  # the run's warnings (e.g. why bbscale found no scale)
 
     def stat(self, what: str) -> float | None:
         return _stat(np.asarray(self.errors_kmh), what)
@@ -152,14 +153,14 @@ def replay_scene(name: str, replays: Path, work: Path) -> Scene | None:
 
 
 def timed(cmd: list, env: dict | None = None) -> tuple[int, str, float, float]:
-    """(return code, stderr tail, wall seconds, CPU seconds user+system of the process and its children)."""
+    """(return code, output (stdout and stderr), wall seconds, CPU seconds user+system of the process and its
+    children)."""
     t0 = time.perf_counter()
-    with open(os.devnull, "wb") as devnull:
-        proc = subprocess.Popen([str(c) for c in cmd], stdout=devnull, stderr=subprocess.PIPE, env=env)
-        err = proc.stderr.read().decode("utf-8", "replace")
-        _, status, usage = os.wait4(proc.pid, 0)
-    proc.returncode = os.waitstatus_to_exitcode(status)
-    return proc.returncode, err[-1500:], time.perf_counter() - t0, usage.ru_utime + usage.ru_stime
+    proc = subprocess.Popen([str(c) for c in cmd], stdout=subprocess.PIPE, stderr=subprocess.STDOUT, env=env)
+    out = proc.stdout.read().decode("utf-8", "replace")
+    _, status, usage = os.wait4(proc.pid, 0)
+    proc.stdout.close()
+    return os.waitstatus_to_exitcode(status), out, time.perf_counter() - t0, usage.ru_utime + usage.ru_stime
 
 
 def frame_count(video: Path) -> int:
@@ -198,12 +199,14 @@ def run_scene(scene: Scene, mode: str, work: Path, fresh: bool = False) -> Row:
                 row.failure = f"calibrate-manual: {proc.stderr.strip().splitlines()[-1:]}"
                 return row
             cmd += ["--calibration", cal_path]
-        rc, err, wall, cpu = timed(cmd)
+        rc, err, wall, cpu = timed(cmd, env=dict(os.environ, COLUMNS="1000"))  # warnings on one line each
         failure = "" if not rc else (" ".join(ln for ln in err.splitlines() if ln.startswith("trafficcal:"))[-400:]
                                      or err[-400:])
-        done.write_text(json.dumps({"wall_s": wall, "cpu_s": cpu, "failure": failure}) + "\n")
+        warnings = [ln.strip() for ln in err.splitlines() if "warning" in ln.lower() and "floating" not in ln]
+        done.write_text(json.dumps({"wall_s": wall, "cpu_s": cpu, "failure": failure, "warnings": warnings}) + "\n")
     timing = json.loads(done.read_text())
     row.wall_s, row.cpu_s, row.failure = timing["wall_s"], timing["cpu_s"], timing["failure"]
+    row.warnings = timing.get("warnings", [])
     gt = load_gt_data(scene.folder / "gt_data.pkl")
     row.gt_valid = sum(c.valid for c in gt.cars)
     row.seconds = row.frames / gt.fps
@@ -295,6 +298,12 @@ def _f(v, fmt: str = ".2f") -> str:
     return "–" if v is None or v != v else format(v, fmt)
 
 
+def _why(warnings: list[str], element: str) -> str:
+    """``; element: <its last warning>`` (why a stage did not converge), or nothing."""
+    said = [w.split(f"{element}: ", 1)[1] for w in warnings if f"{element}0: {element}: " in w]
+    return f"; {element}: {said[-1][:200]}" if said else ""
+
+
 def scene_table(rows: list[Row]) -> str:
     lines = ["| scene | mode | calibration | ratio err vs segments / vs scene camera (scene camera's) | λ err % | vehicles (measured) | "
              "mean / median / p95 km/h | recall | FP | every measured vehicle: n, mean / p95 km/h | fps wall / CPU |",
@@ -303,9 +312,9 @@ def scene_table(rows: list[Row]) -> str:
         if r.failure and not r.vehicles:
             cal = f"run failed: {r.failure}"
         elif not r.has_vps:
-            cal = "no VPs: " + r.state
+            cal = "no VPs: " + r.state + _why(r.warnings, "vpdetect")
         elif not r.has_scale:
-            cal = "no scale: " + r.state
+            cal = "no scale: " + r.state + _why(r.warnings, "bbscale")
         else:
             cal = r.state
         lines.append(
@@ -392,7 +401,7 @@ def throughput(video: Path, work: Path) -> dict:
     for name, desc in pipelines.items():
         rc, err, wall, cpu = timed(["gst-launch-1.0", "-q", *_split(desc)], env=env)
         if rc:
-            raise SystemExit(f"{name} failed: {err}")
+            raise SystemExit(f"{name} failed: {err[-1500:]}")
         res["pipelines"][name] = {"description": desc, "wall_s": wall, "cpu_s": cpu, "fps_wall": frames / wall,
                                   "fps_cpu": frames / cpu}
         print(f"{name:20s} {frames / wall:7.1f} fps wall ({wall:.1f} s)  {frames / cpu:7.1f} fps per CPU-second "
