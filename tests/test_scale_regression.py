@@ -59,3 +59,35 @@ def test_bad_files_give_one_line_errors_naming_them(tmp_path, content, message):
 
 def test_identity_by_default():
     assert ScaleRegression().apply(7.3) == pytest.approx(7.3)
+
+
+SHARED_GT = __import__("pathlib").Path(__file__).resolve().parents[2] / "shared" / "data" / "brnocompspeed" / \
+    "session0_center" / "gt_data.pkl"
+
+
+def test_fit_scale_truth_is_the_rendering_camera_then_manualscale(tmp_path):
+    """A replay's true λ is its rendering camera's (calibration.json); without a scale there, the ManualScale of
+    the recording's measured distances with the calibration's VPs, which is what `calibrate-manual` wrote."""
+    import shutil
+    import subprocess
+    from pathlib import Path
+
+    from gst_trafficcal.calibration import load_calibration, save_calibration
+    from gst_trafficcal.cli.fit_scale import true_scale
+
+    if not SHARED_GT.is_file():
+        pytest.skip("../shared BrnoCompSpeed data not present")
+    root = Path(__file__).resolve().parents[1]
+    out = subprocess.run([str(root / ".venv/bin/trafficcal"), "calibrate-manual", "--gt", str(SHARED_GT), "-o",
+                          str(tmp_path / "cal.json")], capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0, out.stderr
+    cal = load_calibration(tmp_path / "cal.json")
+    (tmp_path / "scenario.json").write_text(json.dumps({"replay": {"gt_data": str(SHARED_GT)}}))
+    assert true_scale(tmp_path, cal) == (cal.camera.scale, "replay camera")
+    shutil.copy(SHARED_GT, tmp_path / "gt_data.pkl")
+    lam, source = true_scale(tmp_path, cal.with_scale(None))
+    assert source == "ManualScale" and lam == pytest.approx(cal.camera.scale, rel=1e-6)
+    (tmp_path / "gt_data.pkl").unlink()
+    save_calibration(cal.with_scale(None), tmp_path / "calibration.json")
+    with pytest.raises(InputError, match="no scale and there is no replay ground truth"):
+        true_scale(tmp_path, cal.with_scale(None))

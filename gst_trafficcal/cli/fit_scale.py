@@ -2,8 +2,10 @@
 
 Each training directory is a ``trafficcal synth`` output folder (``video.mp4`` + ``calibration.json``).  BBScale
 runs on its video with the calibration's vanishing points (λ*), against the true scale: the calibration's own
-scale for a synthetic scene; for a BrnoCompSpeed replay (``scenario.json`` with ``replay``) the ManualScale of
-the recording's measured distances towards VP1 in ``gt_data.pkl`` (the paper's ground truth).
+scale — for a synthetic scene and for a BrnoCompSpeed replay alike (a replay is rendered with the camera of the
+recording's ManualCalib+ManualScale calibration, so its scale is the ManualScale of the recording); a replay
+folder whose calibration.json has no scale falls back to the ManualScale of ``gt_data.pkl``'s measured
+distances towards VP1 with the calibration's VPs.
 """
 
 from __future__ import annotations
@@ -25,6 +27,8 @@ def true_scale(folder: Path, calibration) -> tuple[float, str]:
             replay = bool(json.loads(scen.read_text(encoding="utf-8")).get("replay"))
         except (json.JSONDecodeError, UnicodeDecodeError, AttributeError):
             raise InputError(f"{scen}: not valid JSON") from None
+    if calibration.camera is not None and calibration.camera.scale is not None:
+        return float(calibration.camera.scale), "replay camera" if replay else "synth"
     if replay and (folder / "gt_data.pkl").is_file():
         from ..brnocompspeed import load_gt_data
         from ..manual_calibration import manual_scale
@@ -34,9 +38,7 @@ def true_scale(folder: Path, calibration) -> tuple[float, str]:
         if sel.any():
             return manual_scale(calibration.camera, gt.distances_p1[sel], gt.distances_p2[sel],
                                 gt.distances_m[sel]), "ManualScale"
-    if calibration.camera is None or calibration.camera.scale is None:
-        raise InputError(f"{folder}: calibration.json has no scale and there is no replay ground truth")
-    return float(calibration.camera.scale), "synth"
+    raise InputError(f"{folder}: calibration.json has no scale and there is no replay ground truth")
 
 
 @click.command(help="Fit the scale-correction regression λ_reg = α·λ* + β (paper §4.3) on training scenes "
