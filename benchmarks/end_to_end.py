@@ -415,6 +415,12 @@ def throughput(video: Path, work: Path) -> dict:
     return res
 
 
+def _git_head() -> str:
+    proc = _run(["git", "-C", ROOT, "rev-parse", "--short", "HEAD"])
+    dirty = _run(["git", "-C", ROOT, "status", "--porcelain", "--untracked-files=no"]).stdout.strip()
+    return proc.stdout.strip() + (" with uncommitted changes in the tree" if dirty else "")
+
+
 def _split(desc: str) -> list[str]:
     import shlex
 
@@ -439,6 +445,8 @@ def main() -> None:
     ap.add_argument("--jobs", type=int, default=1, help="scenes run at the same time")
     ap.add_argument("--fresh", action="store_true", help="re-run scenes already run into --work (default: re-score their outputs)")
     ap.add_argument("--json", type=Path, default=None, help="write every row and the pooled figures here")
+    ap.add_argument("--write", type=Path, default=None, help="also write the tables as markdown here, e.g. "
+                    "docs/results/end_to_end.md")
     ap.add_argument("--throughput", type=Path, default=None, metavar="VIDEO",
                     help="only measure decode-only vs chain fps on this video")
     a = ap.parse_args()
@@ -462,14 +470,29 @@ def main() -> None:
                   f"{', ' + row.failure if row.failure else ''}", flush=True)
             if a.json:  # partial results survive an interrupted run
                 a.json.write_text(json.dumps({"rows": [asdict(r) for r in rows]}, indent=2, default=str) + "\n")
-    print(scene_table(rows))
+    per_scene = scene_table(rows)
     table, pooled_figs = summary_table(rows)
-    print()
-    print(table)
+    print(per_scene + "\n\n" + table)
+    if a.write:
+        cmd = " ".join(["benchmarks/end_to_end.py", *sys.argv[1:]])
+        a.write.parent.mkdir(parents=True, exist_ok=True)
+        a.write.write_text(
+            "# End to end: `trafficcal run` on synthetic scenes and BrnoCompSpeed replays\n\n"
+            f"Command: `nice -n 10 .venv/bin/python {cmd}` (git {_git_head()}). Per scene and mode the product ran "
+            "once (`trafficcal run VIDEO --no-overlay`; manual: `--calibration` from `trafficcal calibrate-manual`); "
+            "speed errors are BrnoCompSpeed's (matched valid cars, median mode, `gst_trafficcal.evaluation` as "
+            "`trafficcal eval`); 'every measured vehicle' scores each measured vehicle against the rendered vehicle "
+            "its reference points follow (frames.jsonl). Distance-ratio error: mean relative, against the "
+            "ground-truth segments / against the same segments as the scene's camera measures them (in brackets: "
+            "the scene camera's own error against the segments; on replays the recording's real measurements). "
+            "λ err: scale against the scene camera's. fps: wall clock on the shared machine / per CPU-second. "
+            "Recall in the pooled table counts the cars of scenes without a scale as missed (in brackets: over "
+            "scenes with a scale only); the paper reports the 99th percentile, not the 95th.\n\n"
+            "## Per scene\n\n" + per_scene + "\n\n## Pooled\n\n" + table + "\n")
     if a.json:
         a.json.parent.mkdir(parents=True, exist_ok=True)
         a.json.write_text(json.dumps({"command": " ".join(sys.argv), "rows": [asdict(r) for r in rows],
-                                      "pooled": pooled_figs, "paper": PAPER}, indent=2, default=str) + "\n")
+                                      "git": _git_head(), "pooled": pooled_figs, "paper": PAPER}, indent=2, default=str) + "\n")
 
 
 if __name__ == "__main__":
