@@ -2,9 +2,10 @@
 
 :class:`VPCalibrator` is fed grey frames with their timestamps (seconds).  It analyses a subset of them at a
 reduced resolution: every frame whose time is at least ``1 / track_fps`` after the previous analysed one goes
-through the background model and the KLT tracker (VP1 evidence), and every ``1 / edgelet_fps`` seconds a frame
-is searched for edgelets (VP2 evidence); by default ``edgelet_fps`` follows a pixel budget (about three
-960x540 frames a second), so small videos are searched on more of their frames.  Finished straight tracks are voted into a Diamond Space; every
+through the background model and the KLT tracker (VP1 evidence), and some of those are searched for edgelets
+(VP2 evidence, inside the bounding box of the moving regions) under a budget of searched pixels per second
+(about three 960x540 frames a second), so small videos and sparse traffic are searched on more frames, at most
+every tracked frame (or every ``1 / edgelet_fps`` seconds when that is set).  Finished straight tracks are voted into a Diamond Space; every
 ``check_interval`` seconds the peak is located and VP1 is declared when it moved less than ``vp1_stable_deg``
 between two consecutive checks with at least ``min_tracks`` tracks.  Edgelets gathered before that are kept
 in a bounded buffer; once VP1 is known, those not pointing at it are voted into a second Diamond Space masked
@@ -40,7 +41,7 @@ class CalibratorConfig:
     foreground_width: int = 240     # ... and this for the background model
     track_fps: float = 15.0         # analysed frames per second for tracking (subset of the input)
     edgelet_fps: float | None = None  # frames per second searched for edgelets (None: pixel budget below)
-    edgelet_pixels: float = 3.0 * 960 * 540  # edgelet analysis budget, pixels per second of video
+    edgelet_pixels: float = 3.0 * 960 * 540  # edgelet budget: searched pixels (moving bounding box) per second
     method: str = "edgelets"        # VP2 evidence: "edgelets" (paper) or "gradient" (ITS15 baseline)
     edgelet_blur: float = 1.0        # Gaussian sigma before Sobel for edgelets (0: 3x3 kernel; VP2 3.6° -> 2.8°)
     orientation: str = "subpixel"   # edgelet orientation: "subpixel" (default), "svd" (paper) or "tensor"
@@ -95,8 +96,6 @@ class VPCalibrator:
         self.track_scale = min(1.0, self.cfg.track_width / w)
         self.edge_scale = min(1.0, self.cfg.edgelet_width / w)
         self.fg_scale = min(1.0, self.cfg.foreground_width / w)
-        edge_px = (w * self.edge_scale) * (h * self.edge_scale)
-        self.edgelet_fps = self.cfg.edgelet_fps or min(self.cfg.track_fps, self.cfg.edgelet_pixels / edge_px)
         self.fg_model = RunningForeground()
         self.tracker = MotionLines(self.cfg.track)
         self.ds1 = DiamondSpace.for_image(w, h, self.cfg.accumulator_size)
@@ -111,6 +110,8 @@ class VPCalibrator:
         self.t = 0.0
         self._last_track_t = -math.inf
         self._last_edge_t = -math.inf
+        self._credit = 0.0     # edgelet search budget (pixels) available now
+        self._credit_t = 0.0   # video time up to which the budget was credited
         self._next_check = 0.0
         self.vp1: Peak | None = None
         self.vp2: Peak | None = None
@@ -150,7 +151,7 @@ class VPCalibrator:
         if self.t - self._last_track_t >= 1.0 / self.cfg.track_fps - 1e-6:
             self._last_track_t = self.t
             self._track(gray)
-        if self._fg is not None and self.t - self._last_edge_t >= 1.0 / self.edgelet_fps - 1e-6:
+        if self._edge_due():
             self._last_edge_t = self.t
             self._edges(gray)
         if self.t >= self._next_check:
@@ -170,6 +171,28 @@ class VPCalibrator:
             lines = lines * np.array([self.track_scale, self.track_scale, 1.0])
             self.ds1.insert(lines, np.minimum(lengths / self.track_scale, 4.0 * self.image_size[0]))
             self.n_tracks += len(lines)
+
+    def _edge_due(self) -> bool:
+        """Whether this frame is searched for edgelets.
+
+        With ``edgelet_fps`` set: every 1/edgelet_fps s.  By default a budget of ``edgelet_pixels`` searched pixels
+        per second of video, counted over the part actually searched (the bounding box of the moving regions):
+        sparse traffic is searched on more frames (up to ``track_fps``), dense traffic on about three 960x540
+        frames a second, at about the same cost."""
+        if self._fg is None:
+            return False
+        dt = self.t - self._last_edge_t
+        if self.cfg.edgelet_fps:
+            return dt >= 1.0 / self.cfg.edgelet_fps - 1e-6
+        budget = self.cfg.edgelet_pixels
+        self._credit = min(self._credit + budget * (self.t - self._credit_t), budget)  # at most 1 s saved up
+        self._credit_t = self.t
+        if dt < 1.0 / self.cfg.track_fps - 1e-6 or self._credit <= 0:
+            return False
+        x, y, bw, bh = cv2.boundingRect(self._fg)
+        s = self.edge_scale / self.fg_scale
+        self._credit -= max(bw * bh * s * s, 0.05 * budget)
+        return True
 
     def _edges(self, gray: np.ndarray) -> None:
         if not self.fg_model.ready or not self._fg.any():
