@@ -98,6 +98,7 @@ def test_a_calibration_with_scale_passes_through(clip):
     ("regression-file=/nonexistent/reg.json", "scale regression file /nonexistent/reg.json not found"),
     ("models=no_such_car", "unknown vehicle type 'no_such_car'"),
     ("renderer=vulkan", "renderer must be 'projection' or 'gl'"),
+    ("box=tight", "box must be 'hull' or 'detector'"),
     ("classifier=/nonexistent/c.onnx", "classifier model /nonexistent/c.onnx not found"),
 ])
 def test_bad_properties_stop_with_a_clear_error(props, message):
@@ -110,7 +111,7 @@ def test_gst_inspect_documents_every_property(tmp_path):
     env = dict(os.environ, **gst_environment(), GST_REGISTRY=str(tmp_path / "registry.bin"))
     out = subprocess.run(["gst-inspect-1.0", "bbscale"], env=env, capture_output=True, text=True, timeout=120)
     assert out.returncode == 0, out.stderr
-    for prop in ("models", "iou-threshold", "min-vehicles", "regression-file", "classifier", "renderer"):
+    for prop in ("models", "iou-threshold", "min-vehicles", "regression-file", "classifier", "renderer", "box"):
         assert prop in out.stdout
     assert "GstBbscale" in out.stdout
 
@@ -159,3 +160,35 @@ def test_classifier_property_restricts_the_types(clip, tmp_path):
     assert msgs and msgs[-1]["matched"] >= 1, msgs
     used = {t.split(":")[0] for m in msgs for t in m["types"].split(",") if t}
     assert used and used <= set(names[:2]), used
+
+
+def test_calibrate_adds_the_scale_after_the_vanishing_points(clip, tmp_path):
+    """``trafficcal calibrate --scale``: after the VP stage the scale stage runs on the same video with those VPs
+    (here the clip's true VPs stand for them: 20 s are too short for VP2) and the calibration carries λ with its
+    confidence, or state 'vps' with the reason; a regression file is applied."""
+    from rich.console import Console
+
+    from gst_trafficcal.cli.calibrate import _add_scale
+    from gst_trafficcal.scale.regression import ScaleRegression, save_regression
+
+    vps = load_calibration(clip / "vps.json")
+    true = load_calibration(clip / "calibration.json").camera.scale
+    quiet = Console(file=open(os.devnull, "w"))
+    cal = _add_scale(clip / "video.mp4", vps, "", 0.85, 3, None, quiet)
+    assert cal.state == "calibrated" and cal.source.endswith("bbscale") and 0 < cal.confidence["scale"] <= 1
+    assert abs(cal.camera.scale / true - 1) < TOLERANCE and (cal.camera.vp1 == vps.camera.vp1).all()
+    save_regression(ScaleRegression(2.0, 0.0), tmp_path / "reg.json")
+    doubled = _add_scale(clip / "video.mp4", vps, "", 0.85, 3, tmp_path / "reg.json", quiet)
+    assert doubled.camera.scale == pytest.approx(2 * cal.camera.scale, rel=1e-9)
+    none = _add_scale(clip / "video.mp4", vps, "", 0.85, 100, None, quiet)
+    assert none.state == "vps" and none.camera.scale is None
+    assert none.reason.startswith("no scale: too few matches") and "min-vehicles is 100" in none.reason
+    save_calibration(none, tmp_path / "none.json")
+    assert load_calibration(tmp_path / "none.json").reason == none.reason
+
+
+def test_calibrate_help_lists_the_scale_options():
+    help_ = subprocess.run([str(ROOT / ".venv/bin/trafficcal"), "calibrate", "--help"], capture_output=True,
+                           text=True, timeout=60)
+    for opt in ("--scale", "--scale-models", "--iou-threshold", "--min-vehicles", "--regression-file"):
+        assert opt in help_.stdout

@@ -32,6 +32,8 @@ class BBScale(TrafficcalTransform):
                             "empty = none", "", _RW),
         "classifier": (str, "Classifier", "Optional ONNX fine-grained classifier (crop -> catalogue type "
                        "probabilities); empty = every type is tried and the match quality decides", "", _RW),
+        "box": (str, "Box", "Which 2D box of a tracked vehicle is aligned: 'hull' (the box of its foreground convex "
+                "hull, the tracker's hull_box) or 'detector' (the detector's rectangle)", "detector", _RW),
         "renderer": (str, "Renderer", "Model boxes by 'projection' (exact bounding box of the projected mesh, "
                      "fast) or 'gl' (moderngl silhouettes, slow)", "projection", _RW),
     }
@@ -50,6 +52,8 @@ class BBScale(TrafficcalTransform):
         try:
             if self.renderer not in ("projection", "gl"):
                 raise TrafficcalError(f"renderer must be 'projection' or 'gl', got {self.renderer!r}")
+            if self.box not in ("hull", "detector"):
+                raise TrafficcalError(f"box must be 'hull' or 'detector', got {self.box!r}")
             regression = None
             if self.regression_file:
                 from gst_trafficcal.scale.regression import load_regression
@@ -140,7 +144,7 @@ class BBScale(TrafficcalTransform):
         for r, p in zip(rois, probs):
             v = r.params["trafficcal-vehicle"]
             base = base_centre(v["box3d"]) if v.get("has_3d") and "box3d" in v else None
-            box = tuple(r.box)  # the detector's box, as the paper (a foreground hull's box includes the shadow)
+            box = tuple(v.get("hull_box", r.box)) if self.box == "hull" else tuple(r.box)
             sightings.append(Sighting(int(r.object_id), float(v.get("t", t)), box, base,
                                       float(v.get("direction", 0)), r.label, bool(v.get("occluded", False)),
                                       bool(v.get("truncated", False)), p))

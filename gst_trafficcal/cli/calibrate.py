@@ -25,7 +25,10 @@ def parse_focal_range(text: str | None) -> tuple[float, float] | None:
 @click.command(help="Fully automatic calibration (paper §4.1): VP1 from tracked vehicle motion, VP2 from "
                     "edgelets, both through a Diamond Space. Writes our calibration JSON (state 'vps': no "
                     "scale) and a PNG of a frame with the grid towards VP1/VP2 and the horizon. Exit code 1 "
-                    "when it cannot converge (the JSON then has state 'failed' and the reason).")
+                    "when it cannot converge (the JSON then has state 'failed' and the reason). With --scale, "
+                    "BBScale (paper §4.3) then runs on the same video with these VPs and adds the scene scale λ "
+                    "(state 'calibrated', confidence 'scale') or, when it cannot, keeps state 'vps' with the "
+                    "reason.")
 @click.argument("video", type=click.Path(path_type=Path))
 @click.option("-o", "--output", "out_path", required=True, type=click.Path(path_type=Path),
               help="Calibration JSON to write.")
@@ -41,8 +44,18 @@ def parse_focal_range(text: str | None) -> tuple[float, float] | None:
 @click.option("--whole/--stop-early", default=False, show_default=True,
               help="Read the whole video even after convergence.")
 @click.option("--progress/--no-progress", default=True, show_default=True, help="Show a progress bar.")
+@click.option("--scale/--no-scale", "with_scale", default=False, show_default=True,
+              help="After the VPs, estimate the scale λ by BBScale on the same video.")
+@click.option("--scale-models", default="", help="BBScale vehicle types (as bbscale's models property) "
+              "[default: the catalogue's passenger cars].")
+@click.option("--iou-threshold", default=0.85, show_default=True, help="BBScale: minimum IoU of a match.")
+@click.option("--min-vehicles", default=5, show_default=True, help="BBScale: agreeing vehicles needed.")
+@click.option("--regression-file", default=None, type=click.Path(path_type=Path),
+              help="BBScale: scale-correction regression from trafficcal fit-scale.")
 def command(video: Path, out_path: Path, png_path: Path | None, method: str, min_duration: float,
-            max_duration: float, focal_range: str, horizon_max: float, whole: bool, progress: bool) -> None:
+            max_duration: float, focal_range: str, horizon_max: float, whole: bool, progress: bool,
+            with_scale: bool, scale_models: str, iou_threshold: float, min_vehicles: int,
+            regression_file: Path | None) -> None:
     import cv2
     from rich.console import Console
     from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
@@ -69,8 +82,10 @@ def command(video: Path, out_path: Path, png_path: Path | None, method: str, min
 
         result = calibrate_video(video, cfg, progress=update, stop_when_done=not whole)
     cal = result.calibration
-    save_calibration(cal, out_path)
     out = Console()
+    if with_scale and cal.camera is not None:
+        cal = _add_scale(video, cal, scale_models, iou_threshold, min_vehicles, regression_file, out)
+    save_calibration(cal, out_path)
     fps = result.frames_read / max(result.seconds_processing, 1e-9)
     if cal.camera is None:
         out.print(f"{video}: not calibrated after {result.calibrator.t:.1f} s of video: {cal.reason} -> {out_path}",
@@ -87,3 +102,21 @@ def command(video: Path, out_path: Path, png_path: Path | None, method: str, min
               f"after {cal.confidence.get('seconds', 0):.1f} s of video ({result.frames_read} frames, "
               f"{fps:.0f} fps analysis)  confidence vp1 {cal.confidence.get('vp1', 0):.2f} "
               f"vp2 {cal.confidence.get('vp2', 0):.2f} -> {out_path}, {png}", markup=False)
+
+
+def _add_scale(video: Path, cal, models: str, iou_threshold: float, min_vehicles: int, regression_file, out):
+    """The calibration with BBScale's λ from ``video`` (gst_trafficcal.scale.video), or with the reason."""
+    from ..scale.regression import load_regression
+    from ..scale.streaming import load_align_models
+    from ..scale.video import scale_from_video
+
+    reg = load_regression(regression_file) if regression_file is not None else None
+    res = scale_from_video(video, cal, models=load_align_models(models), iou_threshold=iou_threshold,
+                           min_vehicles=min_vehicles, regression=reg)
+    r = res.result
+    if r.converged:
+        out.print(f"scale λ {r.scale:.3f} m (λ* {r.raw_scale:.3f}, confidence {r.confidence:.2f}, "
+                  f"{r.n_agreeing} of {r.n_matched} matched vehicles agree)", markup=False)
+    else:
+        out.print(f"no scale: {r.status}", markup=False)
+    return res.calibration

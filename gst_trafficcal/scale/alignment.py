@@ -198,6 +198,36 @@ def corrected_base(cam: Camera, model: AlignModel, obs: Observation, lam: float)
     return float(px[0]), float(px[1])
 
 
+def fitted_base(cam: Camera, model: AlignModel, obs: Observation, lam: float) -> tuple[float, float]:
+    """The base point b that makes the model's box fit the detected box best: a joint least-squares fit of b
+    (pixels) and λ to the four box edges (three unknowns, four equations), started at the tracker's b and
+    ``lam``.  The tracker's b comes from the 3D box of the vehicle's silhouette; for a car body that is not a box
+    it sits off the model's base centre by up to a tenth of the car's length, which moves the model's box and
+    costs IoU and λ (measured: the correct type on the exact 2D box gives λ 5-10 % off with the tracker's b,
+    within 0.5 % with the fitted b).  Returns the tracker's b when the fit fails."""
+    from scipy.optimize import least_squares
+
+    box = np.asarray(obs.box, np.float64)
+    h = max(float(box[3] - box[1]), 1.0)
+
+    def residuals(p: np.ndarray) -> np.ndarray:
+        try:
+            b = projected_boxes(cam, model.hull, p[:2], obs.heading, np.exp(p[2:3]))[0]
+        except GeometryError:
+            return np.full(4, 10.0)
+        r = (b - box) / h
+        return np.where(np.isfinite(r), r, 10.0)
+
+    x0 = np.array([float(obs.base[0]), float(obs.base[1]), np.log(float(lam))])
+    try:
+        sol = least_squares(residuals, x0, x_scale=np.array([h / 4, h / 4, 0.05]), diff_step=1e-4, max_nfev=200)
+    except (ValueError, np.linalg.LinAlgError):
+        return tuple(float(v) for v in obs.base)
+    if not (np.all(np.isfinite(sol.x)) and np.hypot(*(sol.x[:2] - x0[:2])) < 2 * h):
+        return tuple(float(v) for v in obs.base)
+    return float(sol.x[0]), float(sol.x[1])
+
+
 def coarse_lambdas(lo: float = 0.5, hi: float = 500.0, n: int = 160) -> np.ndarray:
     """Geometric grid of candidate scales (camera heights in metres) for the first pass."""
     return np.geomspace(lo, hi, n)
@@ -220,15 +250,18 @@ def candidate_lambdas(cam: Camera, model: AlignModel, obs: Observation, n: int =
 
 
 def align(cam: Camera, model: AlignModel, obs: Observation, lambdas: np.ndarray | None = None,
-          renderer=None, refine_base: bool = False) -> Alignment:
+          renderer=None, refine_base: bool | str = False) -> Alignment:
     """Model boxes and IoUs at candidate scales for one observation.  ``renderer`` = None uses the exact
     projection shortcut, else an object with ``boxes(cam, model, obs, lambdas)`` (e.g.
-    :class:`.silhouette.SilhouetteRenderer`).  ``refine_base`` aligns once, corrects b for the 3D-box
-    construction (:func:`corrected_base`) at the best scale and aligns again (``Alignment.base`` is the b used)."""
+    :class:`.silhouette.SilhouetteRenderer`).  ``refine_base`` aligns once, moves b at the best scale and aligns
+    again (``Alignment.base`` is the b used): True or "box3d" = b corrected for the 3D-box construction
+    (:func:`corrected_base`), "fit" = b fitted jointly with λ to the box (:func:`fitted_base`); False = the
+    tracker's b as is (the paper)."""
     if refine_base:
         first = align(cam, model, obs, lambdas, renderer)
         if first.iou.max() > 0:
-            obs = replace(obs, base=corrected_base(cam, model, obs, first.lambdas[first.best]))
+            move = fitted_base if refine_base == "fit" else corrected_base
+            obs = replace(obs, base=move(cam, model, obs, first.lambdas[first.best]))
             try:
                 return align(cam, model, obs, lambdas, renderer)
             except GeometryError:

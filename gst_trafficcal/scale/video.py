@@ -19,9 +19,17 @@ from ..errors import InputError
 from .streaming import ScaleEstimator, ScaleResult, Sighting, base_centre
 
 
-def frame_sightings(result, detections, camera) -> list[Sighting]:
+#: which 2D box of a tracked vehicle is aligned: "hull" = the box of its foreground convex hull (the tracker's
+#: ``hull_box``), "detector" = the detector's rectangle
+BOX_SOURCES = ("hull", "detector")
+
+
+def frame_sightings(result, detections, camera, box: str = "detector") -> list[Sighting]:
     """The sightings of one frame from the tracker's association, as the ``tracker`` element publishes them
-    (confirmed tracks only; base from the 3D box, the detector's box, direction as heading)."""
+    (confirmed tracks only; base from the 3D box, ``box`` = "hull" (the convex hull's box) or "detector",
+    direction as heading)."""
+    if box not in BOX_SOURCES:
+        raise InputError(f"box must be one of {', '.join(BOX_SOURCES)}, got {box!r}")
     out = []
     for i in range(len(detections)):
         track = result.track_of(i)
@@ -29,7 +37,8 @@ def frame_sightings(result, detections, camera) -> list[Sighting]:
             continue
         o = track.last
         base = base_centre(o.corners_px) if camera is not None and o.corners_px is not None else None
-        out.append(Sighting(int(track.id), float(o.t), tuple(float(v) for v in detections.boxes[i]), base,
+        b = o.box if box == "hull" else detections.boxes[i]
+        out.append(Sighting(int(track.id), float(o.t), tuple(float(v) for v in b), base,
                             float(track.direction), str(detections.labels[i]), bool(o.occluded),
                             bool(o.truncated)))
     return out
@@ -48,8 +57,11 @@ class VideoScale:
 
 def scale_from_video(video: str | Path, calibration: Calibration, *, models=None, iou_threshold: float = 0.85,
                      min_vehicles: int = 5, regression=None, detector: str = "", max_duration: float | None = None,
-                     progress: Callable[[float], None] | None = None) -> VideoScale:
-    """Run detection, tracking and the scale stage over ``video`` with ``calibration``'s vanishing points."""
+                     progress: Callable[[float], None] | None = None, box: str = "detector",
+                     on_frame: Callable | None = None) -> VideoScale:
+    """Run detection, tracking and the scale stage over ``video`` with ``calibration``'s vanishing points
+    (``box``: which 2D box is aligned, see :data:`BOX_SOURCES`; ``on_frame(index, t, result, detections)`` is
+    called after each frame is tracked, e.g. for a benchmark's side estimators)."""
     import cv2
 
     from ..detection.factory import create_detector
@@ -85,8 +97,10 @@ def scale_from_video(video: str | Path, calibration: Calibration, *, models=None
             gray = cv2.convertScaleAbs(cv2.cvtColor(bgr, cv2.COLOR_BGR2GRAY), alpha=219 / 255, beta=16)
             detections = det(bgr if detector else gray)
             result, detections = pipe.process(gray, t, detections)
-            sightings = frame_sightings(result, detections, camera)
+            sightings = frame_sightings(result, detections, camera, box)
             est.update(t, sightings)
+            if on_frame is not None:
+                on_frame(n, t, result, detections)
             for i in range(len(detections)):
                 track = result.track_of(i)
                 if track is not None and track.last.box3d is not None and not track.last.occluded \
