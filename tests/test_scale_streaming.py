@@ -225,3 +225,16 @@ def test_a_vehicle_that_stays_keeps_bounded_memory(cam, models):
     assert len(est._tracks[s.track_id].sightings) <= 129
     est.finish()
     assert est.result().converged
+
+
+def test_a_broken_mesh_in_the_models_catalogue_is_an_error_naming_it(tmp_path):
+    """bbscale's ``models`` = a user catalogue whose mesh file is broken: the stage refuses to start with an
+    InputError naming the file (not a trimesh traceback, not a silent procedural stand-in)."""
+    (tmp_path / "meshes").mkdir()
+    (tmp_path / "meshes" / "my_car.glb").write_bytes(b"glTF\x02\x00\x00\x00garbage" * 3)
+    cat = tmp_path / "cat.yaml"
+    cat.write_text("models:\n  my_car:\n    body_style: hatchback\n    length: 4.0\n    width: 1.7\n"
+                   "    height: 1.45\n    wheelbase: 2.5\n    mesh: meshes/my_car.glb\n"
+                   "    sources: {length: brochure}\n")
+    with pytest.raises(InputError, match="my_car.glb"):
+        load_align_models(str(cat))
