@@ -1,6 +1,11 @@
-"""Frames per second of the vehicle detectors at 960x540 and 1920x1080 on real traffic frames.
+"""Frames per second of each element's work (vehicledetect's detectors, tracker) at 960x540 and 1920x1080.
 
     .venv/bin/python benchmarks/detection_fps.py [--frames 60] [--threads 1]
+
+Prints one markdown table (the README's): wall-clock and CPU-time fps per element and size, and the target.
+The tracker rows come from ``benchmarks/tracking.py``: the tracking stage the ``tracker`` element runs per
+frame (background model with the colour tests, hulls, 3D boxes, Kalman tracking) on frames with about 10
+painted vehicles, and the tracker core alone (association, Kalman, 3D boxes; 10 simulated vehicles).
 
 Frames are the first N of ../shared/data/videos/abhishek_highway.mp4 scaled to each size beforehand
 (decoding and scaling are not timed). The background detector gets the grey image (what the element
@@ -17,6 +22,7 @@ import time
 from pathlib import Path
 
 import cv2
+import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
@@ -54,27 +60,45 @@ def main() -> None:
     from gst_trafficcal.detection.background import BackgroundDetector
     from gst_trafficcal.detection.onnx_detector import OnnxDetector
 
+    sys.path.insert(0, str(ROOT / "benchmarks"))
+    from tracking import core_fps, pipeline_fps
+
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--frames", type=int, default=60)
     ap.add_argument("--threads", type=int, default=1, help="onnxruntime intra-op threads")
     args = ap.parse_args()
     frames = read_frames(args.frames)
     detectors = {
-        "background (MOG2)": (lambda: BackgroundDetector(method="mog2"), True),
-        "background (moving average)": (lambda: BackgroundDetector(method="average"), True),
-        "NanoDet-m 320": (lambda: OnnxDetector(DETECTORS / "nanodet_hpc203.onnx", threads=args.threads), False),
-        "FastestDet 352": (lambda: OnnxDetector(DETECTORS / "FastestDet.onnx", threads=args.threads), False),
+        "vehicledetect: background (MOG2, default)": (lambda: BackgroundDetector(method="mog2"), True, "≥ 100 at 960x540"),
+        "vehicledetect: background (moving average)": (lambda: BackgroundDetector(method="average"), True, ""),
+        "vehicledetect: NanoDet-m 320": (lambda: OnnxDetector(DETECTORS / "nanodet_hpc203.onnx", threads=args.threads),
+                                         False, "≥ 25"),
+        "vehicledetect: FastestDet 352": (lambda: OnnxDetector(DETECTORS / "FastestDet.onnx", threads=args.threads),
+                                          False, ""),
     }
-    print(f"{'detector':<30}" + "".join(f"{f'{w}x{h} wall / cpu':<28}" for w, h in SIZES))
-    for name, (make, grey) in detectors.items():
-        row = f"{name:<30}"
+    head = "| element | " + " | ".join(f"{w}x{h} wall / CPU fps" for w, h in SIZES) + " | target |"
+    print(head + "\n|---|" + "---|" * len(SIZES) + "---|", flush=True)
+    for name, (make, grey, target) in detectors.items():
+        cells = []
         for w, h in SIZES:
             images = [cv2.resize(f, (w, h)) for f in frames]
             if grey:
                 images = [cv2.cvtColor(i, cv2.COLOR_BGR2GRAY) for i in images]
             wall, cpu = fps(make(), images)
-            row += f"{wall:>8.1f} / {cpu:>6.1f} fps        "
-        print(row, flush=True)
+            cells.append(f"{wall:.0f} / {cpu:.0f}")
+        print(f"| {name} | " + " | ".join(cells) + f" | {target} |", flush=True)
+    cells, mean = [], []
+    for w, h in SIZES:
+        wall, cpu, n = pipeline_fps((w, h))
+        cells.append(f"{wall:.0f} / {cpu:.0f}")
+        mean.append(n)
+    print(f"| tracker ({np.mean(mean):.1f} vehicles per frame) | " + " | ".join(cells) + " | ≥ 100 with 10 vehicles |",
+          flush=True)
+    wall, cpu, n = core_fps()
+    print(f"| tracker core only ({n:.1f} vehicles; no image work, size-independent) | {wall:.0f} / {cpu:.0f} | "
+          f"{wall:.0f} / {cpu:.0f} | |")
+    print(f"\n{args.frames} frames of {CLIP.name} per detector and size, {args.threads} onnxruntime thread(s); "
+          "CPU time = this process's CPU seconds (all its threads)")
 
 
 if __name__ == "__main__":

@@ -41,21 +41,23 @@ def scene():
 EMPTY = 1.2  # seconds of empty road first: the background model learns the road, not the vehicles
 
 
-def render(scene):
-    """Grey textured road with the vehicles' silhouettes painted far to near (nearer ones occlude)."""
+def render(scene, colour=None):
+    """Grey textured road with the vehicles' silhouettes painted far to near (nearer ones occlude); grey
+    silhouettes, or all in ``colour`` (BGR)."""
     rng = np.random.default_rng(0)
     bg = cv2.resize(rng.integers(70, 120, (SIZE[1] // 6, SIZE[0] // 6)).astype(np.uint8), SIZE)
     cam = scene.camera
     images = []
     for f in scene.frames:
-        img = bg.copy()
+        img = cv2.cvtColor(bg, cv2.COLOR_GRAY2BGR)
         if f.t < EMPTY:
-            images.append(cv2.cvtColor(img, cv2.COLOR_GRAY2BGR))
+            images.append(img)
             continue
         depth = [cam.world_to_camera(np.append(r, 0.0))[2] for r in f.ref_world]
         for k in np.argsort(depth)[::-1]:
-            cv2.fillPoly(img, [np.round(f.hulls[k]).astype(np.int32)], int(170 + 10 * (f.ids[k] % 8)))
-        images.append(cv2.cvtColor(img, cv2.COLOR_GRAY2BGR))
+            paint = colour if colour is not None else (int(170 + 10 * (f.ids[k] % 8)),) * 3
+            cv2.fillPoly(img, [np.round(f.hulls[k]).astype(np.int32)], paint)
+        images.append(img)
     return images
 
 
@@ -125,6 +127,26 @@ def test_ids_and_3d_reference_points_with_calibration(scene, images, calibration
     assert all(m.fields["last"] > m.fields["first"] and m.fields["label"] == "car" for m in ended)
 
 
+def _median_ref_error(scene, run) -> float:
+    errors = [np.hypot(p["trafficcal-vehicle"]["ref_x"] - f.ref_px[k, 0], p["trafficcal-vehicle"]["ref_y"] - f.ref_px[k, 1])
+              for g, o, p, f, k in match_gt(scene, run) if o is not None and p["trafficcal-vehicle"]["has_3d"]]
+    assert len(errors) >= 100
+    return float(np.median(errors))
+
+
+def test_colour_outlines_vehicles_as_bright_as_the_road(scene, calibration_file):
+    """Magenta vehicles with the road's brightness (luma ~103 on a 70-120 road): the colour test outlines them
+    (colour=true, default, from the I420 U/V planes); brightness alone sees almost nothing of them and the 3D
+    boxes fall back to the detection rectangles."""
+    images = render(scene, colour=(200, 60, 150))
+    errs = {}
+    for colour in ("true", "false"):
+        run = run_pipeline(f"appsrc name=src ! tcmarker threshold=255 calibration-file={calibration_file} ! "
+                           f"tracker colour={colour} ! appsink name=sink", buffers(scene, images), CAPS)
+        errs[colour] = _median_ref_error(scene, run)
+    assert errs["true"] < 2.5 and errs["false"] > 2 * errs["true"], errs
+
+
 def test_tracks_in_2d_without_calibration(scene, images):
     run = run_pipeline("appsrc name=src ! tracker ! appsink name=sink", buffers(scene, images), CAPS)
     rows = match_gt(scene, run)
@@ -158,7 +180,7 @@ def test_gst_inspect_documents_every_property(tmp_path):
     out = subprocess.run(["gst-inspect-1.0", "tracker"], env=env, capture_output=True, text=True, timeout=120)
     assert out.returncode == 0, out.stderr
     for prop in ("min-hits", "max-lost", "iou-threshold", "drop-occluded", "background", "background-width",
-                 "blob-detection", "min-blob-area"):
+                 "blob-detection", "min-blob-area", "colour"):
         assert prop in out.stdout, prop
     assert "object_id" in out.stdout
 

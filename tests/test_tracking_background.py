@@ -10,7 +10,8 @@ import pytest
 
 from gst_trafficcal.detection.records import Detections, box_iou
 from gst_trafficcal.errors import InputError
-from gst_trafficcal.tracking.background import BackgroundModel, blob_boxes, group_hulls
+from gst_trafficcal.tracking.background import (BackgroundModel, blob_boxes, chroma_from_bgr,
+                                                chroma_from_planes, group_hulls)
 from gst_trafficcal.tracking.pipeline import TrackingPipeline
 
 SHARED = Path(__file__).resolve().parents[1].parent / "shared"
@@ -55,6 +56,53 @@ def test_blobs_grouped_by_detections():
     a, b = hulls
     assert a[:, 1].min() <= 20 and a[:, 1].max() >= 59  # both blobs in one hull
     assert b[:, 0].min() >= 119 and b[:, 0].max() <= 160.5
+
+
+def _vehicle_with_shadow(bg_bgr: np.ndarray, x: int) -> np.ndarray:
+    """A red box with a dark (but still red) side face and a cast shadow beside its base whose darkening ramps
+    from 0.2 at the vehicle to 0.9 (a soft contact shadow), on the grey textured road ``bg_bgr``."""
+    frame = bg_bgr.astype(np.float32)
+    ramp = np.linspace(0.2, 0.9, 30)[None, :, None]
+    frame[180:215, x + 90:x + 120] *= ramp  # shadow to the right of the vehicle, at its base
+    frame[150:215, x:x + 60] = (40, 40, 200)  # lit face
+    frame[150:215, x + 60:x + 90] = (8, 8, 45)  # dark side face: darker than the road, colour kept
+    return np.clip(frame, 0, 255).astype(np.uint8)
+
+
+def test_colour_tests_keep_dark_faces_and_drop_shadows():
+    """With the U, V planes the outline is the vehicle: its dark side face stays, the cast shadow at its base
+    goes; with brightness alone the side face passes the shadow test or the shadow stays."""
+    bg = cv2.cvtColor(textured_background(), cv2.COLOR_GRAY2BGR)
+    rng = np.random.default_rng(2)
+    colour, grey = BackgroundModel(work_width=320), BackgroundModel(work_width=320)
+    for k in range(40):
+        frame = bg.copy() if k < 30 else _vehicle_with_shadow(bg, x := 100 + 6 * k)
+        frame = cv2.add(frame, rng.integers(0, 3, frame.shape, dtype=np.uint8))
+        gray = cv2.cvtColor(frame, cv2.COLOR_BGR2GRAY)
+        mask_c = colour.apply(gray, chroma_from_bgr(frame))
+        mask_g = grey.apply(gray)
+    truth = np.array([x, 150, x + 89, 214], float)
+    box = np.array([[x - 20, 140, x + 130, 225]], float)
+    hull_c = group_hulls(mask_c, box, colour.scale)[0]
+    hull_g = group_hulls(mask_g, box, grey.scale)[0]
+    extent = lambda h: np.array([h[:, 0].min(), h[:, 1].min(), h[:, 0].max(), h[:, 1].max()])  # noqa: E731
+    assert np.abs(extent(hull_c) - truth).max() <= 4
+    assert np.abs(extent(hull_g) - truth).max() > 8  # what the colour tests fix
+
+
+def test_chroma_planes_of_raw_formats():
+    bgr = np.zeros((6, 8, 3), np.uint8)
+    bgr[...] = (30, 60, 200)
+    uv = chroma_from_bgr(bgr)
+    assert uv.shape == (3, 4, 2) and uv[..., 1].min() > 150 and uv[..., 0].max() < 128  # red: V high, U low
+    i420 = cv2.cvtColor(bgr, cv2.COLOR_BGR2YUV_I420)
+    planes = [i420[:6], i420[6:].reshape(-1)[:12].reshape(3, 4), i420[6:].reshape(-1)[12:].reshape(3, 4)]
+    assert np.array_equal(chroma_from_planes(planes, "I420"), uv)
+    assert np.array_equal(chroma_from_planes([planes[0], uv], "NV12"), uv)
+    assert np.array_equal(chroma_from_planes([cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB)], "RGB"), uv)
+    assert chroma_from_planes([planes[0]], "GRAY8") is None
+    with pytest.raises(InputError, match="U, V"):
+        BackgroundModel().apply(np.zeros((10, 10), np.uint8), np.zeros((5, 5), np.uint8))
 
 
 def test_bad_background_input():

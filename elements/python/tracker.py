@@ -33,6 +33,10 @@ class Tracker(TrafficcalTransform):
                        "convex hull inside each box (off: the box itself is the hull, coarser 3D boxes)", True, _RW),
         "background-width": (int, "Background width", "Width in pixels at which the background model runs",
                              16, 8192, 480, _RW),
+        "colour": (bool, "Colour", "Use the frame's colour (U and V planes; BGR/RGB are converted) in the background "
+                   "model: colour changes count as foreground and cast shadows must keep the road's colour, which "
+                   "gives cleaner vehicle outlines than brightness alone (GRAY8 input always uses brightness)",
+                   True, _RW),
         "blob-detection": (bool, "Blob detection", "When a frame carries no vehicle ROI, use the foreground blobs "
                            "as vehicles and add ROIs for them (detector-free mode)", False, _RW),
         "min-blob-area": (float, "Minimum blob area", "Smallest blob (pixels) taken as a vehicle in blob-detection "
@@ -77,8 +81,11 @@ class Tracker(TrafficcalTransform):
         import numpy as np
 
         from gst_trafficcal.detection.records import Detections
-        from gst_trafficcal.gst.buffers import pts_seconds
+        from contextlib import nullcontext
+
+        from gst_trafficcal.gst.buffers import format_name, pts_seconds
         from gst_trafficcal.gst.meta import OBJECT_ID, add_vehicle_roi, read_vehicle_rois, update_roi_params
+        from gst_trafficcal.tracking.background import chroma_from_planes
         from gst_trafficcal.tracking.vehicle_meta import vehicle_fields
 
         t = pts_seconds(buffer)
@@ -100,8 +107,10 @@ class Tracker(TrafficcalTransform):
         camera = cal.camera if cal is not None else None
         if camera is not self._pipe.camera:
             self._pipe.set_camera(camera)
-        with self.gray(buffer) as gray:
-            result, detections = self._pipe.process(gray, t, detections)
+        use_colour = self.colour and self._pipe.background is not None
+        with self.gray(buffer) as gray, (self.planes(buffer) if use_colour else nullcontext()) as planes:
+            chroma = chroma_from_planes(planes, format_name(self.video_info)) if planes is not None else None
+            result, detections = self._pipe.process(gray, t, detections, chroma=chroma)
         if not rois and len(detections):  # blob-detection mode: the blobs become the frame's ROIs
             meta_ids = [add_vehicle_roi(buffer, self.frame_size, b, str(lab), float(s), int(c))
                         for b, lab, s, c in zip(detections.boxes, detections.labels, detections.scores,

@@ -39,6 +39,13 @@ class BackgroundModel:
     shadow_ratio: tuple[float, float] = (0.3, 0.92)  # frame/background brightness of a shadow
     shadow_std: float = 0.04  # maximum local spread of that ratio (window ``shadow_window`` work pixels)
     shadow_window: int = 5
+    chroma_threshold: float = 14.0  # colour difference (U/V levels) that makes a pixel foreground
+    chroma_rel_threshold: float = 0.12  # ... or colour difference relative to the brightness (dark faces)
+    chroma_tolerance: float = 5.0  # colour deviation (U/V levels) a cast shadow may have from the darkened road
+    chroma_rel_tolerance: float = 0.06  # ... and relative to the pixel's brightness
+    colour_shadow_std: float | None = None  # spread test in the colour mode too (over the window's candidates)
+    colour_shadow_ratio: tuple[float, float] = (0.1, 0.92)  # shadow_ratio of the colour test
+    shadow_min_support: float = 0.3  # fraction of the ratio window that must be shadow candidates
 
     def __post_init__(self) -> None:
         if self.work_width < 16:
@@ -54,11 +61,15 @@ class BackgroundModel:
         self._grow = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (self.shadow_window, self.shadow_window))
         self.mask: np.ndarray | None = None
         self._first: list[np.ndarray] = []
+        self._bg_uv: np.ndarray | None = None
+        self._first_uv: list[np.ndarray] = []
 
     def reset(self) -> None:
         self._bg = None
+        self._bg_uv = None
         self._frames = 0
         self._first = []
+        self._first_uv = []
 
     def _small(self, gray: np.ndarray) -> np.ndarray:
         if gray.ndim != 2:
@@ -67,23 +78,43 @@ class BackgroundModel:
         if self._size != (w, h):
             self._size = (w, h)
             self.scale = max(1.0, w / self.work_width)
-            self._bg = None
-            self._frames = 0
-            self._first = []
+            self.reset()
         if self.scale == 1.0:
             return gray.astype(np.float32)
         size = (int(round(w / self.scale)), int(round(h / self.scale)))
         return cv2.resize(gray, size, interpolation=cv2.INTER_AREA).astype(np.float32)
 
-    def apply(self, gray: np.ndarray) -> np.ndarray:
-        """Feed one grey frame; returns the foreground mask (uint8 0/255) at the work resolution."""
+    def _small_uv(self, chroma: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
+        """Colour-difference planes (U, V, any resolution) at the work size, centred on 0."""
+        chroma = np.asarray(chroma)
+        if chroma.ndim != 3 or chroma.shape[2] != 2:
+            raise InputError(f"background model needs chroma as H x W x 2 (U, V), got shape {chroma.shape}")
+        h, w = shape
+        uv = cv2.resize(chroma, (w, h), interpolation=cv2.INTER_AREA).astype(np.float32) - 128.0
+        return cv2.GaussianBlur(uv, (3, 3), 0)
+
+    def apply(self, gray: np.ndarray, chroma: np.ndarray | None = None) -> np.ndarray:
+        """Feed one grey frame (the Y plane); returns the foreground mask (uint8 0/255) at the work resolution.
+
+        ``chroma`` (optional, H' x W' x 2 uint8: the frame's U and V planes at any resolution, e.g. I420's
+        half-size planes) enables the colour tests: a pixel whose colour changed is foreground even at the road's
+        brightness, and a cast shadow must keep the road's chromaticity (darkened, not recoloured), which tells
+        it from a dark vehicle face without a window that straddles the vehicle's edge.
+        """
         small = cv2.GaussianBlur(self._small(gray), (3, 3), 0)
+        uv = self._small_uv(chroma, small.shape) if chroma is not None else None
         if self._bg is None:
             self._bg = small.copy()
+        if uv is not None and self._bg_uv is None:
+            self._bg_uv = uv.copy()
         diff = cv2.absdiff(small, self._bg)
         changed = diff > self.threshold
+        if uv is not None:
+            cdiff = _max_channel(cv2.absdiff(uv, self._bg_uv))
+            changed |= cdiff > np.maximum(self.chroma_threshold,
+                                          self.chroma_rel_threshold * cv2.max(cv2.max(small, self._bg), 16.0))
         if self.shadows:
-            changed &= ~self._shadow(small)
+            changed &= ~self._shadow(small, uv)
         fg = changed.astype(np.uint8) * 255
         fg = cv2.morphologyEx(fg, cv2.MORPH_OPEN, self._open)
         fg = cv2.morphologyEx(fg, cv2.MORPH_CLOSE, self._close)
@@ -91,26 +122,55 @@ class BackgroundModel:
         if self._frames <= self.warmup:
             # the first frames: the background is their temporal median (vehicles passing are not in it)
             self._first.append(small)
+            if uv is not None:
+                self._first_uv.append(uv)
             if self._frames == self.warmup or self._frames % 5 == 0:
                 self._bg = np.median(np.stack(self._first), axis=0).astype(np.float32)
+                if uv is not None and len(self._first_uv) == len(self._first):
+                    self._bg_uv = np.median(np.stack(self._first_uv), axis=0).astype(np.float32)
             if self._frames == self.warmup:
                 self._first = []
+                self._first_uv = []
         else:
-            cv2.accumulateWeighted(small, self._bg, self.alpha, mask=cv2.bitwise_not(fg))
+            back = cv2.bitwise_not(fg)
+            cv2.accumulateWeighted(small, self._bg, self.alpha, mask=back)
             cv2.accumulateWeighted(small, self._bg, self.alpha * self.foreground_rate, mask=fg)
+            if uv is not None:
+                cv2.accumulateWeighted(uv, self._bg_uv, self.alpha, mask=back)
+                cv2.accumulateWeighted(uv, self._bg_uv, self.alpha * self.foreground_rate, mask=fg)
         self.mask = fg
         return fg
 
-    def _shadow(self, small: np.ndarray) -> np.ndarray:
+    def _shadow(self, small: np.ndarray, uv: np.ndarray | None = None) -> np.ndarray:
         """Cast shadows: darker than the background by a locally constant factor (the road's texture shows
-        through), unlike a vehicle, whose ratio to the road behind it varies from pixel to pixel."""
+        through), unlike a vehicle, whose ratio to the road behind it varies from pixel to pixel.
+
+        With colour (``uv``) a shadow candidate must also keep the road's chromaticity (U, V scaled by the same
+        factor as Y), and the ratio's spread is taken over the candidates of the window only, so a shadow pixel
+        next to a (coloured) vehicle is not kept because its window reaches into the vehicle.
+        """
         ratio = small / np.maximum(self._bg, 1.0)
         k = (self.shadow_window, self.shadow_window)
-        mean = cv2.blur(ratio, k)
-        var = cv2.blur(ratio * ratio, k) - mean * mean
-        lo, hi = self.shadow_ratio
+        colour = uv is not None and self._bg_uv is not None
+        lo, hi = self.colour_shadow_ratio if colour else self.shadow_ratio
         dark = (ratio > lo) & (ratio < hi)
-        core = (dark & (var < self.shadow_std ** 2)).astype(np.uint8)
+        if not colour:
+            mean = cv2.blur(ratio, k)
+            var = cv2.blur(ratio * ratio, k) - mean * mean
+            core = (dark & (var < self.shadow_std ** 2)).astype(np.uint8)
+        else:
+            dev = _max_channel(cv2.absdiff(uv, cv2.multiply(self._bg_uv, cv2.merge([ratio, ratio]))))
+            dark &= dev < np.minimum(self.chroma_tolerance, self.chroma_rel_tolerance * cv2.max(small, 16.0))
+            m = dark.astype(np.float32)
+            support = cv2.blur(m, k)
+            core = dark & (support >= self.shadow_min_support)
+            if self.colour_shadow_std is not None:
+                r = ratio * m
+                sm = np.maximum(support, 1e-6)
+                mean = cv2.blur(r, k) / sm
+                var = cv2.blur(r * ratio, k) / sm - mean * mean
+                core &= var < self.colour_shadow_std ** 2
+            core = core.astype(np.uint8)
         # the penumbra around a shadow's core varies too much for the test: grow the core over darkened pixels
         grown = cv2.dilate(core, self._grow) > 0
         return dark & grown
@@ -123,6 +183,12 @@ class BackgroundModel:
     def background(self) -> np.ndarray | None:
         """The current background image (uint8, work resolution)."""
         return None if self._bg is None else np.clip(self._bg, 0, 255).astype(np.uint8)
+
+
+def _max_channel(a: np.ndarray) -> np.ndarray:
+    """Per-pixel maximum over the two channels of an H x W x 2 image."""
+    u, v = cv2.split(a)
+    return cv2.max(u, v)
 
 
 def blob_boxes(mask: np.ndarray, scale: float = 1.0, min_area: float = 150.0) -> np.ndarray:
@@ -181,3 +247,29 @@ def group_hulls(mask: np.ndarray, boxes: np.ndarray, scale: float = 1.0, margin:
         hull = (hull + 0.5 + 0.5 * np.sign(hull - c)) * scale - 0.5
         out[j] = hull
     return out
+
+
+def chroma_from_bgr(bgr: np.ndarray) -> np.ndarray:
+    """The U and V planes (half size, as in I420) of a BGR frame, H/2 x W/2 x 2 uint8: the ``chroma`` input of
+    :meth:`BackgroundModel.apply` for callers that decode to BGR."""
+    if bgr.ndim != 3 or bgr.shape[2] != 3:
+        raise InputError(f"need a BGR image (H x W x 3), got shape {bgr.shape}")
+    h, w = (bgr.shape[0] // 2) * 2, (bgr.shape[1] // 2) * 2
+    yuv = cv2.cvtColor(np.ascontiguousarray(bgr[:h, :w]), cv2.COLOR_BGR2YUV_I420)
+    n = (h // 2) * (w // 2)
+    flat = yuv[h:].reshape(-1)
+    return np.dstack([flat[:n].reshape(h // 2, w // 2), flat[n:2 * n].reshape(h // 2, w // 2)])
+
+
+def chroma_from_planes(planes: list[np.ndarray], fmt: str) -> np.ndarray | None:
+    """The U and V planes of a raw video frame given as its planes (GStreamer formats I420, NV12, BGR, RGB,
+    BGRx); None for GRAY8 (no colour)."""
+    if fmt == "I420":
+        return np.dstack([planes[1], planes[2]])
+    if fmt == "NV12":
+        return planes[1]
+    code = {"BGR": None, "RGB": cv2.COLOR_RGB2BGR, "BGRx": cv2.COLOR_BGRA2BGR}
+    if fmt not in code:
+        return None
+    bgr = planes[0] if code[fmt] is None else cv2.cvtColor(planes[0], code[fmt])
+    return chroma_from_bgr(bgr)

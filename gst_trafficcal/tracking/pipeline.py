@@ -36,12 +36,15 @@ class TrackingPipeline:
 
     def process(self, gray: np.ndarray | None, t: float, detections: Detections | None = None,
                 camera: Camera | None = None,
-                hulls: list[np.ndarray | None] | None = None) -> tuple[FrameResult, Detections]:
+                hulls: list[np.ndarray | None] | None = None,
+                chroma: np.ndarray | None = None) -> tuple[FrameResult, Detections]:
         """Track one frame at time ``t`` (seconds).  Returns the association and the detections used.
 
         ``gray`` may be None when only boxes are available (no hulls: the 3D boxes then come from the boxes'
         rectangles, which is coarser).  ``hulls`` (one per detection, e.g. from an instance-segmentation model)
         replace the background model's.  A ``camera`` different from the current one switches the tracker to it.
+        ``chroma`` (the frame's U and V planes, H' x W' x 2, see ``background.chroma_from_bgr``) turns on the background model's
+        colour tests (cleaner vehicle outlines: cast shadows are told from dark vehicle faces by their colour).
         """
         if camera is not None and camera is not self.tracker.camera:
             self.tracker.set_camera(camera)
@@ -51,7 +54,7 @@ class TrackingPipeline:
         if gray is not None:
             size = (gray.shape[1], gray.shape[0])
             if self.background is not None:
-                mask = self.background.apply(gray)
+                mask = self.background.apply(gray, chroma)
                 scale = self.background.scale
                 if not self.background.ready:
                     mask = None

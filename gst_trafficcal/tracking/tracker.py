@@ -309,7 +309,10 @@ class Tracker:
         if self.image_size is not None:
             w, h = self.image_size
             b = self.config.border
-            trunc = bool(box[0] <= b or box[1] <= b or box[2] >= w - 1 - b or box[3] >= h - 1 - b)
+            # the hull's box or the detector's: a hull whose lower part the background model missed (a dark
+            # bumper taken for shadow) can stop short of the edge the vehicle is cut by
+            both = np.stack([np.asarray(box, np.float64), det.boxes[i].astype(np.float64)])
+            trunc = bool(np.any((both[:, :2] <= b) | (both[:, 2:] >= np.array([w - 1 - b, h - 1 - b]))))
         return Observation(t=t, box=np.asarray(box, np.float64).copy(), det_box=det.boxes[i].astype(np.float64),
                            score=float(det.scores[i]), label=str(det.labels[i]), hull=hull, truncated=trunc,
                            occluded=bool(occluded))
@@ -390,23 +393,18 @@ def _attach_boxes(camera: Camera, observations: list[Observation]) -> None:
 
 
 def _update_direction(track: Track, min_span: float = 0.02) -> None:
-    """Direction of travel along the road from the 3D box centres (keeps the old one while ambiguous)."""
-    pts = []
-    for o in reversed(track.observations):
-        if o.box3d is not None:
-            pts.append((o.t, 0.5 * (o.box3d[0] + o.box3d[1])))
-            if len(pts) == 15:
-                break
-    if len(pts) < 2:
+    """Direction of travel along the road from the 3D box centres (keeps the old one while ambiguous).
+
+    The median displacement between observations half the track apart: the whole track votes, so the end of a
+    track far away (a pixel is metres there, and a receding vehicle barely moves in the image) cannot flip it.
+    """
+    x = np.array([0.5 * (o.box3d[0] + o.box3d[1]) for o in track.observations if o.box3d is not None])
+    if len(x) < 2:
         return
-    t, x = np.array(pts).T
-    tc = t - t.mean()
-    denom = float(tc @ tc)
-    if denom <= 0:
-        return
-    slope = float(tc @ (x - x.mean())) / denom
-    if abs(slope * np.ptp(t)) >= min_span:
-        track.direction = 1 if slope > 0 else -1
+    h = max(1, len(x) // 2)
+    step = float(np.median(x[h:] - x[:-h]))
+    if abs(step) >= min_span:
+        track.direction = 1 if step > 0 else -1
 
 
 def track_dimensions(track: Track) -> tuple[float, float] | None:
