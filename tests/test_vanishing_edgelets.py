@@ -86,3 +86,32 @@ def test_seeds_only_inside_the_mask_and_empty_images_give_no_edgelets():
     assert len(detect_gradient_edgels(g, np.zeros_like(g))) == 0
     ys, xs = seeds(np.zeros((20, 20), np.float32), None, 1.0, 10)
     assert len(ys) == 0
+
+
+def _jagged_edge_image(theta_deg: float, size: int = 160, seed: int = 0) -> np.ndarray:
+    """A straight edge at ``theta_deg`` drawn without anti-aliasing (each pixel fully one side or the other, as the
+    synth renderer draws vehicles), then the optics blur of the renders (sigma 0.6) and sensor noise."""
+    y, x = np.mgrid[0:size, 0:size].astype(np.float64)
+    t = np.radians(theta_deg)
+    side = (-(x - size / 2) * np.sin(t) + (y - size / 2) * np.cos(t)) > 0
+    g = cv2.GaussianBlur(np.where(side, 60, 190).astype(np.float32), (0, 0), 0.6)
+    return np.clip(g + np.random.default_rng(seed).normal(0, 2.0, g.shape), 0, 255).astype(np.uint8)
+
+
+def _signed_errors(theta: float, along: int) -> np.ndarray:
+    e = detect_edgelets(_jagged_edge_image(theta), None, blur=1.0, along=along)
+    e = e.subset(np.abs(e.points - 80).max(axis=1) < 60)
+    assert len(e) > 10
+    ang = np.degrees(np.arctan2(e.directions[:, 1], e.directions[:, 0]))
+    return (ang - theta + 90) % 180 - 90
+
+
+def test_long_orientation_window_removes_pixel_locking_of_jagged_near_horizontal_edges():
+    # a 2.5° staircase steps every 23 px: a 9 px window sees a flat run or a step, so the edgelets' median
+    # orientation locks towards 0° (the Diamond Space then follows that mode); 17 px along the edge sees the slope
+    for theta in (2.5, 3.5, 5.0):
+        short = np.median(_signed_errors(theta, along=4))
+        long_ = np.median(_signed_errors(theta, along=8))
+        assert abs(long_) < 0.5 * abs(short), (theta, short, long_)
+    # and the long window does not hurt steeper edges
+    assert abs(np.median(_signed_errors(17.0, along=8))) < 0.3
