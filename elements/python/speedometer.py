@@ -2,7 +2,7 @@
 
 Input: vehicle ROI metas (``vehicledetect``), and optionally the ``tracker`` element's ``object_id`` and
 ``"trafficcal-vehicle"`` structures.  When no ``tracker`` runs upstream, speedometer runs the library's tracking
-stage itself on the ROIs (grey frame from the buffer for its background model), with the tracker element's
+stage itself on the ROIs (grey frame and U/V planes from the buffer for its background model), with the tracker element's
 defaults, and writes the same ``object_id``/``"trafficcal-vehicle"`` structures, so ``vehicledetect ! speedometer``
 and ``vehicledetect ! tracker ! speedometer`` give the same numbers.
 
@@ -214,8 +214,16 @@ class Speedometer(TrafficcalTransform):
         detections = Detections(np.array([r.box for r in rois], np.float64).reshape(-1, 4),
                                 np.array([r.confidence for r in rois]), np.array([r.label_id for r in rois]),
                                 np.array([r.label for r in rois], dtype=object))
-        with self.gray(buffer) as gray:
-            result, detections = pipe.process(gray, t, detections)
+        # the tracker element's default colour=true: its background model also gets the U/V planes
+        from contextlib import nullcontext
+
+        from gst_trafficcal.gst.buffers import format_name
+        from gst_trafficcal.tracking.background import chroma_from_planes
+
+        use_colour = pipe.background is not None
+        with self.gray(buffer) as gray, (self.planes(buffer) if use_colour else nullcontext()) as planes:
+            chroma = chroma_from_planes(planes, format_name(self.video_info)) if planes is not None else None
+            result, detections = pipe.process(gray, t, detections, chroma=chroma)
         out = []
         for i, roi in enumerate(rois):
             track = result.track_of(i)
