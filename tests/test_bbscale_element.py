@@ -46,7 +46,8 @@ def clip(tmp_path_factory) -> Path:
 
 def chain(clip: Path, calibration: str, props: str = "") -> str:
     return (f"filesrc location={clip / 'video.mp4'} ! decodebin ! videoconvert ! vpdetect mode=fixed "
-            f"calibration-file={clip / calibration} ! vehicledetect ! tracker ! bbscale {props} ! appsink name=sink")
+            f"calibration-file={clip / calibration} ! vehicledetect ! tracker colour=false ! bbscale {props} "
+            "! appsink name=sink")
 
 
 @pytest.fixture(scope="module")
