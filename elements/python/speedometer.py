@@ -2,8 +2,8 @@
 
 Input: vehicle ROI metas (``vehicledetect``), and optionally the ``tracker`` element's ``object_id`` and
 ``"trafficcal-vehicle"`` structures.  When no ``tracker`` runs upstream, speedometer runs the library's tracking
-stage itself on the ROIs (grey frame and U/V planes from the buffer for its background model), with the tracker element's
-defaults, and writes the same ``object_id``/``"trafficcal-vehicle"`` structures, so ``vehicledetect ! speedometer``
+stage itself on the ROIs (grey frame and, as the tracker's ``colour`` default says, U/V planes for its background
+model), with the tracker element's defaults, and writes the same ``object_id``/``"trafficcal-vehicle"`` structures, so ``vehicledetect ! speedometer``
 and ``vehicledetect ! tracker ! speedometer`` give the same numbers.
 
 Calibration: the upstream ``trafficcal-calibration`` event when it has a scale; else ``calibration-file``; else the
@@ -71,6 +71,7 @@ class Speedometer(TrafficcalTransform):
         self._upstream = None
         self._in_force_id = None
         self._tracking = None  # None: not decided; False: a tracker runs upstream; else the internal pipeline
+        self._colour = True  # internal tracking uses the frame's colour (the tracker element's default)
         self._flushed = False
         self._failed = False
         self._last_pts = None
@@ -195,6 +196,7 @@ class Speedometer(TrafficcalTransform):
         from gst_trafficcal.tracking.pipeline import TrackingPipeline
         from gst_trafficcal.tracking.tracker import TrackerConfig
 
+        self._colour = bool(_tracker_default("colour", True))
         return TrackingPipeline(config=TrackerConfig(), background=BackgroundModel(work_width=480))
 
     def _track(self, buffer, rois, t):
@@ -214,13 +216,13 @@ class Speedometer(TrafficcalTransform):
         detections = Detections(np.array([r.box for r in rois], np.float64).reshape(-1, 4),
                                 np.array([r.confidence for r in rois]), np.array([r.label_id for r in rois]),
                                 np.array([r.label for r in rois], dtype=object))
-        # the tracker element's default colour=true: its background model also gets the U/V planes
+        # as the tracker element's default 'colour' says: its background model also gets the U/V planes
         from contextlib import nullcontext
 
         from gst_trafficcal.gst.buffers import format_name
         from gst_trafficcal.tracking.background import chroma_from_planes
 
-        use_colour = pipe.background is not None
+        use_colour = self._colour and pipe.background is not None
         with self.gray(buffer) as gray, (self.planes(buffer) if use_colour else nullcontext()) as planes:
             chroma = chroma_from_planes(planes, format_name(self.video_info)) if planes is not None else None
             result, detections = pipe.process(gray, t, detections, chroma=chroma)
@@ -332,6 +334,19 @@ class Speedometer(TrafficcalTransform):
                 if report and not self._failed:
                     self.post_error(f"speedometer: {exc}")
                 self._failed = True
+
+
+def _tracker_default(name, fallback):
+    """The default of the ``tracker`` element's property ``name`` (internal tracking follows it), or ``fallback``
+    when that element is not installed."""
+    factory = Gst.ElementFactory.find("tracker")
+    element = factory.create(None) if factory is not None else None
+    if element is None:
+        return fallback
+    try:
+        return element.get_property(name)
+    except TypeError:  # an older tracker without the property
+        return fallback
 
 
 def _tracker_upstream(element):
