@@ -34,9 +34,10 @@ class Tracker(TrafficcalTransform):
         "background-width": (int, "Background width", "Width in pixels at which the background model runs",
                              16, 8192, 480, _RW),
         "colour": (bool, "Colour", "Use the frame's colour (U and V planes; BGR/RGB are converted) in the background "
-                   "model: colour changes count as foreground and cast shadows must keep the road's colour, which "
-                   "gives cleaner vehicle outlines than brightness alone (GRAY8 input always uses brightness)",
-                   True, _RW),
+                   "model: colour changes count as foreground and cast shadows must keep the road's colour. Closer "
+                   "reference points on synthetic cuboids, but less consistent along a track (speeds worse with the "
+                   "background detector), so off by default (GRAY8 input always uses brightness)",
+                   False, _RW),
         "blob-detection": (bool, "Blob detection", "When a frame carries no vehicle ROI, use the foreground blobs "
                            "as vehicles and add ROIs for them (detector-free mode)", False, _RW),
         "min-blob-area": (float, "Minimum blob area", "Smallest blob (pixels) taken as a vehicle in blob-detection "
