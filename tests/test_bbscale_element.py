@@ -24,8 +24,9 @@ ELEMENTS = ROOT / "elements" / "python"
 # catalogue's body styles: 20 s at 12.5 fps, 960x540
 SCENE = {"base": "octavia_reference", "duration": 20, "seed": 1, "camera": {"resolution": [960, 540]},
          "imaging": {"fps": 12.5}}
-# measured: this clip (seed 1, 12.5 fps, tracker colour=false) gives λ 3.2 % low; the same scene at 25 fps, seeds 1-3, gives -0.9, +2.8,
-# -1.5 % (vehicledetect's background detector: its boxes include part of the shadow, and only ~8 vehicles match)
+# measured: this clip (seed 1, 12.5 fps, tracker colour=false) gives λ 3.2 % low; the same scene at 25 fps,
+# seeds 1-3, gave -0.9, +2.8, -1.5 % (vehicledetect's background detector: its boxes include part of the shadow,
+# and only ~8 vehicles match)
 TOLERANCE = 0.06
 
 
