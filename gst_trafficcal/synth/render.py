@@ -1,9 +1,13 @@
 """Headless OpenGL renderer of the road scene and vehicles (moderngl, EGL, runs on Mesa llvmpipe).
 
-Per frame the work is: one blit restoring the cached static scene (colour and depth, rendered once), one
-draw call for the planar and contact shadows of all vehicles, one for headlight beams at night, one for all
-vehicles (their triangles merged into one vertex buffer), and one read-back.  The alpha channel of the frame
-carries a vehicle-ID mask written by the same draw (used for visibility and by the exactness tests).
+Per frame the work is: one blit restoring the cached static scene (colour and depth, rendered once) into a
+4x multisampled target, one draw call for the planar and contact shadows of all vehicles, one for headlight
+beams at night, one for all vehicles (their triangles merged into one vertex buffer), a resolve of the
+multisampled colour (anti-aliased vehicle and shadow edges, as a real camera's optics and sensor give; aliased
+staircase edges biased edgelet vanishing points), and its read-back.  The alpha channel of the frame carries a
+vehicle-ID mask drawn by a second, single-sampled pass of the same triangles with a trivial shader into a
+one-channel target over the static depth, read back too (exact: each pixel holds the vehicle seen at its
+centre, IDs never blend; used for visibility and by the exactness tests).
 Full-screen shader passes cost ~10 ms at 1080p on llvmpipe, so the imaging chain runs in OpenCV instead.  Textures are procedural noise made with numpy; materials are chosen per vertex.
 """
 
@@ -141,6 +145,28 @@ void main() {
     c = mix(c, sky_col, fog);
     f_col = vec4(c, v_id / 255.0);  // alpha carries the vehicle slot (0 = scene)
 }
+"""
+
+_ID_VERT = """
+#version 330
+uniform mat4 mvp;
+in vec3 in_pos; in float in_id;
+flat out float v_id;
+void main() { v_id = in_id; gl_Position = mvp * vec4(in_pos, 1.0); }
+"""
+
+_ID_FRAG = """
+#version 330
+flat in float v_id;
+layout(location = 0) out vec4 f_col;
+void main() { f_col = vec4(v_id / 255.0); }  // (red of a one-channel target)
+"""
+
+_COPY_FRAG = """
+#version 330
+uniform sampler2D image;
+layout(location = 0) out vec4 f_col;
+void main() { f_col = vec4(texelFetch(image, ivec2(gl_FragCoord.xy), 0).rgb, 0.0); }
 """
 
 _SKY_VERT = """
@@ -417,18 +443,32 @@ class Renderer:
         self.sky = ctx.program(vertex_shader=_SKY_VERT, fragment_shader=_SKY_FRAG)
         self.shadow = ctx.program(vertex_shader=_SHADOW_VERT, fragment_shader=_SHADOW_FRAG)
         self.glow = ctx.program(vertex_shader=_GLOW_VERT, fragment_shader=_GLOW_FRAG)
+        self.id_prog = ctx.program(vertex_shader=_ID_VERT, fragment_shader=_ID_FRAG)
         self.quad = ctx.buffer(np.array([-1, -1, 1, -1, -1, 1, 1, 1], np.float32).tobytes())
         mvp = cam.gl_matrix().astype(np.float32)
         self.mvp = mvp
-        for p in (self.prog, self.shadow, self.glow):
+        for p in (self.prog, self.shadow, self.glow, self.id_prog):
             p["mvp"].write(mvp.T.tobytes())
         self._set_uniforms(lamps, lamp_spacing)
         self.set_road(*road)
-        # targets: frame (colour + vehicle id + depth), cached static scene (colour + depth)
-        self.fbo = ctx.framebuffer([ctx.renderbuffer((W, H), 4)], ctx.depth_renderbuffer((W, H)))
+        # targets: cached static scene (colour + depth, single- and multisampled), the multisampled frame where
+        # everything is drawn, the frame (its resolved colour) and the vehicle-id target (ids + depth at pixel
+        # centres; its source is the static depth with zero ids)
         self.bg_tex = ctx.texture((W, H), 4)
-        self.bg_fbo = ctx.framebuffer([self.bg_tex], ctx.depth_renderbuffer((W, H)))
+        bg_depth = ctx.depth_renderbuffer((W, H))
+        self.bg_fbo = ctx.framebuffer([self.bg_tex], bg_depth)
+        self.samples = min(4, ctx.max_samples)
+        self.ms_fbo = ctx.framebuffer([ctx.renderbuffer((W, H), 4, samples=self.samples)],
+                                      ctx.depth_renderbuffer((W, H), samples=self.samples))
+        self.ms_static = ctx.framebuffer([ctx.renderbuffer((W, H), 4, samples=self.samples)],
+                                         ctx.depth_renderbuffer((W, H), samples=self.samples))
+        self.fbo = ctx.framebuffer([ctx.renderbuffer((W, H), 4)])
+        self.id_fbo = ctx.framebuffer([ctx.renderbuffer((W, H), 1)], ctx.depth_renderbuffer((W, H)))
+        self._id_src = ctx.framebuffer([ctx.renderbuffer((W, H), 1)], bg_depth)
+        self._id_src.clear(0.0, 0.0, 0.0, 0.0, depth=1.0)
+        self._ids = np.empty((H, W), np.uint8)
         self._frame = np.empty((H, W, 4), np.uint8)
+        self._dirty: list[tuple[int, int, int, int] | None] = [(0, 0, W, H)]  # first frame: everything
         self.part_table = _part_table()
         self._veh_cache: dict[int, np.ndarray] = {}
         self._pts_cache: dict[int, np.ndarray] = {}
@@ -486,6 +526,7 @@ class Renderer:
             prog["image"].value = 3
             ctx.disable(moderngl.DEPTH_TEST)
             ctx.vertex_array(prog, [(self.quad, "2f", "in_pos")]).render(moderngl.TRIANGLE_STRIP)
+            self._fill_ms_static(None)
             return
         bufs = []
         for arr in (ground, objects):
@@ -519,10 +560,34 @@ class Renderer:
         big = np.frombuffer(ss.read(components=4), np.uint8).reshape(2 * H, 2 * W, 4)
         self.bg_tex.write(cv2.resize(big, (W, H), interpolation=cv2.INTER_AREA).tobytes())
         ss.release()
+        self._fill_ms_static(draw)
         for buf in bufs:
             if buf is not None:
                 buf.release()
         ctx.finish()
+
+    def _fill_ms_static(self, draw) -> None:
+        """The multisampled cache of the static scene: depth per sample from the geometry (so static occluders
+        cut vehicles with anti-aliased edges), colour the supersampled ``bg_tex`` replicated into every sample
+        (the background of the frame stays exactly what it was)."""
+        import moderngl
+
+        ctx = self.ctx
+        self.ms_static.use()
+        self.ms_static.clear(0, 0, 0, 0, depth=1.0)
+        if draw is not None:
+            draw()
+        ctx.disable(moderngl.DEPTH_TEST)
+        self.ms_static.depth_mask = False
+        self.ms_static.use()  # (moderngl applies the masks on use)
+        prog = ctx.program(vertex_shader=_SKY_VERT, fragment_shader=_COPY_FRAG)
+        self.bg_tex.use(3)
+        prog["image"].value = 3
+        vao = ctx.vertex_array(prog, [(self.quad, "2f", "in_pos")])
+        vao.render(moderngl.TRIANGLE_STRIP)
+        vao.release()
+        prog.release()
+        self.ms_static.depth_mask = True
 
     # ---------------------------------------------------------------- per frame
     def vehicle_rows(self, v, mesh) -> np.ndarray:
@@ -551,15 +616,10 @@ class Renderer:
         import moderngl
 
         ctx = self.ctx
-        fbo = self.fbo
-        ctx.copy_framebuffer(fbo, self.bg_fbo)  # cached static scene: colour, zero ids and depth
-        fbo.use()
-        ctx.disable(moderngl.BLEND)
-        ctx.enable(moderngl.DEPTH_TEST)
-        self.noise.use(0)
+        fbo = self.ms_fbo
+        parts, shadows, glows, rects = [], [], [], []
+        self.frame_points, self.frame_triangles = [], []
         if items:
-            parts, shadows, glows = [], [], []
-            self.frame_points, self.frame_triangles = [], []
             for k, (v, mesh, off, *turn) in enumerate(items):
                 rows = self.vehicle_rows(v, mesh).copy()
                 pts = self._pts_cache[(v.id, id(mesh))].copy()
@@ -582,6 +642,21 @@ class Renderer:
                         c, s_ = np.cos(turn[0]), np.sin(turn[0])
                         g[:, 0:2] = (g[:, 0:2] - off[:2]) @ np.array([[c, s_], [-s_, c]], np.float32) + off[:2]
                     glows.append(g)
+                lo, hi = pts.min(0), pts.max(0)
+                box = np.stack(np.meshgrid(*zip(lo, hi), indexing="ij"), -1).reshape(-1, 3)
+                rects.append(self._screen_rect(np.concatenate([box, shadows[-1][:, :3]] +
+                                                              ([glows[-1][:, :3]] if self.light.lights_on else []))))
+        # only the pixels the vehicles touch now or touched in the previous frame are resolved (and their ids
+        # reset): the resolve of a whole 1080p frame costs ~22 ms on llvmpipe.  The multisampled restore stays
+        # whole: llvmpipe's scissored multisample-to-multisample blit left stale samples (1 px at a beam's edge).
+        dirty = [r for r in self._dirty + rects if r is not None]
+        self._dirty = rects
+        ctx.copy_framebuffer(fbo, self.ms_static)  # cached static scene: colour and depth (per sample)
+        fbo.use()
+        ctx.disable(moderngl.BLEND)
+        ctx.enable(moderngl.DEPTH_TEST)
+        self.noise.use(0)
+        if items:
             # ground-level layers first (no depth writes): shadows, then headlight beams; the vehicles are drawn
             # over them, so shadows never darken a body and the id target holds exactly the vehicles' pixels
             fbo.depth_mask = False
@@ -610,10 +685,44 @@ class Renderer:
                                                 "in_mat", "in_id")])
             vao.render(moderngl.TRIANGLES, vertices=len(rows))
             vao.release()
-            ctx.disable(moderngl.BLEND)
-        W, H = self.size
-        fbo.read_into(self._frame, components=4)  # one read-back per frame
+        self._blit(self.fbo, fbo, dirty)  # resolve: samples averaged (anti-aliased colour)
+        self.fbo.read_into(self._frame, components=4)
+        # vehicle ids: the same triangles single-sampled over the static depth, exact (never averaged)
+        self._blit(self.id_fbo, self._id_src, dirty)  # zero ids, static depth
+        if items:
+            self.id_fbo.use()
+            vao = ctx.vertex_array(self.id_prog, [(self._veh_buf, "3f 28x 1f", "in_pos", "in_id")])
+            vao.render(moderngl.TRIANGLES, vertices=len(rows))
+            vao.release()
+        self.id_fbo.read_into(self._ids, components=1)
+        self._frame[..., 3] = self._ids
         return cv2.flip(self._frame, 0)
+
+    def _screen_rect(self, pts: np.ndarray) -> tuple[int, int, int, int] | None:
+        """Pixel rectangle (x, y, w, h; OpenGL's bottom-left origin) holding the projections of ``pts`` with a
+        one-pixel margin; the whole frame if a point is behind the camera, None if it is off the frame."""
+        W, H = self.size
+        clip = np.c_[pts, np.ones(len(pts))] @ self.mvp.T.astype(np.float64)
+        if len(pts) == 0 or (clip[:, 3] <= 1e-6).any():
+            return (0, 0, W, H) if len(pts) else None
+        xy = clip[:, :2] / clip[:, 3:4]
+        x0, y0 = np.floor((xy.min(0) + 1) * 0.5 * (W, H)) - 1
+        x1, y1 = np.ceil((xy.max(0) + 1) * 0.5 * (W, H)) + 1
+        x0, y0, x1, y1 = max(int(x0), 0), max(int(y0), 0), min(int(x1), W), min(int(y1), H)
+        return (x0, y0, x1 - x0, y1 - y0) if x1 > x0 and y1 > y0 else None
+
+    def _blit(self, dst, src, rects: list[tuple[int, int, int, int]]) -> None:
+        """Copy (or resolve) ``src`` into single-sampled ``dst`` inside ``rects`` only (the blit obeys the
+        scissor test)."""
+        W, H = self.size
+        if sum(w * h for _, _, w, h in rects) > 0.7 * W * H:
+            rects = [(0, 0, W, H)]
+        for r in rects:
+            dst.scissor = r
+            dst.use()
+            self.ctx.copy_framebuffer(dst, src)
+        dst.scissor = None
+        dst.use()
 
     def _upload(self, buf, rows: np.ndarray):
         data = rows.astype(np.float32, copy=False).tobytes()
