@@ -272,24 +272,20 @@ class Speedometer(TrafficcalTransform):
 
     def _write_frame(self, buffer, t):
         """One line of ``frames-file``: this frame's vehicle ROIs as they leave (with 'speed' when known)."""
-        from gst_trafficcal.errors import InputError
         from gst_trafficcal.gst.meta import read_vehicle_rois
 
         rois = [r for r in read_vehicle_rois(buffer, self.frame_size) if r.object_id is not None]
-        try:
-            self._frames.write(rois, self.frame_size, t)
-        except InputError as exc:
-            if not self._failed:
-                self.post_error(f"speedometer: {exc}")
-            self._failed = True
-            return False
-        return True
+        return self._guarded_write(self._frames.write, rois, self.frame_size, t)
 
     def _write_results(self):
+        return self._guarded_write(self._outputs.checkpoint, self._meter.calibration)
+
+    def _guarded_write(self, write, *args):
+        """Run one output write; on a file error post it once (the element keeps flowing) and return False."""
         from gst_trafficcal.errors import InputError
 
         try:
-            self._outputs.checkpoint(self._meter.calibration)
+            write(*args)
         except InputError as exc:
             if not self._failed:
                 self.post_error(f"speedometer: {exc}")
