@@ -45,3 +45,23 @@ def test_errors_name_the_element_and_the_cause(tmp_path):
         run_pipeline_file(f"filesrc location={tmp_path / 'absent.mp4'} ! decodebin ! fakesink")
     with pytest.raises(PipelineError, match="cannot build the pipeline"):
         run_pipeline_file("videotestsrc ! no-such-element-here ! fakesink")
+
+
+def test_in_process_python_elements_log_no_floating_reference_critical():
+    """PyGObject's floating-reference bug message is dropped in process; other GStreamer criticals still print."""
+    import os
+    import subprocess
+    import sys
+
+    code = (
+        "import ctypes\n"
+        "from gst_trafficcal.gst.runner import run_pipeline_file\n"
+        "run_pipeline_file('videotestsrc num-buffers=3 ! video/x-raw,format=I420,width=64,height=48 ! "
+        "vpdetect ! vehicledetect ! tracker ! fakesink')\n"
+        "glib = ctypes.CDLL('libglib-2.0.so.0')\n"
+        "glib.g_log(b'GStreamer', 1 << 3, b'%s', b'another critical')\n"  # G_LOG_LEVEL_CRITICAL
+    )
+    res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120, env=os.environ)
+    assert res.returncode == 0, res.stderr
+    assert "should be floating" not in res.stderr
+    assert "GStreamer-CRITICAL" in res.stderr and "another critical" in res.stderr

@@ -37,4 +37,18 @@ from gi.repository import GLib, GObject, Gst, GstBase, GstVideo  # noqa: E402
 if not Gst.is_initialized():
     Gst.init(None)
 
+# PyGObject before 3.50 creates Python-defined elements already ref-sunk, so every in-process
+# Gst.parse_launch/ElementFactory.make of one of our elements logs "GStreamer-CRITICAL: The created element
+# should be floating, this is probably caused by faulty bindings" (pygobject merge request 129; harmless: the
+# pipeline then holds the only reference). Drop exactly that message; every other critical is still printed.
+_FLOATING_BUG = "The created element should be floating"
+
+
+def _gst_log_filter(domain: str, level: GLib.LogLevelFlags, message: str, *user_data: object) -> None:
+    if not message.startswith(_FLOATING_BUG):
+        GLib.log_default_handler(domain, level, message, None)
+
+
+GLib.log_set_handler("GStreamer", GLib.LogLevelFlags.LEVEL_CRITICAL, _gst_log_filter, None)
+
 __all__ = ["GLib", "GObject", "Gst", "GstBase", "GstVideo"]
