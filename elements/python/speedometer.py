@@ -201,10 +201,7 @@ class Speedometer(TrafficcalTransform):
 
     def _track(self, buffer, rois, t):
         """Run the library tracker on this frame's ROIs; label them like the tracker element; return sightings."""
-        import numpy as np
-
-        from gst_trafficcal.detection.records import Detections
-        from gst_trafficcal.gst.meta import OBJECT_ID, update_roi_params
+        from gst_trafficcal.gst.meta import OBJECT_ID, detections_from_rois, update_roi_params
         from gst_trafficcal.measurement import Sighting
         from gst_trafficcal.tracking.vehicle_meta import STRUCTURE, vehicle_fields
 
@@ -213,18 +210,9 @@ class Speedometer(TrafficcalTransform):
         camera = cal.camera if cal is not None else None
         if camera is not pipe.camera:
             pipe.set_camera(camera)
-        detections = Detections(np.array([r.box for r in rois], np.float64).reshape(-1, 4),
-                                np.array([r.confidence for r in rois]), np.array([r.label_id for r in rois]),
-                                np.array([r.label for r in rois], dtype=object))
+        detections = detections_from_rois(rois)
         # as the tracker element's default 'colour' says: its background model also gets the U/V planes
-        from contextlib import nullcontext
-
-        from gst_trafficcal.gst.buffers import format_name
-        from gst_trafficcal.tracking.background import chroma_from_planes
-
-        use_colour = self._colour and pipe.background is not None
-        with self.gray(buffer) as gray, (self.planes(buffer) if use_colour else nullcontext()) as planes:
-            chroma = chroma_from_planes(planes, format_name(self.video_info)) if planes is not None else None
+        with self.gray_and_chroma(buffer, self._colour and pipe.background is not None) as (gray, chroma):
             result, detections = pipe.process(gray, t, detections, chroma=chroma)
         out = []
         for i, roi in enumerate(rois):

@@ -79,14 +79,10 @@ class Tracker(TrafficcalTransform):
         return super().do_stop()
 
     def transform_frame(self, buffer):
-        import numpy as np
-
         from gst_trafficcal.detection.records import Detections
-        from contextlib import nullcontext
-
-        from gst_trafficcal.gst.buffers import format_name, pts_seconds
-        from gst_trafficcal.gst.meta import OBJECT_ID, add_vehicle_roi, read_vehicle_rois, update_roi_params
-        from gst_trafficcal.tracking.background import chroma_from_planes
+        from gst_trafficcal.gst.buffers import pts_seconds
+        from gst_trafficcal.gst.meta import (OBJECT_ID, add_vehicle_roi, detections_from_rois, read_vehicle_rois,
+                                             update_roi_params)
         from gst_trafficcal.tracking.vehicle_meta import vehicle_fields
 
         t = pts_seconds(buffer)
@@ -97,9 +93,7 @@ class Tracker(TrafficcalTransform):
             return Gst.FlowReturn.OK
         rois = read_vehicle_rois(buffer, self.frame_size)
         if rois:
-            detections = Detections(np.array([r.box for r in rois], np.float64),
-                                    np.array([r.confidence for r in rois]), np.array([r.label_id for r in rois]),
-                                    np.array([r.label for r in rois], dtype=object))
+            detections = detections_from_rois(rois)
         elif self.blob_detection:
             detections = None
         else:
@@ -108,9 +102,7 @@ class Tracker(TrafficcalTransform):
         camera = cal.camera if cal is not None else None
         if camera is not self._pipe.camera:
             self._pipe.set_camera(camera)
-        use_colour = self.colour and self._pipe.background is not None
-        with self.gray(buffer) as gray, (self.planes(buffer) if use_colour else nullcontext()) as planes:
-            chroma = chroma_from_planes(planes, format_name(self.video_info)) if planes is not None else None
+        with self.gray_and_chroma(buffer, self.colour and self._pipe.background is not None) as (gray, chroma):
             result, detections = self._pipe.process(gray, t, detections, chroma=chroma)
         if not rois and len(detections):  # blob-detection mode: the blobs become the frame's ROIs
             meta_ids = [add_vehicle_roi(buffer, self.frame_size, b, str(lab), float(s), int(c))

@@ -49,7 +49,8 @@ import numpy as np
 
 from ..calibration import Calibration
 from ._gi import GLib, GObject, Gst, GstBase, GstVideo
-from .buffers import SUPPORTED_FORMATS, frame_bgr, frame_gray, frame_planes, video_caps_string, video_info_from_caps
+from .buffers import (SUPPORTED_FORMATS, format_name, frame_bgr, frame_gray, frame_planes, video_caps_string,
+                      video_info_from_caps)
 from .calibration_event import calibration_event, calibration_message, parse_calibration_event
 from .meta import make_structure
 
@@ -123,6 +124,19 @@ class TrafficcalTransform(GstBase.BaseTransform):
         """``frame_planes(buffer, self.video_info, writable)``."""
         with frame_planes(buffer, self.video_info, writable) as planes:
             yield planes
+
+    @contextmanager
+    def gray_and_chroma(self, buffer: Gst.Buffer, colour: bool) -> Iterator[tuple[np.ndarray, np.ndarray | None]]:
+        """The frame's luma and, when ``colour``, its U/V planes (H' x W' x 2, the background model's ``chroma``;
+        None for GRAY8 or when not asked): what the tracker stage feeds its background model."""
+        from ..tracking.background import chroma_from_planes
+
+        with self.gray(buffer) as gray:
+            if not colour:
+                yield gray, None
+                return
+            with self.planes(buffer) as planes:
+                yield gray, chroma_from_planes(planes, format_name(self.video_info))
 
     # ------------------------------------------------------------------ calibration and bus
     def publish_calibration(self, cal: Calibration) -> None:

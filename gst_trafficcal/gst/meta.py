@@ -20,12 +20,15 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from . import _cgst
 from ._gi import GObject, Gst, GstVideo
+
+if TYPE_CHECKING:
+    from ..detection.records import Detections
 
 DETECTION = "detection"
 OBJECT_ID = "object_id"
@@ -194,6 +197,16 @@ def read_vehicle_rois(buffer: Gst.Buffer, frame_size: tuple[int, int]) -> list[R
             )
         )
     return out
+
+
+def detections_from_rois(rois: Sequence[RoiRecord]) -> Detections:
+    """The ROIs' boxes, confidences and labels as the library's :class:`Detections` (empty for no ROIs)."""
+    from ..detection.records import Detections
+
+    return Detections(np.array([r.box for r in rois], np.float64).reshape(-1, 4),
+                      np.array([r.confidence for r in rois], np.float64),
+                      np.array([r.label_id for r in rois], np.int64),
+                      np.array([r.label for r in rois], dtype=object))
 
 
 def update_roi_params(buffer: Gst.Buffer, meta_id: int, name: str, fields: Mapping[str, Any]) -> None:
