@@ -191,13 +191,13 @@ def guess_axes(path: Path, V: np.ndarray, parts: np.ndarray, F: np.ndarray) -> t
 
 @lru_cache(maxsize=64)
 def _load_file_cached(path: str, mtime: float, axes: tuple | None):
-    V, F, P = _file_geometry(Path(path))
-    if axes is None:
-        fwd, up = guess_axes(Path(path), V, P, F)
-    else:
+    if axes is not None:  # a wrong axis spec is reported before (and whether or not) the file reads
         fwd, up = (parse_axis(a) for a in axes)
         if abs(float(fwd @ up)) > 1e-9:
             raise InputError(f"vehicle mesh {path}: forward axis and up axis must differ")
+    V, F, P = _file_geometry(Path(path))
+    if axes is None:
+        fwd, up = guess_axes(Path(path), V, P, F)
     left = np.cross(up, fwd)
     R = np.stack([fwd, left, up])  # rows: our x, y, z in file coordinates
     return V @ R.T, F, P
