@@ -95,6 +95,20 @@ def test_background_default_on_i420(frames):
     assert sum(len(sf.rois) for sf in late) >= 2 * len(late)
 
 
+def test_background_average_property_reaches_the_detector(frames):
+    run = run_pipeline("appsrc name=src ! videoconvert ! video/x-raw,format=I420 ! vehicledetect background=average ! "
+                       "appsink name=sink", frames, CAPS)
+    assert all(not sf.rois for sf in run.frames[:25])  # the moving average reports nothing during its warm-up
+    late = run.frames[100:]
+    assert sum(len(sf.rois) for sf in late) >= 2 * len(late)
+
+
+def test_bad_background_method_fails_at_start(frames):
+    with pytest.raises(PipelineError, match="background method must be mog2 or average"):
+        run_pipeline("appsrc name=src ! videoconvert ! vehicledetect background=median ! appsink name=sink",
+                     frames[:3], CAPS)
+
+
 @pytest.mark.parametrize("model,message", [("/nonexistent/model.onnx", "model file not found: /nonexistent/model.onnx"),
                                            ("JUNK", "not a usable ONNX model")])
 def test_bad_model_fails_at_start_naming_it(frames, tmp_path, model, message):

@@ -35,6 +35,8 @@ class VehicleDetect(TrafficcalTransform):
                      1, 1000, 1, _RW),
         "tiles": (str, "Tiles", "Run the ONNX model on COLUMNSxROWS overlapping tiles of the frame (e.g. 3x2): finds "
                   "distant vehicles in full-HD frames at one inference per tile", "1x1", _RW),
+        "background": (str, "Background method", "Model of the built-in detector (no model given): mog2 (default) or "
+                       "average (moving average with shadow peeling: boxes without the cast shadow)", "mog2", _RW),
         "threads": (int, "Threads", "onnxruntime intra-op threads (0 = onnxruntime's default)", 0, 64, 1, _RW),
     }
 
@@ -49,7 +51,7 @@ class VehicleDetect(TrafficcalTransform):
 
         try:
             self._detector = create_detector(self.model, self.model_format, self.labels, self.threshold, self.threads,
-                                             self.tiles)
+                                             self.tiles, background=self.background)
         except TrafficcalError as exc:
             self.post_error(f"vehicledetect: {exc}", code=Gst.CoreError.FAILED)
             return False

@@ -19,13 +19,17 @@ def create_detector(
     threshold: float = 0.4,
     threads: int = 1,
     tiles: str | tuple[int, int] = (1, 1),
+    background: str = "mog2",
 ) -> Detector:
     """An ONNX detector for ``model`` (a path or an installed model's name), or the background
-    detector when ``model`` is empty. Bad files raise InputError here, at start-up."""
+    detector when ``model`` is empty (``background``: its model, "mog2" or "average" — the moving average with
+    shadow peeling, tighter boxes). Bad files or names raise InputError here, at start-up."""
     if not model:
         from .background import BackgroundDetector
 
-        return BackgroundDetector()
+        if background not in ("mog2", "average"):
+            raise InputError(f"background method must be mog2 or average, got {background!r}")
+        return BackgroundDetector(method=background)
     from .models import resolve_model
     from .onnx_detector import OnnxDetector
 

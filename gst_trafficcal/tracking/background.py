@@ -46,6 +46,7 @@ class BackgroundModel:
     colour_shadow_std: float | None = None  # spread test in the colour mode too (over the window's candidates)
     colour_shadow_ratio: tuple[float, float] = (0.1, 0.92)  # shadow_ratio of the colour test
     shadow_min_support: float = 0.3  # fraction of the ratio window that must be shadow candidates
+    keep_ratio: bool = False  # keep frame/background of the last frame in ``ratio`` (the detector's shadow peeling)
 
     def __post_init__(self) -> None:
         if self.work_width < 16:
@@ -63,6 +64,7 @@ class BackgroundModel:
         self._first: list[np.ndarray] = []
         self._bg_uv: np.ndarray | None = None
         self._first_uv: list[np.ndarray] = []
+        self.ratio: np.ndarray | None = None
 
     def reset(self) -> None:
         self._bg = None
@@ -109,6 +111,8 @@ class BackgroundModel:
             self._bg_uv = uv.copy()
         diff = cv2.absdiff(small, self._bg)
         changed = diff > self.threshold
+        if self.keep_ratio:
+            self.ratio = small / cv2.max(self._bg, 1.0)
         if uv is not None:
             cdiff = _max_channel(cv2.absdiff(uv, self._bg_uv))
             changed |= cdiff > np.maximum(self.chroma_threshold,
