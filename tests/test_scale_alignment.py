@@ -226,3 +226,17 @@ def test_fitted_base_recovers_a_displaced_base_point(models):
         lam_fit, lam_raw = fit.lambda_ij[fit.best], raw.lambda_ij[raw.best]
         assert fit.iou.max() > 0.98 and fit.iou.max() >= raw.iou.max()
         assert abs(lam_fit / cam.scale - 1) < 0.01 and abs(lam_fit / cam.scale - 1) <= abs(lam_raw / cam.scale - 1)
+
+
+def test_loose_edges_count_only_one_way():
+    """A shadow-extended edge (+1) is free outward, a lost part (-1) free inward; 0 is the plain IoU."""
+    from gst_trafficcal.scale.alignment import box_iou, loose_iou
+
+    model = np.array([[0.0, 0.0, 10.0, 10.0]])
+    wide = [0.0, 0.0, 12.0, 10.0]  # the detected box reaches 2 px further right (a cast shadow)
+    short = [0.0, 3.0, 10.0, 10.0]  # the detected box lost the top 3 px
+    assert loose_iou(model, wide, (0, 0, 1, 0))[0] == pytest.approx(1.0)
+    assert loose_iou(model, wide, (0, 0, -1, 0))[0] == pytest.approx(box_iou(model, wide)[0])
+    assert loose_iou(model, short, (0, -1, 0, 0))[0] == pytest.approx(1.0)
+    assert loose_iou(model, short, (0, 1, 0, 0))[0] == pytest.approx(0.7)
+    assert loose_iou(model, short, None)[0] == pytest.approx(0.7)

@@ -238,3 +238,36 @@ def test_a_broken_mesh_in_the_models_catalogue_is_an_error_naming_it(tmp_path):
                    "    sources: {length: brochure}\n")
     with pytest.raises(InputError, match="my_car.glb"):
         load_align_models(str(cat))
+
+
+def test_length_to_width_of_a_3d_box(cam):
+    from gst_trafficcal.scale.streaming import length_to_width
+    from gst_trafficcal.tracking.box3d import CORNER_BITS
+
+    # a 4.5 x 1.8 x 1.5 m box on the road, 30 m ahead: the ratio on the road plane is scale-free
+    lo, size = np.array([30.0, 1.0, 0.0]), np.array([4.5, 1.8, 1.5])
+    px = cam.world_to_image(lo + CORNER_BITS * size)
+    assert length_to_width(cam, px) == pytest.approx(2.5, rel=1e-6)
+
+
+def test_vehicles_that_are_not_car_shaped_are_not_aligned(cam, models):
+    """A truck-like 3D box (length 6x its width) is rejected before alignment even when its 2D box would match
+    a car model; the status says how many were not car-shaped."""
+    from gst_trafficcal.tracking.box3d import CORNER_BITS
+
+    frames = vehicle_sightings(cam, models, np.random.default_rng(3), 1)
+
+    def corners(s: Sighting, length: float) -> np.ndarray:
+        x, y, _ = cam.to_world(np.asarray(s.base))
+        lo = np.array([x - length / 2, y - 0.9, 0.0])
+        return cam.world_to_image(lo + CORNER_BITS * np.array([length, 1.8, 1.5]))
+
+    for length, aligned in ((4.5, True), (10.8, False)):
+        est = ScaleEstimator(models, min_vehicles=1, refine_base=False)
+        est.set_camera(cam)
+        run(est, [[Sighting(s.track_id, s.t, s.box, s.base, s.heading, s.label, corners=corners(s, length))
+                   for s in ss] for ss in frames])
+        r = est.result()
+        assert r.converged is aligned, r
+        if not aligned:
+            assert "1 not car-shaped" in r.status and r.n_vehicles == 0

@@ -147,7 +147,8 @@ class BBScale(TrafficcalTransform):
             box = tuple(v.get("hull_box", r.box)) if self.box == "hull" else tuple(r.box)
             sightings.append(Sighting(int(r.object_id), float(v.get("t", t)), box, base,
                                       float(v.get("direction", 0)), r.label, bool(v.get("occluded", False)),
-                                      bool(v.get("truncated", False)), p))
+                                      bool(v.get("truncated", False)), p,
+                                      corners=v["box3d"] if base is not None else None))
         if self._est.update(t, sightings, cal.camera if cal is not None else None):
             self._report()
         return Gst.FlowReturn.OK

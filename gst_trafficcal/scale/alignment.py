@@ -143,6 +143,33 @@ def box_iou(boxes: np.ndarray, box) -> np.ndarray:
     return np.where(np.isfinite(iou), iou, 0.0)
 
 
+def loose_iou(boxes: np.ndarray, box, loose=None) -> np.ndarray:
+    """IoU of model boxes (S, 4) with the detected box when some edges of the detected box (x0, y0, x1, y1) are
+    known to be biased one way: ``loose[k]`` = +1 means edge k counts only when it lies inside the model box (a
+    cast or contact shadow can only extend a box, so on that side the box says how far the vehicle reaches at
+    most), -1 only when it lies outside (a part the detector loses, e.g. a grey roof on a grey road, can only
+    shrink it), 0 both ways.  ``loose`` None or all 0 is the plain IoU."""
+    b = np.asarray(box, np.float64)
+    if loose is None or not any(loose):
+        return box_iou(boxes, b)
+    boxes = np.asarray(boxes, np.float64)
+    lo = np.sign(np.asarray(loose, np.float64))
+    out = np.array([-1.0, -1.0, 1.0, 1.0])  # the outward direction of each edge
+    m = np.where(np.isfinite(boxes), boxes, b)
+    # the edge's signed excess beyond the model (outward positive); the free direction is clipped to zero
+    excess = (b - m) * out
+    excess = np.where(lo > 0, np.minimum(excess, 0.0), np.where(lo < 0, np.maximum(excess, 0.0), excess))
+    d = m + excess * out
+    iw = np.minimum(boxes[..., 2], d[..., 2]) - np.maximum(boxes[..., 0], d[..., 0])
+    ih = np.minimum(boxes[..., 3], d[..., 3]) - np.maximum(boxes[..., 1], d[..., 1])
+    inter = np.clip(iw, 0, None) * np.clip(ih, 0, None)
+    area = (boxes[..., 2] - boxes[..., 0]) * (boxes[..., 3] - boxes[..., 1])
+    union = area + (d[..., 2] - d[..., 0]) * (d[..., 3] - d[..., 1]) - inter
+    with np.errstate(invalid="ignore", divide="ignore"):
+        iou = inter / union
+    return np.where(np.isfinite(iou), iou, 0.0)
+
+
 def lambdas_from_base_points(cam: Camera, model: AlignModel, base_px, heading: float,
                              lambdas: np.ndarray) -> np.ndarray:
     """λ_ij = l / ‖F_ij − R_ij‖: the placed model's front and rear base points projected into the image and back
@@ -250,20 +277,21 @@ def candidate_lambdas(cam: Camera, model: AlignModel, obs: Observation, n: int =
 
 
 def align(cam: Camera, model: AlignModel, obs: Observation, lambdas: np.ndarray | None = None,
-          renderer=None, refine_base: bool | str = False) -> Alignment:
+          renderer=None, refine_base: bool | str = False, loose=None) -> Alignment:
     """Model boxes and IoUs at candidate scales for one observation.  ``renderer`` = None uses the exact
     projection shortcut, else an object with ``boxes(cam, model, obs, lambdas)`` (e.g.
     :class:`.silhouette.SilhouetteRenderer`).  ``refine_base`` aligns once, moves b at the best scale and aligns
     again (``Alignment.base`` is the b used): True or "box3d" = b corrected for the 3D-box construction
     (:func:`corrected_base`), "fit" = b fitted jointly with λ to the box (:func:`fitted_base`); False = the
-    tracker's b as is (the paper)."""
+    tracker's b as is (the paper).  ``loose``: edges of the detected box that may extend beyond the model
+    without penalty (:func:`loose_iou`)."""
     if refine_base:
-        first = align(cam, model, obs, lambdas, renderer)
+        first = align(cam, model, obs, lambdas, renderer, loose=loose)
         if first.iou.max() > 0:
             move = fitted_base if refine_base == "fit" else corrected_base
             obs = replace(obs, base=move(cam, model, obs, first.lambdas[first.best]))
             try:
-                return align(cam, model, obs, lambdas, renderer)
+                return align(cam, model, obs, lambdas, renderer, loose=loose)
             except GeometryError:
                 return first
         return first
@@ -275,7 +303,7 @@ def align(cam: Camera, model: AlignModel, obs: Observation, lambdas: np.ndarray 
     lambdas = np.asarray(lambdas, np.float64)
     boxes = projected_boxes(cam, model.hull, obs.base, obs.heading, lambdas) if renderer is None else \
         renderer.boxes(cam, model, obs, lambdas)
-    iou = box_iou(boxes, obs.box)
+    iou = loose_iou(boxes, obs.box, loose)
     lam_ij = lambdas_from_base_points(cam, model, obs.base, obs.heading, lambdas)
     return Alignment(model.name, lambdas, boxes, iou, lam_ij, cam.viewpoint(np.asarray(obs.base, float)),
                      tuple(float(v) for v in obs.base))

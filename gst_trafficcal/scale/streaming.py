@@ -12,9 +12,14 @@ visible, unoccluded sightings with a 3D box; when the track ends (not seen for `
 * with them (:mod:`.classifier`, track-mean probabilities) each type with probability > 0 contributes its
   matches weighted by IoU x probability, as the paper does.
 
-Matches with IoU above ``iou_threshold`` give λ_ij (weights = IoU); λ* is the mode of the weighted kernel
-density (:func:`.estimate.kde_mode`).  It converges when ``min_vehicles`` vehicles agree with λ* (their own
-λ within ``agreement`` of it); the optional regression (:mod:`.regression`) maps λ* to λ_reg.  Alignment work
+Only passenger-car-shaped vehicles are aligned: the median length/width of the track's 3D boxes on the road
+must lie in ``shape_range`` (trucks, buses, vehicles merged into one blob and broken 3D boxes do not; on the
+BrnoCompSpeed replays those gave the matches 50-60 % off that kept λ* there).  Matches with IoU above
+``iou_threshold`` give λ_ij (weights = IoU); λ* is the mode of the weighted kernel density
+(:func:`.estimate.kde_mode`).  It converges when ``min_vehicles`` vehicles agree with λ* (their own λ within
+``agreement`` = 8 % of it: even with exact boxes one vehicle's λ scatters by ~5 % median, because a car of
+unknown make is matched with the catalogue type of most similar shape, whose length differs from its own);
+the optional regression (:mod:`.regression`) maps λ* to λ_reg.  Alignment work
 is bounded: ``per_track`` sightings per vehicle, each aligned once.  When the vanishing points change, what
 was accumulated is dropped (the alignments depend on them).
 """
@@ -54,6 +59,20 @@ class Sighting:
     occluded: bool = False
     truncated: bool = False
     type_probs: Mapping[str, float] | None = None
+    corners: Sequence[Sequence[float]] | None = None  # the 3D box's 8 image corners (order box3d.CORNER_BITS)
+
+
+def length_to_width(camera: Camera, corners_px) -> float | None:
+    """Length / width of a 3D box's base on the road (scale-free) from its 8 image corners (order
+    ``box3d.CORNER_BITS``: corner 1 = corner 0 moved along the road, corner 2 = moved across); None when the
+    base is not on the visible road."""
+    from ..tracking.box3d import pixels_to_road
+
+    c = np.asarray(corners_px, np.float64).reshape(8, 2)[:3]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        road = pixels_to_road(camera, c)
+    L, W = np.linalg.norm(road[1] - road[0]), np.linalg.norm(road[2] - road[0])
+    return float(L / W) if np.isfinite(L) and np.isfinite(W) and W > 0 else None
 
 
 def base_centre(corners_px: Sequence[Sequence[float]]) -> tuple[float, float] | None:
@@ -137,8 +156,10 @@ class ScaleEstimator:
 
     def __init__(self, models: Mapping[str, AlignModel] | None = None, iou_threshold: float = DEFAULT_IOU_THRESHOLD,
                  min_vehicles: int = 5, regression=None, renderer=None, per_track: int = 3, min_gap: float = 0.2,
-                 track_timeout: float = 1.0, min_box: float = 24.0, shortlist: int = 3, agreement: float = 0.05,
-                 refine_base: bool = True, bandwidth: float = 0.02):
+                 track_timeout: float = 1.0, min_box: float = 24.0, shortlist: int = 3, agreement: float = 0.08,
+                 refine_base: bool = True, bandwidth: float = 0.02,
+                 shape_range: tuple[float, float] | None = (0.8, 3.5), shape_tolerance: float | None = None,
+                 min_peak: float = 0.0, loose=None):
         if not 0.0 < iou_threshold < 1.0:
             raise InputError(f"iou-threshold must be between 0 and 1, got {iou_threshold:g}")
         if min_vehicles < 1:
@@ -154,6 +175,9 @@ class ScaleEstimator:
         self.min_box, self.shortlist, self.agreement = float(min_box), int(shortlist), float(agreement)
         self.refine_base = refine_base
         self.bandwidth = float(bandwidth)
+        self.shape_range, self.shape_tolerance = shape_range, shape_tolerance
+        self.min_peak = float(min_peak)
+        self.loose = tuple(int(np.sign(v)) for v in loose) if loose is not None else None
         self.camera: Camera | None = None
         self._reset()
 
@@ -165,6 +189,7 @@ class ScaleEstimator:
         self._n_geometry_failures = 0
         self._geometry_reason = ""
         self._n_selected = 0
+        self._n_not_car = 0
         self._result: ScaleResult | None = None
 
     def set_camera(self, camera: Camera | None) -> None:
@@ -237,7 +262,7 @@ class ScaleEstimator:
 
     def _align(self, model: AlignModel, obs: Observation, refine: bool):
         try:
-            return align(self.camera, model, obs, renderer=self.renderer, refine_base=refine)
+            return align(self.camera, model, obs, renderer=self.renderer, refine_base=refine, loose=self.loose)
         except GeometryError as exc:
             self._n_geometry_failures += 1
             self._geometry_reason = str(exc)
@@ -245,9 +270,32 @@ class ScaleEstimator:
             pass
         return None
 
+    def _car_shaped(self, sightings: list[Sighting]) -> list[Sighting]:
+        """The sightings of a passenger-car-shaped vehicle: the median length/width of the track's 3D boxes on the
+        road must lie in ``shape_range`` (a truck, bus, two vehicles merged into one blob or a broken box lie
+        outside; measured on the replays these are the matches 50-60 % off), and with ``shape_tolerance`` only
+        sightings whose own ratio is within that relative distance of the median are kept.  Empty when the
+        vehicle is not car-shaped; unchanged without 3D-box corners."""
+        if self.shape_range is None:
+            return sightings
+        ratios = [length_to_width(self.camera, s.corners) if s.corners is not None else None for s in sightings]
+        known = [r for r in ratios if r is not None]
+        if not known:
+            return sightings
+        med = float(np.median(known))
+        if not self.shape_range[0] <= med <= self.shape_range[1]:
+            return []
+        if self.shape_tolerance is None:
+            return sightings
+        return [s for s, r in zip(sightings, ratios) if r is None or abs(r / med - 1) <= self.shape_tolerance]
+
     def _align_track(self, tid: int, buf: _TrackBuffer) -> bool:
-        chosen = self._choose(buf.sightings)
         self._n_selected += 1
+        sightings = self._car_shaped(buf.sightings)
+        if not sightings:
+            self._n_not_car += 1
+            return False
+        chosen = self._choose(sightings)
         probs = {k: v / buf.probs_n for k, v in buf.probs_sum.items()} if buf.probs_n else None
         obs = [self._observation(s, probs) for s in chosen]
         if probs:  # classifier: every named type with its track-mean probability
@@ -281,7 +329,7 @@ class ScaleEstimator:
             wts = [a.iou[k] for a, k in zip(per_type[model], ks)]
         lam, w = np.concatenate(lams), np.concatenate(wts)
         ok = np.isfinite(lam) & (lam > 0) & (w > 0)
-        if not ok.any():
+        if not ok.any() or np.mean([a.iou.max() for a in per_type[model]]) < self.min_peak:
             return True  # aligned but unmatched: the status counts it
         lam, w = lam[ok], w[ok]
         peaks = np.array([a.lambda_ij[a.best] for a in per_type[model] if a.iou.max() > self.iou_threshold])
@@ -310,9 +358,10 @@ class ScaleEstimator:
             if not self._n_selected:
                 return ScaleResult(None, None, 0.0, "no fully visible vehicle with a 3D box seen yet", False,
                                    **counts)
+            shape = f" ({self._n_not_car} not car-shaped)" if self._n_not_car else ""
             return ScaleResult(None, None, 0.0, f"no vehicle of a known type: none of {self._n_selected} fully "
-                               f"visible vehicles matched a catalogue model with IoU > {self.iou_threshold:g}",
-                               False, **counts)
+                               f"visible vehicles{shape} matched a catalogue model with IoU > "
+                               f"{self.iou_threshold:g}", False, **counts)
         lam = np.concatenate([m.lambdas for m in self._matches])
         # each vehicle votes once (its IoU weights normalised): a vehicle with many matches cannot outvote others
         w = np.concatenate([m.weights / m.weights.sum() for m in self._matches])
