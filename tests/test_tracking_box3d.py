@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from gst_trafficcal.geometry import Camera, rotation_matrix
-from gst_trafficcal.tracking.box3d import CORNER_BITS, boxes_from_hulls, pixels_to_road
+from gst_trafficcal.tracking.box3d import CORNER_BITS, boxes_from_hulls, corners_fit_hulls, pixels_to_road
 
 W, H = 1920, 1080
 
@@ -110,3 +110,32 @@ def test_points_above_horizon_are_invalid_and_empty_input():
     boxes = boxes_from_hulls(cam, [above])
     assert not boxes.valid[0]
     assert len(boxes_from_hulls(cam, [])) == 0
+
+
+def test_no_degenerate_box_at_the_cameras_foot():
+    """The zero-size box at the camera's foot reaching up to the camera is tangent to every hull and has the
+    smallest volume; it must never be chosen.  Seen on a BrnoCompSpeed replay (session0_right: camera looking
+    along the road, VP2 far away) for about a quarter of the hulls, whose reference points landed 26000 px below
+    the image (speeds of 100-600 km/h); also for exact cuboids seen by the scale tests' random cameras."""
+    cam = Camera(vp1=[823.68, -92.69], vp2=[122348.0, 64.95], pp=[960.5, 540.5], scale=8.15)
+    x0, y0, x1, y1 = 783.5, 299.5, 895.5, 359.5  # a car's hull box, far down the road
+    rect = np.array([[x0, y0], [x1, y0], [x1, y1], [x0, y1]])
+    boxes = boxes_from_hulls(cam, [rect])
+    assert boxes.valid[0] and boxes.params[0, 4] < 1  # below the camera
+    c = boxes.corners_px[0]
+    assert np.all((c >= [x0 - 1, y0 - 1]) & (c <= [x1 + 1, y1 + 1]))  # a box whose silhouette is the rectangle
+    _, ref = boxes.reference_points(cam, -1)
+    assert abs(ref[0, 1] - y1) < 1.0 and x0 < ref[0, 0] < x1  # bottom edge of the hull
+
+
+def test_boxes_far_outside_their_hull_are_invalid():
+    lo, hi = np.array([[100.0, 100.0]]), np.array([[200.0, 150.0]])
+    inside = np.array([[[150.0, 120.0]] * 8])
+    assert corners_fit_hulls(inside, lo, hi).tolist() == [True]
+    near = inside.copy()
+    near[0, 0] = [290.0, 190.0]  # within the hull box's own size of it: a box is fuller than a rounded car
+    assert corners_fit_hulls(near, lo, hi).tolist() == [True]
+    far = inside.copy()
+    far[0, 3] = [150.0, 26000.0]
+    assert corners_fit_hulls(far, lo, hi).tolist() == [False]
+    assert corners_fit_hulls(np.full((1, 8, 2), np.nan), lo, hi).tolist() == [False]

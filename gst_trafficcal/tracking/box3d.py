@@ -33,6 +33,9 @@ from ..geometry import Camera
 #: order of the 8 corners: index = ix + 2*iy + 4*iz with ix -> (x0, x1), iy -> (y0, y1), iz -> (0, h)
 CORNER_BITS = np.array([[i & 1, (i >> 1) & 1, (i >> 2) & 1] for i in range(8)])
 
+#: a box's image corners may lie this share of its hull's box size outside that box (see :func:`corners_fit_hulls`)
+BOX_FIT_TOLERANCE = 1.0
+
 #: the 12 edges as pairs of corner indices (for drawing)
 EDGES = np.array([(a, b) for a in range(8) for b in range(a + 1, 8) if bin(a ^ b).count("1") == 1])
 
@@ -172,7 +175,22 @@ def boxes_from_hulls(camera: Camera, hulls: Sequence[np.ndarray] | np.ndarray) -
     corners[..., 2] = CORNER_BITS[:, 2] * h[:, None]
     with np.errstate(divide="ignore", invalid="ignore"):
         px = world_to_pixels(camera, corners)
+    valid &= corners_fit_hulls(px, pts.min(axis=1), pts.max(axis=1))
     return Boxes3D(theta, corners, px, valid, np.where(valid, resid, np.inf))
+
+
+def corners_fit_hulls(corners_px: np.ndarray, lo: np.ndarray, hi: np.ndarray,
+                      tolerance: float = BOX_FIT_TOLERANCE) -> np.ndarray:
+    """(N,) whether each box's image corners (N, 8, 2) lie within its hull's bounding box (corners ``lo``, ``hi``,
+    (N, 2) each) widened by ``tolerance`` of that box's size on each side.  A box tangent to the hull projects to about the hull's box (a little larger: a box
+    is fuller than a rounded vehicle); a degenerate solve, e.g. on a rectangle seen almost along the road with
+    VP2 far away, puts its base at the camera's foot, far outside the image, and its reference point would give
+    an absurd speed."""
+    corners_px, lo, hi = (np.asarray(a, np.float64) for a in (corners_px, lo, hi))
+    margin = tolerance * np.maximum(hi - lo, 1.0) + 1.0
+    with np.errstate(invalid="ignore"):
+        inside = (corners_px >= (lo - margin)[:, None]) & (corners_px <= (hi + margin)[:, None])
+    return np.all(inside, axis=(1, 2))
 
 
 _SIGNS = np.array([1.0, -1.0, 1.0, -1.0, 1.0, -1.0])
@@ -208,7 +226,10 @@ def _tightest_box(A: np.ndarray, b: np.ndarray, sel: np.ndarray, valid: np.ndarr
     rng = np.hypot(cu - q[:, 0], cv - q[:, 1])
     x0, x1, y0, y1, h = np.moveaxis(theta, 2, 0)
     with np.errstate(invalid="ignore"):
-        admissible = ok & np.isfinite(viol) & (viol / np.maximum(rng, 1e-9) <= 1e-7) & (x1 > x0) & (y1 > y0) & (h > 0)
+        # h < 1 (below the camera): the degenerate box of no extent at the camera's foot reaching up to the camera
+        # is admissible for every hull and has the smallest volume (zero), but is no vehicle
+        admissible = (ok & np.isfinite(viol) & (viol / np.maximum(rng, 1e-9) <= 1e-7) & (x1 > x0) & (y1 > y0)
+                      & (h > 0) & (h < 1 - 1e-6))
         vol = (x1 - x0) * (y1 - y0) * h
     # prefer dropping a tangent that touches the roof: a vehicle is box-like near the road, not on top
     vol = np.where(sel[:, :, 1] == 4, vol, vol * 1e6)
