@@ -96,9 +96,10 @@ def match_gt(scene, run):
     return rows
 
 
-def test_ids_and_3d_reference_points_with_calibration(scene, images, calibration_file):
+@pytest.mark.parametrize("options", ["", "peel=true"])
+def test_ids_and_3d_reference_points_with_calibration(scene, images, calibration_file, options):
     run = run_pipeline(f"appsrc name=src ! tcmarker threshold=255 calibration-file={calibration_file} ! "
-                       "tracker ! appsink name=sink", buffers(scene, images), CAPS)
+                       f"tracker {options} ! appsink name=sink", buffers(scene, images), CAPS)
     assert len(run.frames) == len(scene.frames)
     rows = match_gt(scene, run)
     ids = [(g, o) for g, o, *_ in rows if o is not None]
@@ -180,7 +181,7 @@ def test_gst_inspect_documents_every_property(tmp_path):
     out = subprocess.run(["gst-inspect-1.0", "tracker"], env=env, capture_output=True, text=True, timeout=120)
     assert out.returncode == 0, out.stderr
     for prop in ("min-hits", "max-lost", "iou-threshold", "drop-occluded", "background", "background-width",
-                 "blob-detection", "min-blob-area", "colour"):
+                 "blob-detection", "min-blob-area", "colour", "peel"):
         assert prop in out.stdout, prop
     assert "object_id" in out.stdout
 

@@ -38,6 +38,9 @@ class Tracker(TrafficcalTransform):
                    "reference points on synthetic cuboids, but less consistent along a track (speeds worse with the "
                    "background detector), so off by default (GRAY8 input always uses brightness)",
                    False, _RW),
+        "peel": (bool, "Peel", "Take the hulls from the background detector's foreground (moving average, cast shadows "
+                 "peeled off each blob's outline: keeps grey vehicle faces) instead of the per-pixel shadow test; "
+                 "ignores colour", False, _RW),
         "blob-detection": (bool, "Blob detection", "When a frame carries no vehicle ROI, use the foreground blobs "
                            "as vehicles and add ROIs for them (detector-free mode)", False, _RW),
         "min-blob-area": (float, "Minimum blob area", "Smallest blob (pixels) taken as a vehicle in blob-detection "
@@ -57,7 +60,14 @@ class Tracker(TrafficcalTransform):
         try:
             config = TrackerConfig(n_init=self.min_hits, max_lost=self.max_lost, iou_gate=self.iou_threshold,
                                    drop_occluded=self.drop_occluded)
-            background = BackgroundModel(work_width=self.background_width) if self.background else None
+            if not self.background:
+                background = None
+            elif self.peel:
+                from gst_trafficcal.tracking.peeled import PeeledBackground
+
+                background = PeeledBackground(work_width=self.background_width)
+            else:
+                background = BackgroundModel(work_width=self.background_width)
         except Exception as exc:  # bad property values: a readable error at start-up
             self.post_error(f"tracker: {exc}")
             return False

@@ -79,7 +79,7 @@ class BackgroundDetector:
         self.shadow_dev = float(shadow_dev)
         self.shadow_ring = int(shadow_ring)
         self.core_min = float(core_min)
-        self.last_core: np.ndarray | None = None  # kept (non-shadow) pixels of the last frame, work size
+        self.last_core: np.ndarray | None = None  # the vehicles' pixels of the last frame (peeled blobs), work size
         self._reset(None)
 
     def _reset(self, shape: tuple[int, int] | None) -> None:
@@ -160,11 +160,11 @@ class BackgroundDetector:
     def __call__(self, image: np.ndarray) -> Detections:
         """Vehicles (moving blobs) in a grey or BGR frame, boxes in that frame's pixels."""
         fg = self.foreground(image)
+        self.last_core = np.zeros(fg.shape, bool)
         if not self.ready:
             return Detections.empty()
         n, lab, stats, _ = cv2.connectedComponentsWithStats(fg, connectivity=8)
         if n <= 1:
-            self.last_core = np.zeros(fg.shape, bool)
             return Detections.empty()
         area = stats[1:, cv2.CC_STAT_AREA].astype(np.float64)
         x, y, w, h = (stats[1:, i].astype(np.float64) for i in range(4))
@@ -173,14 +173,17 @@ class BackgroundDetector:
         if self.peel and self._model is not None and self._model.ratio is not None:
             core = (fg > 0) & ~self.shadows(fg, self._model.ratio)
             core = cv2.morphologyEx(core.view(np.uint8), cv2.MORPH_OPEN, self._small_open) > 0
-            self.last_core = core
             core_lab = np.where(core, lab, 0)
             sl = ndimage.find_objects(core_lab, max_label=n - 1)
             core_area = np.bincount(core_lab.ravel(), minlength=n)[1:].astype(np.float64)
+            whole = np.ones(n, bool)  # blobs kept whole (peeling would leave too little)
+            whole[0] = False
             for j, s in enumerate(sl):
                 if s is not None and core_area[j] >= self.core_min * area[j]:
                     boxes[j] = (s[1].start, s[0].start, s[1].stop, s[0].stop)
                     kept[j] = core_area[j]
+                    whole[j + 1] = False
+            self.last_core = core | whole[lab]
         else:
             self.last_core = fg > 0
         fill = np.minimum(kept / np.maximum((boxes[:, 2] - boxes[:, 0]) * (boxes[:, 3] - boxes[:, 1]), 1.0), 1.0)
