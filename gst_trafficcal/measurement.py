@@ -11,8 +11,13 @@ vanishing points was in force) and, whenever it changes, the current calibration
   track's median length and width from the well-conditioned near faces), which is steadier than the points the
   tracker could give frame by frame.  Vehicles seen before the vanishing points were known carry only their hull
   (or hull box); their 3D boxes are built from it once a calibration with vanishing points exists.
-* **Speed**: ``v = median_i λ‖P(i+τ) − P(i)‖ / (t(i+τ) − t(i))`` (:func:`gst_trafficcal.speed.track_speed`),
-  times from buffer timestamps.
+* **Speed**: ``v = median_i λ‖P(i+τ) − P(i)‖ / (t(i+τ) − t(i))`` over the reference points that are the
+  vehicle's own, times from buffer timestamps (:func:`gst_trafficcal.speed.vehicle_speed`): a 3D box far outside
+  its hull gives no point; points that do not continue the vehicle's motion (an ID switch, a merge, a degenerate
+  box) are dropped, the longest consistent run is the vehicle; a vehicle whose τ-pair speeds disagree or whose
+  points span too little road is reported unmeasured with the reason instead of with a wrong speed.  Only
+  measured vehicles carry points for the BrnoCompSpeed results (the ones their speed came from), so the official
+  evaluation measures what was published.
 * **Calibration not there yet**: vehicles that leave before a calibration with scale exists are kept (points and
   timestamps) and measured as soon as one arrives, so one pass over a file measures every vehicle; at the end of
   the stream the ones still waiting are reported unmeasured, with the reason.
@@ -34,8 +39,8 @@ from .calibration import Calibration
 from .geometry import Camera
 from .lanes import LaneModel, lateral_offset
 from .outputs import AWAY_FROM_VP1, TOWARDS_VP1, VehicleEvent
-from .speed import DEFAULT_TAU, pairwise_speeds, track_speed
-from .tracking.box3d import boxes_from_hulls, pixels_to_road
+from .speed import DEFAULT_TAU, SpeedChecks, VehicleSpeed, vehicle_speed
+from .tracking.box3d import boxes_from_hulls, corners_fit_hulls, pixels_to_road
 from .tracking.tracker import Observation, Track, TrackerConfig, TrackState
 from .tracking.tracker import _set_references, _update_direction  # the tracker's own finishing step
 
@@ -43,7 +48,6 @@ DEFAULT_MIN_TRACK_LENGTH = 10
 END_AFTER_MARGIN = 0.4  # seconds beyond the tracker's coasting time (max_lost) before a vehicle counts as gone
 DEFAULT_END_AFTER = TrackerConfig.max_lost + END_AFTER_MARGIN  # a vehicle the tracker still coasts is not cut
 MIN_DIRECTION_SPAN = 0.05  # plane units the reference point must travel along the road to give a direction
-SPEED_AGREEMENT = 0.1  # confidence = share of pairwise speeds within 10 % of the median
 LIVE_WINDOW = 250  # observations behind the per-frame estimate of a vehicle still in view
 
 
@@ -93,8 +97,8 @@ class MeasuredVehicle:
     """A vehicle that left: its event and the reference points behind it (for the BrnoCompSpeed results)."""
 
     event: VehicleEvent
-    times_s: np.ndarray  # (M,) timestamps of the reference points
-    points_px: np.ndarray  # (M, 2) reference points, pixels
+    times_s: np.ndarray  # (M,) timestamps of the reference points its speed was measured from (none: unmeasured)
+    points_px: np.ndarray  # (M, 2) those reference points, pixels
 
 
 @dataclass
@@ -120,7 +124,8 @@ class SpeedMeter:
     """Online speed measurement (see the module doc).  Feed :meth:`update` once per frame, in time order."""
 
     def __init__(self, tau: int = DEFAULT_TAU, min_track_length: int = DEFAULT_MIN_TRACK_LENGTH,
-                 end_after: float = DEFAULT_END_AFTER, calibration: Calibration | None = None) -> None:
+                 end_after: float = DEFAULT_END_AFTER, calibration: Calibration | None = None,
+                 checks: SpeedChecks = SpeedChecks()) -> None:
         if tau < 1:
             raise ValueError(f"tau must be at least 1, got {tau}")
         if min_track_length < tau + 1:
@@ -130,6 +135,7 @@ class SpeedMeter:
         self.tau = int(tau)
         self.min_track_length = int(min_track_length)
         self.end_after = float(end_after)
+        self.checks = checks
         self.calibration: Calibration | None = None
         self.lanes = LaneModel()
         self._live: dict[int, _Record] = {}
@@ -231,31 +237,40 @@ class SpeedMeter:
 
     def _live_speed(self, rec: _Record) -> LiveSpeed | None:
         """The current estimate, from the last LIVE_WINDOW observations (bounded cost per frame, also for a
-        vehicle standing in a queue for minutes; equal to the final speed for shorter tracks)."""
+        vehicle standing in a queue for minutes; equal to the final speed for shorter tracks): none while the
+        vehicle would be reported unmeasured."""
         times, px, _ = self._reference_points(rec, self.camera, last=LIVE_WINDOW)
+        m = self._speed(px, times)
+        if not m.measured:
+            return None
+        return LiveSpeed(m.speed_kmh, m.agreement, m.n_pairs)
+
+    def _speed(self, px: np.ndarray, times: np.ndarray) -> VehicleSpeed:
+        """:func:`~gst_trafficcal.speed.vehicle_speed` with the meter's minimum track length (reference points
+        before and after dropping the ones that are not the vehicle's own)."""
+        none = np.zeros(len(px), bool)
         if len(px) < self.min_track_length:
-            return None
-        v = pairwise_speeds(self.camera, px, times, self.tau)
-        if v.size == 0:
-            return None
-        med = float(np.median(v))
-        return LiveSpeed(med, _agreement(v, med), int(v.size))
+            return VehicleSpeed(None, 0, f"track too short ({len(px)} reference points, needs "
+                                f"{self.min_track_length})", none)
+        m = vehicle_speed(self.camera, px, times, self.tau, self.checks)
+        if m.measured and m.kept.sum() < self.min_track_length:
+            return VehicleSpeed(None, 0, f"track too short ({int(m.kept.sum())} consistent reference points of "
+                                f"{len(px)}, needs {self.min_track_length})", m.kept)
+        return m
 
     def _measure(self, rec: _Record) -> MeasuredVehicle:
-        cam = self.camera
         cal = self.calibration
-        times, px, track = self._reference_points(rec, cam)
-        label = track.label
+        times, px, track = self._reference_points(rec, self.camera)
         if len(px) == 0:
             return self._unmeasured(rec, "no reference point (never fully visible with a 3D box)", cal)
-        if len(px) < self.min_track_length:
-            return self._finish(rec, label, None, f"track too short ({len(px)} reference points, needs "
-                                f"{self.min_track_length})", times, px, cal, 0)
-        m = track_speed(cam, px, times, self.tau)
-        return self._finish(rec, label, m.speed_kmh, m.reason, times, px, cal, m.n_pairs)
+        m = self._speed(px, times)
+        return self._finish(rec, track.label, m.speed_kmh, m.reason, times, px, cal, m.n_pairs, m.kept)
 
     def _finish(self, rec: _Record, label: str, speed: float | None, reason: str, times: np.ndarray,
-                px: np.ndarray, cal: Calibration | None, n_pairs: int) -> MeasuredVehicle:
+                px: np.ndarray, cal: Calibration | None, n_pairs: int,
+                kept: np.ndarray | None = None) -> MeasuredVehicle:
+        """The vehicle's event; its reference points (for the BrnoCompSpeed results) only when it was measured,
+        and then the ones its speed came from."""
         cam = cal.camera if cal is not None else None
         direction = lane = None
         if cam is not None and len(px) >= 2:
@@ -267,6 +282,10 @@ class SpeedMeter:
         event = VehicleEvent(id=rec.id, label=label, first_timestamp_s=min(ts), last_timestamp_s=max(ts),
                              speed_kmh=speed, reason=reason, lane=lane, direction=direction,
                              calibration_id=cal.id if cal is not None else None, n_samples=n_pairs)
+        if speed is None:
+            return MeasuredVehicle(event, np.zeros(0), np.zeros((0, 2)))
+        if kept is not None:
+            times, px = times[kept], px[kept]
         return MeasuredVehicle(event, times, px)
 
     def _unmeasured(self, rec: _Record, reason: str, cal: Calibration | None = None) -> MeasuredVehicle:
@@ -281,7 +300,9 @@ def _observation(s: Sighting, camera: Camera | None) -> Observation:
         hull = np.array([[box[0], box[1]], [box[2], box[1]], [box[2], box[3]], [box[0], box[3]]])
     obs = Observation(t=float(s.t), box=box, det_box=box, score=float(s.confidence), label=s.label, hull=hull,
                       truncated=s.truncated, occluded=s.occluded)
-    if s.corners_px is not None and camera is not None:
+    # a 3D box far outside the tracked hull (a degenerate solve upstream) gives no reference point
+    if (s.corners_px is not None and camera is not None
+            and corners_fit_hulls(s.corners_px[None], box[None, :2], box[None, 2:])[0]):
         road = pixels_to_road(camera, s.corners_px[:4])  # bottom corners: (x0,y0), (x1,y0), (x0,y1), (x1,y1)
         if np.all(np.isfinite(road)):
             obs.box3d = np.array([road[0, 0], road[1, 0], road[0, 1], road[2, 1], 0.0])
@@ -305,12 +326,6 @@ def _direction(camera: Camera, px: np.ndarray, times: np.ndarray) -> str | None:
     if abs(slope * np.ptp(t)) < MIN_DIRECTION_SPAN:
         return None
     return TOWARDS_VP1 if slope > 0 else AWAY_FROM_VP1
-
-
-def _agreement(v: np.ndarray, median: float) -> float:
-    if median <= 0:
-        return 0.0
-    return float(np.mean(np.abs(v - median) <= SPEED_AGREEMENT * median))
 
 
 def speed_params(live: LiveSpeed, label: str, model_name: str = "") -> dict[str, Any]:

@@ -55,3 +55,147 @@ def track_speed(camera: Camera | None, points_px: np.ndarray, times_s: np.ndarra
     if v.size == 0:
         return SpeedMeasurement(None, 0, "no usable point pairs (points above the horizon or equal timestamps)")
     return SpeedMeasurement(float(np.median(v)), int(v.size))
+
+
+# --------------------------------------------------------------------------- robust per-vehicle speed (the product)
+
+AGREEMENT = 0.1  # a τ-pair speed "agrees" when within 10 % of the vehicle's median
+
+
+@dataclass(frozen=True)
+class SpeedChecks:
+    """What a vehicle's reference points must satisfy before its speed is published (else: unmeasured + reason).
+
+    * ``jump_m`` / ``jump_px``: a reference point farther than max(``jump_m``, ``jump_px`` pixels at that point)
+      plus 10 % of the distance travelled since the last kept point from where the vehicle's median velocity
+      predicts it does not continue the vehicle: an ID switch, a merge with a neighbour or a degenerate 3D box.
+      The points are chained in time order; the chain with the most points is the vehicle, the rest is dropped.
+    * ``coarse_m_per_px`` (off by default): points where one pixel spans more than this on the road (far away,
+      where the reference point is least reliable) are left out when enough finer ones remain for ``min_pairs``
+      τ-pairs.  Measured on the 12 replays and the demo scene (manual calibration): 0.25 m/px moved the mean
+      error 0.946 -> 0.941 km/h (demo 0.57 -> 0.54) but made exact simulated tracks with rectangle hulls worse
+      (max 0.07 -> 0.31 km/h): no clear gain, so it is not the default.
+    * ``min_distance_m``: the kept reference points must span at least this distance.
+    * ``min_agreement``: share of the τ-pair speeds within 10 % of their median (the samples must agree).
+    """
+
+    jump_m: float = 2.5
+    jump_px: float = 4.0
+    coarse_m_per_px: float | None = None
+    min_pairs: int = 5
+    min_distance_m: float = 3.0
+    min_agreement: float = 0.6
+
+
+@dataclass(frozen=True)
+class VehicleSpeed:
+    """:func:`vehicle_speed`'s result: the speed (or None and why), and which points it was measured from."""
+
+    speed_kmh: float | None
+    n_pairs: int
+    reason: str
+    kept: np.ndarray  # (N,) bool: the reference points the speed was measured from (the vehicle's own)
+    agreement: float = 0.0  # share of τ-pair speeds within 10 % of the median
+
+    @property
+    def measured(self) -> bool:
+        return self.speed_kmh is not None
+
+
+def metres_per_pixel(camera: Camera, points_px: np.ndarray) -> np.ndarray:
+    """(N,) road distance spanned by one pixel at each image point (the larger of the two image directions)."""
+    p = np.asarray(points_px, np.float64).reshape(-1, 2)
+    w = camera.to_world(p)[:, :2]
+    dx = np.linalg.norm(camera.to_world(p + [1.0, 0.0])[:, :2] - w, axis=1)
+    dy = np.linalg.norm(camera.to_world(p + [0.0, 1.0])[:, :2] - w, axis=1)
+    return np.maximum(dx, dy)
+
+
+def _median_velocity(world: np.ndarray, times: np.ndarray, tau: int) -> np.ndarray:
+    """Median (component-wise) road velocity over τ-pairs, m/s (zero when there are none)."""
+    k = min(tau, len(world) - 1)
+    if k < 1:
+        return np.zeros(2)
+    dt = times[k:] - times[:-k]
+    ok = dt > 0
+    if not ok.any():
+        return np.zeros(2)
+    return np.median((world[k:] - world[:-k])[ok] / dt[ok, None], axis=0)
+
+
+def consistent_chain(world: np.ndarray, times: np.ndarray, tolerance_m: np.ndarray, tau: int = DEFAULT_TAU
+                     ) -> np.ndarray:
+    """(N,) bool: the longest chain of points (time order) that each continue the previous kept point of their
+    chain at the track's median velocity within ``tolerance_m`` (N,) plus 10 % of the distance travelled.
+
+    One pass, each point joins the chain that predicts it best or starts a new one; isolated outliers end up in
+    chains of their own, and after an ID switch the other vehicle's points form a second chain.
+    """
+    n = len(world)
+    if n == 0:
+        return np.zeros(0, bool)
+    v = _median_velocity(world, times, tau)
+    speed = float(np.linalg.norm(v))
+    step = np.linalg.norm(np.diff(world, axis=0) - v * np.diff(times)[:, None], axis=1)
+    if np.all(step <= tolerance_m[1:] + 0.1 * speed * np.abs(np.diff(times))):
+        return np.ones(n, bool)  # every point continues the previous one: one chain (the usual case, vectorised)
+    chains: list[list[int]] = []
+    for i in range(n):
+        best, best_d = None, np.inf
+        for c, chain in enumerate(chains):
+            j = chain[-1]
+            dt = times[i] - times[j]
+            d = float(np.linalg.norm(world[i] - world[j] - v * dt))
+            if d <= tolerance_m[i] + 0.1 * speed * abs(dt) and d < best_d:
+                best, best_d = c, d
+        if best is None:
+            chains.append([i])
+        else:
+            chains[best].append(i)
+    keep = np.zeros(n, bool)
+    keep[max(chains, key=len)] = True
+    return keep
+
+
+def vehicle_speed(camera: Camera | None, points_px: np.ndarray, times_s: np.ndarray, tau: int = DEFAULT_TAU,
+                  checks: SpeedChecks = SpeedChecks()) -> VehicleSpeed:
+    """A vehicle's speed as the product publishes it: the paper's median of τ-pair speeds over the reference
+    points that are the vehicle's own (:func:`consistent_chain`), preferring the near road where a pixel is
+    short, and only when the samples agree and span enough road (:class:`SpeedChecks`); else None and why."""
+    px = np.asarray(points_px, np.float64).reshape(-1, 2)
+    times = np.asarray(times_s, np.float64).reshape(-1)
+    none = np.zeros(len(px), bool)
+    if camera is None or camera.scale is None:
+        return VehicleSpeed(None, 0, "no calibration with scale", none)
+    if len(px) != len(times):
+        raise ValueError(f"track has {len(px)} points but {len(times)} timestamps")
+    if len(px) <= tau:
+        return VehicleSpeed(None, 0, f"track too short ({len(px)} points, needs more than {tau})", none)
+    world = camera.to_world(px)[:, :2]
+    mpp = metres_per_pixel(camera, px)
+    finite = np.all(np.isfinite(world), axis=1) & np.isfinite(mpp)
+    idx = np.flatnonzero(finite)
+    keep = np.zeros(len(px), bool)
+    keep[idx[consistent_chain(world[idx], times[idx], np.maximum(checks.jump_m, checks.jump_px * mpp[idx]),
+                              tau)]] = True
+    fine = keep & (mpp <= (np.inf if checks.coarse_m_per_px is None else checks.coarse_m_per_px))
+    if fine.sum() >= checks.min_pairs + tau:  # enough near points: leave out the far ones (coarse pixels)
+        keep = fine
+    k = np.flatnonzero(keep)
+    if len(k) <= tau:
+        return VehicleSpeed(None, 0, f"the reference points do not follow one vehicle (longest consistent run "
+                            f"{len(k)} of {len(px)} points: ID switch or merged vehicles)", keep)
+    span = float(np.linalg.norm(world[k[-1]] - world[k[0]]))
+    if span < checks.min_distance_m:
+        return VehicleSpeed(None, 0, f"track too short on the road ({span:.1f} m, needs "
+                            f"{checks.min_distance_m:g} m)", keep)
+    v = pairwise_speeds(camera, px[k], times[k], tau)
+    if v.size == 0:
+        return VehicleSpeed(None, 0, "no usable point pairs (equal timestamps)", keep)
+    med = float(np.median(v))
+    agree = float(np.mean(np.abs(v - med) <= AGREEMENT * abs(med))) if med > 0 else 0.0
+    if agree < checks.min_agreement:
+        return VehicleSpeed(None, int(v.size), f"speed samples disagree (only {100 * agree:.0f} % within "
+                            f"{100 * AGREEMENT:.0f} % of their median {med:.1f} km/h, needs "
+                            f"{100 * checks.min_agreement:.0f} %)", keep, agree)
+    return VehicleSpeed(med, int(v.size), "", keep, agree)

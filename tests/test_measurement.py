@@ -224,3 +224,92 @@ def test_bad_settings_and_time_going_backwards(scene):
     meter.update(1.0, [])
     with pytest.raises(ValueError, match="backwards"):
         meter.update(0.5, [])
+
+
+def _longest_overlapping_pair(scene):
+    """Two vehicles of the same direction in view together for the most frames: (id a, id b, frames)."""
+    seen: dict[int, set] = {}
+    direction = {}
+    for k, f in enumerate(scene.frames):
+        for i, vid in enumerate(f.ids):
+            seen.setdefault(int(vid), set()).add(k)
+            direction[int(vid)] = int(f.directions[i])
+    pairs = [(len(seen[a] & seen[b]), a, b) for a in seen for b in seen
+             if a < b and direction[a] == direction[b]]
+    n, a, b = max(pairs)
+    return a, b, sorted(seen[a] & seen[b])
+
+
+def test_id_switch_is_measured_from_the_vehicle_with_most_points_only(scene, truth):
+    """The tracker's id jumps from vehicle a to vehicle b half way through their common frames (an ID switch):
+    the event for a's id gets the speed of the part with more points, and the results file only its points."""
+    a, b, common = _longest_overlapping_pair(scene)
+    switch = scene.frames[common[len(common) // 3]].t  # a's id follows b from here on
+    meter = SpeedMeter(calibration=cal_of(scene.camera))
+    events = []
+    for f in scene.frames:
+        ss = []
+        for s in sightings(f):
+            if s.id == a and f.t >= switch:
+                continue  # a is lost...
+            if s.id == b and f.t >= switch:
+                s = Sighting(a, s.label, s.t, s.box, s.confidence, corners_px=s.corners_px, ref_px=s.ref_px,
+                             hull=s.hull)  # ...and its id follows b
+            ss.append(s)
+        events += meter.update(f.t, ss).finished
+    events += meter.flush()
+    m = next(m for m in events if m.event.id == a)
+    n_a = sum(1 for f in scene.frames if f.t < switch and a in f.ids)
+    n_b = sum(1 for f in scene.frames if f.t >= switch and b in f.ids)
+    kept = b if n_b > n_a else a
+    assert m.event.measured and m.event.speed_kmh == pytest.approx(truth[kept][0], abs=0.05)
+    assert len(m.times_s) == max(n_a, n_b)
+    assert np.all(m.times_s >= switch) if kept == b else np.all(m.times_s < switch)
+
+
+def test_degenerate_3d_boxes_are_ignored(scene, truth):
+    """Some sightings carry a 3D box whose base is at the camera's foot, far outside the image (a degenerate
+    box solve upstream): those frames give no reference point, the vehicle is still measured exactly."""
+    meter = SpeedMeter(calibration=cal_of(scene.camera))
+    events = []
+    for k, f in enumerate(scene.frames):
+        ss = sightings(f)
+        if k % 3 == 0:
+            ss = [Sighting(s.id, s.label, s.t, s.box, s.confidence,
+                           corners_px=np.vstack([np.tile([480.0, 9000.0], (4, 1)), s.corners_px[4:]]),
+                           ref_px=np.array([480.0, 9000.0]), hull=s.hull) for s in ss]
+        events += meter.update(f.t, ss).finished
+    events += meter.flush()
+    measured = [m for m in events if m.event.measured]
+    assert len(measured) >= 20
+    for m in measured:
+        assert m.event.speed_kmh == pytest.approx(truth[m.event.id][0], abs=0.05)
+        assert np.all(m.points_px[:, 1] < SIZE[1])
+
+
+def test_wandering_reference_points_are_reported_unmeasured(scene, truth):
+    """A vehicle whose reference point wanders along it (blobs merging and splitting) gives τ-pair speeds that
+    disagree: it is reported with the reason and no points (so the results file does not carry it), and it has
+    no live speed on its ROI."""
+    vid = max(truth, key=lambda v: truth[v][3])
+    rng = np.random.default_rng(2)
+    meter = SpeedMeter(calibration=cal_of(scene.camera))
+    events, live = [], []
+    for f in scene.frames:
+        ss = []
+        for s in sightings(f):
+            if s.id == vid:  # slide the whole box along the road by up to +-1.2 m each frame
+                X = scene.camera.to_world(s.corners_px[:4])
+                X[:, 0] += rng.uniform(-1.2, 1.2)
+                corners = np.vstack([scene.camera.world_to_image(X), s.corners_px[4:]])
+                s = Sighting(s.id, s.label, s.t, s.box, s.confidence, corners_px=corners, ref_px=None, hull=s.hull)
+            ss.append(s)
+        out = meter.update(f.t, ss)
+        events += out.finished
+        live.append(vid in out.speeds)
+    events += meter.flush()
+    m = next(m for m in events if m.event.id == vid)
+    assert not m.event.measured and "disagree" in m.event.reason
+    assert len(m.points_px) == 0 and len(m.times_s) == 0
+    assert not any(live)
+    assert sum(e.event.measured for e in events) >= 20  # the others are not affected

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from gst_trafficcal.geometry import Camera, rotation_matrix
-from gst_trafficcal.speed import pairwise_speeds, track_speed
+from gst_trafficcal.speed import SpeedChecks, metres_per_pixel, pairwise_speeds, track_speed, vehicle_speed
 
 
 def _camera() -> Camera:
@@ -48,3 +48,87 @@ def test_unmeasurable_tracks_say_why():
     assert "no calibration" in track_speed(cam.with_scale(None), np.zeros((10, 2)), np.arange(10.0)).reason
     times = np.zeros(10)
     assert not track_speed(cam, _track(cam, 50, np.arange(10) / 25), times).measured
+
+
+# --------------------------------------------------------------------------- the product's checks (vehicle_speed)
+
+
+def _world_track(cam: Camera, x0: float, speed_kmh: float, times: np.ndarray, lane_y: float) -> np.ndarray:
+    x = x0 + speed_kmh / 3.6 * times
+    return cam.world_to_image(np.stack([x, np.full_like(x, lane_y), np.zeros_like(x)], axis=1))
+
+
+def test_vehicle_speed_equals_the_paper_median_on_a_clean_track():
+    cam = _camera()
+    times = np.arange(50) / 25.0
+    pts = _track(cam, 73.0, times)
+    m = vehicle_speed(cam, pts, times)
+    assert m.measured and m.kept.all() and m.agreement == 1.0
+    assert m.speed_kmh == pytest.approx(track_speed(cam, pts, times).speed_kmh, rel=1e-12)
+
+
+def test_id_switch_keeps_the_vehicle_with_most_points():
+    """The tracker's box jumps from one vehicle to its neighbour in the next lane: the samples across the switch
+    are garbage; the speed is the longer part's (not a median over two vehicles), from its points only."""
+    cam = _camera()
+    times = np.arange(60) / 25.0
+    a = _world_track(cam, 20.0, 95.0, times, 0.0)
+    b = _world_track(cam, 14.0, 62.0, times, 3.5)  # slower vehicle, next lane, a car length behind
+    pts = np.concatenate([a[:28], b[28:]])
+    plain = track_speed(cam, pts, times).speed_kmh
+    m = vehicle_speed(cam, pts, times)
+    assert m.measured and m.speed_kmh == pytest.approx(62.0, rel=1e-6)
+    assert m.kept.tolist() == [False] * 28 + [True] * 32
+    assert abs(plain - 62.0) > 1.0  # what the plain median over every pair gives
+
+
+def test_isolated_absurd_points_are_dropped_not_the_vehicle():
+    """Reference points of degenerate 3D boxes (far below the image) among good ones: dropped one by one."""
+    cam = _camera()
+    times = np.arange(45) / 25.0
+    pts = _track(cam, 84.0, times)
+    bad = [3, 4, 17, 30, 31, 32]
+    pts[bad] = [927.0, 26301.0]
+    m = vehicle_speed(cam, pts, times)
+    assert m.measured and m.speed_kmh == pytest.approx(84.0, rel=1e-6)
+    assert np.flatnonzero(~m.kept).tolist() == bad
+
+
+def test_disagreeing_samples_are_reported_unmeasured_with_the_reason():
+    """A reference point that wanders along the vehicle (box size changing, blobs merging and splitting) gives
+    τ-pair speeds that disagree: no speed is published, the reason says why."""
+    cam = _camera()
+    times = np.arange(50) / 25.0
+    rng = np.random.default_rng(5)
+    x = 25.0 + 70.0 / 3.6 * times + np.cumsum(rng.choice([-0.6, 0.6], size=50))  # +-0.6 m per frame wander
+    pts = cam.world_to_image(np.stack([x, np.zeros_like(x), np.zeros_like(x)], axis=1))
+    m = vehicle_speed(cam, pts, times)
+    assert not m.measured and "disagree" in m.reason and m.agreement < 0.6
+    assert track_speed(cam, pts, times).measured  # the plain median would have published a speed
+
+
+def test_too_short_on_the_road_and_no_single_vehicle():
+    cam = _camera()
+    times = np.arange(30) / 25.0
+    creeping = _track(cam, 5.0, times)  # 5 km/h for 1.2 s: 1.6 m of road
+    m = vehicle_speed(cam, creeping, times)
+    assert not m.measured and "too short on the road" in m.reason
+    scattered = cam.world_to_image(np.stack([np.arange(30) * 7.0 % 40 + 20, (np.arange(30) % 3) * 4.0,
+                                             np.zeros(30)], axis=1))  # jumps of metres every frame
+    m = vehicle_speed(cam, scattered, times)
+    assert not m.measured and "do not follow one vehicle" in m.reason
+    assert not vehicle_speed(cam.with_scale(None), creeping, times).measured
+
+
+def test_far_points_can_be_left_out():
+    """coarse_m_per_px (off by default): points where a pixel spans more road than that are not used while
+    enough near ones remain."""
+    cam = _camera()
+    times = np.arange(80) / 25.0
+    pts = _track(cam, 90.0, times)
+    mpp = metres_per_pixel(cam, pts)
+    assert mpp.max() > 2 * mpp.min()
+    limit = float(np.median(mpp))
+    m = vehicle_speed(cam, pts, times, checks=SpeedChecks(coarse_m_per_px=limit))
+    assert m.measured and m.speed_kmh == pytest.approx(90.0, rel=1e-6)
+    assert m.kept.tolist() == (mpp <= limit).tolist() and 0 < m.kept.sum() < len(pts)
