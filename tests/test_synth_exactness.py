@@ -173,3 +173,23 @@ def test_video_is_h264_with_all_frames(synth):
         assert img.shape == (360, 640, 3)
     assert n == res.frames == int(scen.duration * scen.imaging.fps)
     assert (out / "preview.png").stat().st_size > 10000
+
+
+def test_restoring_only_the_dirty_rectangles_renders_the_same_frames(tmp_path, monkeypatch):
+    """Per frame the renderer restores, resolves and clears ids only where vehicles (with their shadows and
+    headlight beams) are now or were a frame ago; forcing whole-frame copies must give identical pixels and ids."""
+    from gst_trafficcal.synth import render
+
+    scen = {**SCENE, "duration": 3.0, "lighting": {"preset": "night"}, "traffic": {"flow": 300, "speed": 90}}
+
+    def frames(tag):
+        out: list = []
+        generate(scenario_from_dict(scen), tmp_path / tag, write_video=False, keep_masks=out)
+        return np.stack([f[1] for f in out]), np.stack([f[2] for f in out])
+
+    rgb, ids = frames("rects")
+    monkeypatch.setattr(render, "_BLIT_OVERHEAD", 1.0)  # any rectangle list becomes one whole-frame copy
+    rgb_whole, ids_whole = frames("whole")
+    assert (ids > 0).any(axis=(1, 2)).sum() >= 20  # vehicles in most of the 30 frames
+    np.testing.assert_array_equal(ids, ids_whole)
+    np.testing.assert_array_equal(rgb, rgb_whole)
