@@ -39,7 +39,7 @@ from .calibration import Calibration
 from .geometry import Camera
 from .lanes import LaneModel, lateral_offset
 from .outputs import AWAY_FROM_VP1, TOWARDS_VP1, VehicleEvent
-from .speed import DEFAULT_TAU, SpeedChecks, VehicleSpeed, vehicle_speed
+from .speed import DEFAULT_TAU, SpeedChecks, VehicleSpeed, _median_velocity, metres_per_pixel, vehicle_speed
 from .tracking.box3d import boxes_from_hulls, corners_fit_hulls, pixels_to_road
 from .tracking.tracker import Observation, Track, TrackerConfig, TrackState
 from .tracking.tracker import _set_references, _update_direction  # the tracker's own finishing step
@@ -48,6 +48,8 @@ DEFAULT_MIN_TRACK_LENGTH = 10
 END_AFTER_MARGIN = 0.4  # seconds beyond the tracker's coasting time (max_lost) before a vehicle counts as gone
 DEFAULT_END_AFTER = TrackerConfig.max_lost + END_AFTER_MARGIN  # a vehicle the tracker still coasts is not cut
 MIN_DIRECTION_SPAN = 0.05  # plane units the reference point must travel along the road to give a direction
+DEFAULT_STITCH_GAP = 1.0  # seconds: a track starting this soon after a vehicle was lost may continue it
+STITCH_LATERAL_M = 1.5  # metres across the road a continuing track may start from where the lost one was heading
 LIVE_WINDOW = 250  # observations behind the per-frame estimate of a vehicle still in view
 
 
@@ -125,7 +127,7 @@ class SpeedMeter:
 
     def __init__(self, tau: int = DEFAULT_TAU, min_track_length: int = DEFAULT_MIN_TRACK_LENGTH,
                  end_after: float = DEFAULT_END_AFTER, calibration: Calibration | None = None,
-                 checks: SpeedChecks = SpeedChecks()) -> None:
+                 checks: SpeedChecks = SpeedChecks(), stitch_gap: float = DEFAULT_STITCH_GAP) -> None:
         if tau < 1:
             raise ValueError(f"tau must be at least 1, got {tau}")
         if min_track_length < tau + 1:
@@ -136,6 +138,7 @@ class SpeedMeter:
         self.min_track_length = int(min_track_length)
         self.end_after = float(end_after)
         self.checks = checks
+        self.stitch_gap = float(stitch_gap)
         self.calibration: Calibration | None = None
         self.lanes = LaneModel()
         self._live: dict[int, _Record] = {}
@@ -203,11 +206,48 @@ class SpeedMeter:
         out = []
         for rec in sorted(records, key=lambda r: (r.last_t, r.id)):
             del self._live[rec.id]
+            if self.can_measure and self.stitch_gap > 0 and self._stitch(rec):
+                continue  # continued by a later track of the same vehicle: measured with it
             if self.can_measure:
                 out.append(self._measure(rec))
             else:
                 self._pending.append(rec)
         return out
+
+    def _stitch(self, rec: _Record) -> bool:
+        """Hand a vehicle that left over to the live track that continues it, if one does: a track that started
+        within ``stitch_gap`` seconds after it was last seen, whose first reference point lies where this one's
+        motion (its median road velocity) predicts, within the jump tolerance of :class:`SpeedChecks` plus 15 % of
+        the distance predicted along the road and ``STITCH_LATERAL_M`` across it (the same lane).  The detector lost the vehicle for a moment and the tracker gave it a new id; the
+        two pieces together are measured as one vehicle (under the later id), often the only way it is seen
+        across the whole measured stretch of road."""
+        cam = self.camera
+        times, px, _ = self._reference_points(rec, cam)
+        if len(px) < 2:
+            return False
+        world = cam.to_world(px)[:, :2]
+        v = _median_velocity(world, times, self.tau)
+        best, best_d = None, np.inf
+        for other in self._live.values():
+            first = other.observations[0].t
+            gap = first - rec.last_t
+            if not 0 < gap <= self.stitch_gap:
+                continue
+            t2, px2, _ = self._reference_points(other, cam)
+            if len(px2) == 0:
+                continue
+            miss = cam.to_world(px2[:1])[0, :2] - world[-1] - v * (t2[0] - times[-1])
+            if abs(miss[1]) > STITCH_LATERAL_M:  # not in the same lane (world y is across the road)
+                continue
+            d = float(np.linalg.norm(miss))
+            tolerance = max(self.checks.jump_m, self.checks.jump_px * float(metres_per_pixel(cam, px2[:1])[0]))
+            if d <= tolerance + 0.15 * float(np.linalg.norm(v)) * (t2[0] - times[-1]) and d < best_d:
+                best, best_d = other, d
+        if best is None:
+            return False
+        best.unboxed = rec.unboxed + [k + len(rec.observations) for k in best.unboxed]
+        best.observations[:0] = rec.observations
+        return True
 
     def _no_calibration_reason(self) -> str:
         if self.camera is None:

@@ -313,3 +313,42 @@ def test_wandering_reference_points_are_reported_unmeasured(scene, truth):
     assert len(m.points_px) == 0 and len(m.times_s) == 0
     assert not any(live)
     assert sum(e.event.measured for e in events) >= 20  # the others are not affected
+
+
+def test_a_vehicle_lost_for_a_moment_is_measured_as_one(scene, truth):
+    """The detector loses a vehicle for 0.4 s and the tracker gives it a new id: the two tracks are one vehicle
+    (reported once, under the later id, measured over both); no other vehicle of the scene is joined to another."""
+    vid = max(truth, key=lambda v: truth[v][3])
+    times = [f.t for f in scene.frames if vid in f.ids]
+    cut = times[len(times) // 2]
+    new_id = 10_000
+    meter = SpeedMeter(calibration=cal_of(scene.camera))
+    events = []
+    for f in scene.frames:
+        ss = []
+        for s in sightings(f):
+            if s.id == vid and cut <= f.t < cut + 0.4:
+                continue  # lost
+            if s.id == vid and f.t >= cut + 0.4:
+                s = Sighting(new_id, s.label, s.t, s.box, s.confidence, corners_px=s.corners_px, ref_px=s.ref_px,
+                             hull=s.hull)
+            ss.append(s)
+        events += meter.update(f.t, ss).finished
+    events += meter.flush()
+    by_id = {m.event.id: m for m in events}
+    assert vid not in by_id and len(events) == len(truth)  # nothing else joined, nothing lost
+    m = by_id[new_id]
+    assert m.event.first_timestamp_s == pytest.approx(times[0]) and m.event.last_timestamp_s == pytest.approx(times[-1])
+    assert m.event.speed_kmh == pytest.approx(truth[vid][0], abs=0.05)
+    assert len(m.times_s) == len(times) - round(0.4 * 25)
+    others = [e for e in events if e.event.id != new_id]
+    check_against_truth(others, {v: t for v, t in truth.items() if v != vid})
+    # without stitching: two vehicles
+    meter = SpeedMeter(calibration=cal_of(scene.camera), stitch_gap=0)
+    n = 0
+    for f in scene.frames:
+        ss = [s if not (s.id == vid and f.t >= cut + 0.4) else
+              Sighting(new_id, s.label, s.t, s.box, s.confidence, corners_px=s.corners_px, hull=s.hull)
+              for s in sightings(f) if not (s.id == vid and cut <= f.t < cut + 0.4)]
+        n += len(meter.update(f.t, ss).finished)
+    assert n + len(meter.flush()) == len(truth) + 1
