@@ -40,9 +40,24 @@ REPLAY_STARTS = {"session0_center": 20.0, "session0_left": 75.0, "session0_right
                  "session3_center": 356.3, "session3_left": 389.4, "session3_right": 422.3}
 BRNO = ROOT.parent / "shared" / "data" / "brnocompspeed"
 
+#: ``--traffic catalogue``: the scenes' traffic with half of the passenger cars named catalogue types (3 % of
+#: the traffic each, the Škoda/VW types common on Czech roads), the other half generic cars of random
+#: dimensions, and the presets' vans, trucks, buses and motorcycles — real traffic consists of real models, some
+#: of them in the catalogue; the presets' traffic has only generic cars, none of a catalogue type
+CATALOGUE_TRAFFIC = (
+    "traffic:\n"
+    "  mix: {sedan: 0.15, estate: 0.10, hatchback: 0.12, suv: 0.06, van: 0.08, truck: 0.04, bus: 0.02, "
+    "motorcycle: 0.02}\n"
+    "  models: {" + ", ".join(f"{m}: 0.03" for m in (
+        "skoda_octavia_mk1_liftback", "skoda_octavia_mk1_combi", "skoda_octavia_mk2_liftback",
+        "skoda_octavia_mk2_combi", "skoda_octavia_mk3_combi", "skoda_superb_mk2_liftback",
+        "skoda_fabia_mk1_hatchback", "skoda_fabia_mk2_hatchback", "vw_golf_mk4_hatchback", "vw_golf_mk6_hatchback",
+        "vw_passat_b6_variant", "skoda_yeti_suv", "vw_tiguan_mk1_suv")) + "}\n")
 
-def render_replay(name: str, work: Path) -> Path:
-    """The replay folder of recording ``name`` in ``work`` (rendered when missing)."""
+
+def render_replay(name: str, work: Path, traffic: str = "preset") -> Path:
+    """The replay folder of recording ``name`` in ``work`` (rendered when missing; ``traffic`` "catalogue" adds
+    :data:`CATALOGUE_TRAFFIC`)."""
     out = work / name
     if (out / "video.mp4").is_file():
         return out
@@ -57,16 +72,27 @@ def render_replay(name: str, work: Path) -> Path:
     dur = 120 if name.startswith("session3") else 60
     (cfg / f"{name}.yaml").write_text(
         f"duration: {dur}\nimaging: {{fps: 25}}\nlighting: {{preset: overcast}}\nreplay:\n  gt_data: {gt}\n"
-        f"  calibration: cal_{name}.json\n  start: {REPLAY_STARTS[name]}\n")
+        f"  calibration: cal_{name}.json\n  start: {REPLAY_STARTS[name]}\n"
+        + (CATALOGUE_TRAFFIC if traffic == "catalogue" else ""))
     subprocess.run([tc, "synth", "--scenario", str(cfg / f"{name}.yaml"), "--out", str(out), "--no-progress"],
                    check=True, capture_output=True)
     return out
 
 
-def render(preset: str, work: Path, duration: float, seed: int) -> Path:
+def render(preset: str, work: Path, duration: float, seed: int, traffic: str = "preset") -> Path:
+    tc = str(ROOT / ".venv/bin/trafficcal")
+    if traffic == "catalogue":
+        out = work / f"{preset}_s{seed}_{duration:g}_cat"
+        if not (out / "video.mp4").is_file():
+            cfg = work / "cfg" / f"{preset}_cat.yaml"
+            cfg.parent.mkdir(parents=True, exist_ok=True)
+            cfg.write_text(f"base: {preset}\nduration: {duration:g}\n{CATALOGUE_TRAFFIC}")
+            subprocess.run([tc, "synth", "--scenario", str(cfg), "--seed", str(seed), "--out", str(out),
+                            "--no-progress"], check=True, capture_output=True)
+        return out
     out = work / f"{preset}_s{seed}_{duration:g}"
     if not (out / "video.mp4").is_file():
-        subprocess.run([str(ROOT / ".venv/bin/trafficcal"), "synth", "--preset", preset, "--duration", str(duration),
+        subprocess.run([tc, "synth", "--preset", preset, "--duration", str(duration),
                         "--seed", str(seed), "--out", str(out), "--no-progress"], check=True, capture_output=True)
     return out
 
@@ -114,7 +140,8 @@ class SideEstimators:
         return self.hull.result(), self.exact.result()
 
 
-def measure(folder: Path, min_vehicles: int, cache_dir: Path) -> dict:
+def measure(folder: Path, min_vehicles: int, cache_dir: Path, background: str = "mog2",
+            duration: float | None = None) -> dict:
     from gst_trafficcal.brnocompspeed import load_gt_data
     from gst_trafficcal.calibration import load_calibration
     from gst_trafficcal.manual_calibration import manual_scale
@@ -130,7 +157,7 @@ def measure(folder: Path, min_vehicles: int, cache_dir: Path) -> dict:
     models = load_align_models(None)
     side = SideEstimators(folder, cal.camera.with_scale(None), models, min_vehicles)
     res = scale_from_video(folder / "video.mp4", cal.with_scale(None), models=models, min_vehicles=min_vehicles,
-                           on_frame=side)
+                           on_frame=side, background=background, max_duration=duration)
     r = res.result
     hull, exact = side.results()
     base = bmvc14_scale(res.box_params) if len(res.box_params) else None
@@ -185,18 +212,33 @@ def main() -> None:
     ap.add_argument("--jobs", type=int, default=2)
     ap.add_argument("--replays", default="", help="BrnoCompSpeed replays: comma-separated names or 'all'")
     ap.add_argument("--replay-work", type=Path, default=Path("/tmp/replays"))
+    ap.add_argument("--renders", type=Path, default=None,
+                    help="use the synth scenes already rendered in RENDERS/<preset> (e.g. /tmp/aa_syn, 60 s) instead of "
+                         "rendering; the first --duration seconds are analysed")
+    ap.add_argument("--traffic", choices=("preset", "catalogue"), default="preset",
+                    help="the presets' traffic (generic cars only) or CATALOGUE_TRAFFIC (half the cars catalogue types)")
+    ap.add_argument("--background", choices=("mog2", "average"), default="mog2", help="background detector method")
     ap.add_argument("--write", type=Path, default=ROOT / "docs" / "results" / "scale.md")
     a = ap.parse_args()
     a.work.mkdir(parents=True, exist_ok=True)
     presets = [p for p in a.presets.split(",") if p]
     replays = list(REPLAY_STARTS) if a.replays == "all" else [r for r in a.replays.split(",") if r]
     with ProcessPoolExecutor(a.jobs) as pool:
-        folders = list(pool.map(render, presets, [a.work] * len(presets), [a.duration] * len(presets),
-                                [a.seed] * len(presets)))
-        folders += [render_replay(r, a.replay_work) for r in replays]
-        cache = a.work / "results"
+        if a.renders is not None:
+            folders = [a.renders / p for p in presets]
+            missing = [str(f) for f in folders if not (f / "video.mp4").is_file()]
+            if missing:
+                raise SystemExit(f"not rendered: {', '.join(missing)}")
+        else:
+            folders = list(pool.map(render, presets, [a.work] * len(presets), [a.duration] * len(presets),
+                                    [a.seed] * len(presets), [a.traffic] * len(presets)))
+        n_synth = len(folders)
+        folders += [render_replay(r, a.replay_work, a.traffic) for r in replays]
+        cache = a.work / f"results_{a.background}_{a.traffic}"
         cache.mkdir(exist_ok=True)
-        rows = list(pool.map(measure, folders, [a.min_vehicles] * len(folders), [cache] * len(folders)))
+        durations = [a.duration] * n_synth + [None] * (len(folders) - n_synth)
+        rows = list(pool.map(measure, folders, [a.min_vehicles] * len(folders), [cache] * len(folders),
+                             [a.background] * len(folders), durations))
     reg = loo_regression(rows)
     lines = ["| scene | true λ (m) | BBScale % | BBScale+reg (LOO) % | BMVC14 % | ManualScale % | matched / agreeing "
              "| BBScale, hull box % | BBScale, exact box % |",
@@ -227,11 +269,15 @@ def main() -> None:
     a.write.parent.mkdir(parents=True, exist_ok=True)
     a.write.write_text(
         "# Scene scale λ on synthetic scenes and BrnoCompSpeed replays\n\n"
-        f"Command: `.venv/bin/python {cmd}` (each preset rendered for {a.duration:g} s, seed {a.seed}; the "
+        f"Command: `.venv/bin/python {cmd}` ("
+        + (f"the first {a.duration:g} s of each preset's render in {a.renders}" if a.renders is not None else
+           f"each preset rendered for {a.duration:g} s, seed {a.seed}") + "; the "
         "chain: vehicledetect's background detector, the tracker, BBScale with every passenger-car type of the "
         "catalogue, no classifier, the scene's true vanishing points). Relative error λ/λ_true − 1 in %; "
         "BBScale+reg is leave-one-out (the regression fitted on the other scenes). λ* is reported even when "
         "the stage did not converge (fewer than --min-vehicles agreeing vehicles; marked). A dash: no estimate. "
+        f"Traffic: {a.traffic} ({'half of the passenger cars named catalogue types, benchmarks/scale.py CATALOGUE_TRAFFIC' if a.traffic == 'catalogue' else 'the presets own: generic cars of random dimensions, none of a catalogue type'}); "
+        f"background detector method: {a.background}. "
         "Replays (session*): true λ = the rendering camera's (our ManualCalib+ManualScale of the recording); "
         "ManualScale recomputed from the recording's measured distances with the true VPs. Diagnostic columns "
         "from the same tracking pass: BBScale aligned with the tracker's hull box instead of the detector's "
