@@ -70,7 +70,8 @@ def main() -> None:
     frames = read_frames(args.frames)
     detectors = {
         "vehicledetect: background (MOG2, default)": (lambda: BackgroundDetector(method="mog2"), True, "≥ 100 at 960x540"),
-        "vehicledetect: background (moving average)": (lambda: BackgroundDetector(method="average"), True, ""),
+        "vehicledetect: background=average (moving average, shadow peeling)": (
+            lambda: BackgroundDetector(method="average"), True, "≥ 100 at 960x540"),
         "vehicledetect: NanoDet-m 320": (lambda: OnnxDetector(DETECTORS / "nanodet_hpc203.onnx", threads=args.threads),
                                          False, "≥ 25"),
         "vehicledetect: FastestDet 352": (lambda: OnnxDetector(DETECTORS / "FastestDet.onnx", threads=args.threads),
