@@ -26,8 +26,9 @@ class BBScale(TrafficcalTransform):
                    "a catalogue YAML file; or comma-separated type names", "", _RW),
         "iou-threshold": (float, "IoU threshold", "Minimum IoU between a rendered model box and the detected box "
                           "for a match to count", 0.01, 0.99, 0.85, _RW),
-        "min-vehicles": (int, "Minimum vehicles", "Matched vehicles that must agree on the scale before it is "
-                         "published", 1, 100000, 5, _RW),
+        "min-vehicles": (int, "Minimum vehicles", "Matched vehicles that must agree on the scale (their own "
+                         "scale within 8 % of the estimate) before it is published; trucks, buses and merged blobs "
+                         "(3D-box length/width outside 0.8-3.5) are not aligned", 1, 100000, 5, _RW),
         "regression-file": (str, "Regression file", "Scale-correction regression JSON (trafficcal fit-scale); "
                             "empty = none", "", _RW),
         "classifier": (str, "Classifier", "Optional ONNX fine-grained classifier (crop -> catalogue type "
