@@ -65,3 +65,29 @@ def test_replay_without_calibration_is_a_clear_error(tmp_path):
     scen = scenario_from_dict({"replay": {"gt_data": str(SHARED / "session0_center" / "gt_data.pkl")}})
     with pytest.raises(InputError, match="replay.calibration is required"):
         generate(scen, tmp_path, model_factory=_box_model, write_video=False)
+
+
+def test_a_car_without_a_measured_speed_drives_past_at_its_lanes_median_speed(tmp_path):
+    """BrnoCompSpeed's invalid cars have speed 0; replayed at 0 km/h they stood across line 0 for the whole clip
+    and hid the cars behind them.  They now cross line 0 at their real time at the lane's median speed."""
+    gt_path = SHARED / "session2_center" / "gt_data.pkl"
+    if not gt_path.exists():
+        pytest.skip("../shared/data/brnocompspeed is not available")
+    real = load_gt_data(gt_path)
+    car = next(c for c in real.cars if c.car_id == 1)
+    assert car.speed == 0 and not car.valid
+    lane_speeds = [c.speed for c in real.cars if c.speed > 0 and set(car.lanes) <= set(c.lanes)]
+    block = json.loads((SHARED / "dubska_calibrations.json").read_text())["session2_center"]["dubska_optimal_calib"]
+    (tmp_path / "cal.json").write_text(json.dumps(block))
+    start = car.intersections[-1].video_time - 1.0
+    scen = scenario_from_dict({"duration": 2.0, "imaging": {"fps": 25, "noise": 0}, "replay": {
+        "gt_data": str(gt_path), "calibration": str(tmp_path / "cal.json"), "start": start}})
+    generate(scen, tmp_path / "out", model_factory=_box_model, box_vehicles=True, write_video=False)
+    track = [r for r in read_jsonl(tmp_path / "out" / "frames.jsonl") if r["id"] == car.car_id]
+    assert track, "the invalid car is rendered"
+    assert track[0]["speed_kmh"] == pytest.approx(float(np.median(lane_speeds)))
+    refs = np.array([r["ref"] for r in track])
+    side = refs @ real.measurement_lines[0][:2] + real.measurement_lines[0][2]
+    assert np.sign(side[0]) != np.sign(side[-1]), "it crosses line 0 during the clip"
+    replayed = next(c for c in load_gt_data(tmp_path / "out" / "gt_data.pkl").cars if c.car_id == car.car_id)
+    assert replayed.speed == 0 and not replayed.valid, "still invalid in the ground truth (not scored)"

@@ -69,6 +69,19 @@ def _lane_centre_y(cam: Camera, gt: GroundTruth, lane: int, W: int) -> float:
     return float(np.mean(ys))
 
 
+def _fallback_speeds(gt: GroundTruth) -> dict[int, float]:
+    """Median measured speed (km/h) of the recording's cars per lane, and over all lanes under key -1."""
+    speeds: dict[int, list[float]] = {}
+    for c in gt.cars:
+        if c.speed > 0 and np.isfinite(c.speed):
+            for lane in c.lanes:
+                speeds.setdefault(int(lane), []).append(float(c.speed))
+    every = [v for vs in speeds.values() for v in vs]
+    out = {lane: float(np.median(vs)) for lane, vs in speeds.items()}
+    out[-1] = float(np.median(every)) if every else 60.0
+    return out
+
+
 def prepare_replay(scen: Scenario, rng: np.random.Generator, model_factory=draw_model) -> Replay:
     r = scen.replay
     assert r is not None
@@ -108,6 +121,7 @@ def prepare_replay(scen: Scenario, rng: np.random.Generator, model_factory=draw_
 
     t0, t1 = r.start, r.start + scen.duration
     items, probs = _shares(scen.traffic)
+    fallback = _fallback_speeds(gt)
     vehicles, cars = [], []
     for c in gt.cars:
         match = c.intersections[-1]
@@ -119,7 +133,9 @@ def prepare_replay(scen: Scenario, rng: np.random.Generator, model_factory=draw_
         x_line = _intersect_y(p, d, y)
         kind, name = items[int(rng.choice(len(items), p=probs))]
         model = model_factory(kind, name, rng)
-        v = c.speed / 3.6
+        # a car without a measured speed (invalid in the dataset, speed 0) still drove past: it gets its lane's
+        # median speed instead of standing across line 0 for the whole clip, where it hid the cars behind it
+        v = (c.speed if c.speed > 0 else fallback.get(int(lane), fallback[-1])) / 3.6
         L = float(model.length)
         tm = match.video_time - t0
         x_at_zero = x_line - sign * v * tm - sign * L / 2
