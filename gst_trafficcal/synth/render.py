@@ -69,6 +69,8 @@ void main() {
     vec3 base = v_col;
     float spec = 0.0; float shin = 16.0; vec3 emit = vec3(0.0); float refl = 0.0;
     vec2 p = v_pos.xy;
+#ifndef VEHICLES_ONLY
+    // the static scene's materials (the vehicles' program leaves them out: llvmpipe runs every branch)
     if (mat == 1) {            // asphalt: grain, patches, longitudinal wear
         float g = nz(p * 0.9, 0) * 0.6 + nz(p * 0.23, 0) * 0.4;
         float patch = nz(p * 0.013, 1);
@@ -105,7 +107,9 @@ void main() {
         if (lamps_on > 0.5) emit = vec3(1.6, 1.3, 0.9);
     } else if (mat == 8) {
         spec = 0.2;
-    } else if (mat == 10) {    // car paint
+    } else
+#endif
+    if (mat == 10) {    // car paint
         spec = 1.2; shin = 20.0; refl = 0.60;   // clear coat: strong sky reflections (NanoDet recall rose with them)
         float plastic = 1.0 - smoothstep(0.26, 0.30, v_pos.z);  // black sills, lower bumpers, arch liners
         base = mix(base, vec3(0.05, 0.05, 0.055), plastic);
@@ -125,8 +129,12 @@ void main() {
     }
     float ndl = max(dot(n, sun_dir), 0.0);
     vec3 h = normalize(sun_dir + view);
+#ifndef VEHICLES_ONLY
     vec3 light = amb_col * (0.75 + 0.25 * n.z) + sun_col * ndl + lamp_light(v_pos, n);
     if (mat >= 10) {           // vehicles: ambient occlusion near the road and on down-facing faces
+#else
+    vec3 light; {
+#endif
         float occ = mix(0.35, 1.0, smoothstep(0.05, 0.75, v_pos.z)) * mix(0.35, 1.0, smoothstep(-0.6, 0.1, n.z));
         light = amb_col * (0.55 + 0.45 * n.z) * occ + sun_col * ndl * mix(0.5, 1.0, occ) + lamp_light(v_pos, n);
     }
@@ -262,6 +270,13 @@ def _grow(rect: tuple[int, int, int, int], px: int, size: tuple[int, int]) -> tu
     x, y, w, h = rect
     x0, y0 = max(x - px, 0), max(y - px, 0)
     return x0, y0, min(x + w + px, size[0]) - x0, min(y + h + px, size[1]) - y0
+
+
+def _vehicles_only(frag: str) -> str:
+    """The scene's fragment shader for vehicle fragments only: the static materials' branches are left out
+    (llvmpipe evaluates every branch of a fragment's material chain, masked, so they cost the vehicles more
+    than their own shading); the vehicle materials' code is the same, so their pixels are too."""
+    return frag.replace("#version 330\n", "#version 330\n#define VEHICLES_ONLY\n", 1)
 
 
 def resolve_lighting(spec: LightingSpec) -> Light:
@@ -450,6 +465,7 @@ class Renderer:
         self.noise.repeat_x = self.noise.repeat_y = True
         self.noise.anisotropy = 1.0
         self.prog = ctx.program(vertex_shader=_VERT, fragment_shader=_FRAG)
+        self.veh_prog = ctx.program(vertex_shader=_VERT, fragment_shader=_vehicles_only(_FRAG))
         self.sky = ctx.program(vertex_shader=_SKY_VERT, fragment_shader=_SKY_FRAG)
         self.shadow = ctx.program(vertex_shader=_SHADOW_VERT, fragment_shader=_SHADOW_FRAG)
         self.glow = ctx.program(vertex_shader=_GLOW_VERT, fragment_shader=_GLOW_FRAG)
@@ -457,7 +473,7 @@ class Renderer:
         self.quad = ctx.buffer(np.array([-1, -1, 1, -1, -1, 1, 1, 1], np.float32).tobytes())
         mvp = cam.gl_matrix().astype(np.float32)
         self.mvp = mvp
-        for p in (self.prog, self.shadow, self.glow, self.id_prog):
+        for p in (self.prog, self.veh_prog, self.shadow, self.glow, self.id_prog):
             p["mvp"].write(mvp.T.tobytes())
         self._set_uniforms(lamps, lamp_spacing)
         self.set_road(*road)
@@ -494,11 +510,17 @@ class Renderer:
                  curve_radius: float = 0.0) -> None:
         """Lane geometry for the wheel-path and oil-strip pattern of the asphalt and the lamp rows (before the
         static pass)."""
-        self.prog["curve_start"].value = float(curve_start)
-        self.prog["curve_inv_r"].value = 1.0 / curve_radius if curve_radius else 0.0
-        self.prog["lane_w"].value = float(lane_width)
-        self.prog["median_half"].value = float(median_half)
-        self.prog["carriage_w"].value = float(carriageway_width)
+        self._set_scene_uniforms(dict(curve_start=float(curve_start),
+                                      curve_inv_r=1.0 / curve_radius if curve_radius else 0.0,
+                                      lane_w=float(lane_width), median_half=float(median_half),
+                                      carriage_w=float(carriageway_width)))
+
+    def _set_scene_uniforms(self, values: dict) -> None:
+        """Set uniforms of the scene program and of its vehicle-only variant (each where it uses them)."""
+        for prog in (self.prog, self.veh_prog):
+            for k, v in values.items():
+                if k in prog:
+                    prog[k].value = tuple(np.asarray(v).tolist()) if np.ndim(v) else v
 
     def _set_uniforms(self, lamps, lamp_spacing) -> None:
         L, cam = self.light, self.cam
@@ -506,9 +528,7 @@ class Renderer:
                     zenith_col=L.zenith_col, cam_pos=cam.centre.astype(np.float32), haze=L.haze,
                     lamps_on=float(L.lamps_on), lights_on=float(L.lights_on), lamp_spacing=float(lamp_spacing),
                     lamp_x0=float(lamps[0][0]) if lamps else 0.0, lamp_y=float(abs(lamps[0][1])) if lamps else 0.0)
-        for k, v in vals.items():
-            if k in self.prog:
-                self.prog[k].value = tuple(np.asarray(v).tolist()) if np.ndim(v) else v
+        self._set_scene_uniforms(vals)
         for k in ("sky_col", "zenith_col", "cloud_col", "clouds"):
             if k in self.sky:
                 v = getattr(L, k)
@@ -691,7 +711,7 @@ class Renderer:
             rows = np.concatenate(parts)
             self._veh_buf = self._upload(self._veh_buf, rows)
             ctx.depth_func = "<"
-            vao = ctx.vertex_array(self.prog, [(self._veh_buf, "3f 3f 3f 1f 1f", "in_pos", "in_normal", "in_col",
+            vao = ctx.vertex_array(self.veh_prog, [(self._veh_buf, "3f 3f 3f 1f 1f", "in_pos", "in_normal", "in_col",
                                                 "in_mat", "in_id")])
             vao.render(moderngl.TRIANGLES, vertices=len(rows))
             vao.release()
