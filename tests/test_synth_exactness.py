@@ -175,21 +175,52 @@ def test_video_is_h264_with_all_frames(synth):
     assert (out / "preview.png").stat().st_size > 10000
 
 
-def test_restoring_only_the_dirty_rectangles_renders_the_same_frames(tmp_path, monkeypatch):
-    """Per frame the renderer restores, resolves and clears ids only where vehicles (with their shadows and
-    headlight beams) are now or were a frame ago; forcing whole-frame copies must give identical pixels and ids."""
+def _frames(scen, out, **kw):
+    frames: list = []
+    generate(scen, out, write_video=False, keep_masks=frames, **kw)
+    return np.stack([f[1] for f in frames]), np.stack([f[2] for f in frames])
+
+
+def _night_scene():
+    return scenario_from_dict({**SCENE, "duration": 3.0, "lighting": {"preset": "night"},
+                               "traffic": {"flow": 300, "speed": 90}})
+
+
+def _vehicles_below_the_camera():
+    """highway_day at 480x270: vehicles (and their shadows) pass below and behind the camera, so their screen
+    rectangles come from hulls cut at the near plane."""
+    from gst_trafficcal.synth.scenario import load_preset
+
+    scen = load_preset("highway_day")
+    scen.camera.resolution, scen.duration, scen.traffic.flow, scen.seed = [480, 270], 3.0, 600, 2
+    return scen
+
+
+@pytest.mark.parametrize("make, near_cut", [(_night_scene, False), (_vehicles_below_the_camera, True)])
+def test_resolving_only_the_dirty_rectangles_renders_the_same_frames(tmp_path, monkeypatch, make, near_cut):
+    """Per frame the renderer resolves only where vehicles (with their shadows and headlight beams) are now or
+    were a frame ago; forcing whole-frame resolves must give identical pixels and ids."""
     from gst_trafficcal.synth import render
 
-    scen = {**SCENE, "duration": 3.0, "lighting": {"preset": "night"}, "traffic": {"flow": 300, "speed": 90}}
-
-    def frames(tag):
-        out: list = []
-        generate(scenario_from_dict(scen), tmp_path / tag, write_video=False, keep_masks=out)
-        return np.stack([f[1] for f in out]), np.stack([f[2] for f in out])
-
-    rgb, ids = frames("rects")
-    monkeypatch.setattr(render, "_BLIT_OVERHEAD", 1.0)  # any rectangle list becomes one whole-frame copy
-    rgb_whole, ids_whole = frames("whole")
-    assert (ids > 0).any(axis=(1, 2)).sum() >= 20  # vehicles in most of the 30 frames
+    cut = []
+    clip_near = render._clip_near
+    monkeypatch.setattr(render, "_clip_near", lambda c: cut.append(bool((c[:, 2] + c[:, 3] < 0).any())) or
+                        clip_near(c))
+    rgb, ids = _frames(make(), tmp_path / "rects")
+    monkeypatch.setattr(render, "_BLIT_OVERHEAD", 1.0)  # any rectangle list becomes one whole-frame resolve
+    rgb_whole, ids_whole = _frames(make(), tmp_path / "whole")
+    assert (ids > 0).any(axis=(1, 2)).sum() >= 20  # vehicles in most of the frames
+    assert any(cut) == near_cut
     np.testing.assert_array_equal(ids, ids_whole)
     np.testing.assert_array_equal(rgb, rgb_whole)
+
+
+def test_screen_rectangle_helpers():
+    from gst_trafficcal.synth.render import _clip_near, _merge_rects
+
+    clip = np.array([[0.0, 0.0, 1.0, 2.0], [4.0, 0.0, -3.0, 1.0]])  # z + w = 3 (in front) and -2 (behind)
+    cut = _clip_near(clip)
+    np.testing.assert_allclose(cut, [[0, 0, 1, 2], [2.4, 0, -1.4, 1.4]])  # 3/5 of the way: on z = -w
+    assert len(_clip_near(clip[:1])) == 1 and len(_clip_near(clip[1:])) == 0
+    assert _merge_rects([(0, 0, 10, 10), (2, 1, 10, 10), (50, 50, 5, 5)]) == [(0, 0, 12, 11), (50, 50, 5, 5)]
+    assert _merge_rects([(0, 0, 10, 10), (20, 0, 10, 10)]) == [(0, 0, 10, 10), (20, 0, 10, 10)]
