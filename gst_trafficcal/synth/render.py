@@ -596,7 +596,16 @@ class Renderer:
             rows = np.concatenate([arr, np.zeros((len(arr), 1), np.float32)], 1)
             bufs.append(ctx.buffer(rows.astype(np.float32).tobytes()) if len(rows) else None)
 
-        def draw() -> None:
+        def draw(shaded: bool = True) -> None:
+            """The static scene; unshaded: only its depth (the raised objects through the trivial id shader, the
+            same positions; the sky and ground layers are drawn without the depth test, so they write none)."""
+            if not shaded:
+                if bufs[1] is not None:
+                    ctx.enable(moderngl.DEPTH_TEST)
+                    vao = ctx.vertex_array(self.id_prog, [(bufs[1], "3f 28x 1f", "in_pos", "in_id")])
+                    vao.render(moderngl.TRIANGLES)
+                    vao.release()
+                return
             ctx.disable(moderngl.DEPTH_TEST)
             ctx.vertex_array(self.sky, [(self.quad, "2f", "in_pos")]).render(moderngl.TRIANGLE_STRIP)
             # ground layers in paint order without depth (coplanar), then raised objects with depth
@@ -612,7 +621,7 @@ class Renderer:
                 vao.render(moderngl.TRIANGLES)
                 vao.release()
 
-        draw()  # depth (and a first colour) at the frame size
+        draw(shaded=False)  # depth at the frame size (its colour is replaced below)
         # colour supersampled 2x2 and averaged: thin distant markings and rails do not shimmer (rendered once)
         import cv2
         W, H = self.size
@@ -623,7 +632,7 @@ class Renderer:
         big = np.frombuffer(ss.read(components=4), np.uint8).reshape(2 * H, 2 * W, 4)
         self.bg_tex.write(cv2.resize(big, (W, H), interpolation=cv2.INTER_AREA).tobytes())
         ss.release()
-        self._fill_ms_static(draw)
+        self._fill_ms_static(lambda: draw(shaded=False))
         for buf in bufs:
             if buf is not None:
                 buf.release()
