@@ -141,8 +141,7 @@ def generate(scen: Scenario, out_dir: str | Path, progress: Callable[[int, int],
                             proxies[key] = proxy_mesh(v, m) if lod == 0 else simplified_mesh(m, v.length / 16)
                         m = proxies[key]
                     items.append((v, m, v.centre(t).astype(np.float32), v.turn(t)))
-                rgba = renderer.render(items)
-                ids = cv2.extractChannel(rgba, 3)
+                rgb, ids = renderer.render(items)
                 counts = cv2.calcHist([ids], [0], None, [256], [0, 256]).ravel().astype(int)
                 Hs = shake.homography(t) if scen.imaging.shake > 0 else None
                 motions = {}
@@ -152,7 +151,7 @@ def generate(scen: Scenario, out_dir: str | Path, progress: Callable[[int, int],
                             a = cam.project(v.centre(t - exposure) + [0, 0, v.height / 2])
                             b = cam.project(v.centre(t) + [0, 0, v.height / 2])
                             motions[k + 1] = b - a
-                frame = imaging.process(cv2.cvtColor(rgba, cv2.COLOR_RGBA2RGB), ids, motions, Hs)
+                frame = imaging.process(rgb, ids, motions, Hs)
                 if writer is not None:
                     writer.write(frame, t)
                 recs = []

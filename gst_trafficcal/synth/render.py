@@ -13,6 +13,8 @@ Full-screen shader passes cost ~10 ms at 1080p on llvmpipe, so the imaging chain
 
 from __future__ import annotations
 
+import functools
+import itertools
 from dataclasses import dataclass
 
 import numpy as np
@@ -265,6 +267,7 @@ class Light:
 _BLIT_OVERHEAD = 0.03  # fixed cost of one scissored resolve, as a fraction of a whole-frame one
 
 Rect = tuple[int, int, int, int]  # x, y, w, h (OpenGL's bottom-left origin)
+_BOX_CORNERS = np.array(list(itertools.product((0, 1), repeat=3)))  # (lo, hi) choice per axis of a box's corners
 
 
 def _bounding(a: Rect, b: Rect) -> Rect:
@@ -283,6 +286,24 @@ def _clip_near(clip: np.ndarray) -> np.ndarray:
     t = d[front][:, None] / (d[front][:, None] - d[back][None, :])  # (front, back) segment fractions
     a, b = clip[front][:, None, :], clip[back][None, :, :]
     return np.concatenate([clip[front], (a + t[..., None] * (b - a)).reshape(-1, 4)])
+
+
+@functools.lru_cache(maxsize=1024)
+def _contact_shadow(hl: float, hw: float, opacity: float) -> tuple[np.ndarray, np.ndarray]:
+    """Triangles (vehicle frame, metres) and opacities of the soft contact shadow under a vehicle of half length
+    ``hl`` and half width ``hw``: an opaque inner rectangle and a ring fading to transparent outside it."""
+    inner = np.array([[hl - 0.2, hw - 0.2], [-hl + 0.2, hw - 0.2], [-hl + 0.2, -hw + 0.2], [hl - 0.2, -hw + 0.2]])
+    outer = np.array([[hl + 0.5, hw + 0.45], [-hl - 0.5, hw + 0.45], [-hl - 0.5, -hw - 0.45], [hl + 0.5, -hw - 0.45]])
+    tri = [(inner[0], opacity), (inner[1], opacity), (inner[2], opacity),
+           (inner[0], opacity), (inner[2], opacity), (inner[3], opacity)]
+    for i in range(4):
+        j = (i + 1) % 4
+        tri += [(inner[i], opacity), (outer[i], 0.0), (outer[j], 0.0),
+                (inner[i], opacity), (outer[j], 0.0), (inner[j], opacity)]
+    local = np.array([p for p, _ in tri])
+    alpha = np.array([a for _, a in tri])
+    local.flags.writeable = alpha.flags.writeable = False  # shared by every call (cached)
+    return local, alpha
 
 
 def _merge_rects(rects: list[Rect]) -> list[Rect]:
@@ -506,6 +527,7 @@ class Renderer:
         self.quad = ctx.buffer(np.array([-1, -1, 1, -1, -1, 1, 1, 1], np.float32).tobytes())
         mvp = cam.gl_matrix().astype(np.float32)
         self.mvp = mvp
+        self._mvp_t = mvp.T.astype(np.float64)  # clip = [world, 1] @ _mvp_t
         for p in (self.prog, self.veh_prog, self.shadow, self.glow, self.id_prog):
             p["mvp"].write(mvp.T.tobytes())
         self._set_uniforms(lamps, lamp_spacing)
@@ -526,7 +548,7 @@ class Renderer:
         self._id_src = ctx.framebuffer([ctx.renderbuffer((W, H), 1)], bg_depth)
         self._id_src.clear(0.0, 0.0, 0.0, 0.0, depth=1.0)
         self._ids = np.empty((H, W), np.uint8)
-        self._frame = np.empty((H, W, 4), np.uint8)
+        self._frame = np.empty((H, W, 3), np.uint8)
         self._dirty: list[tuple[int, int, int, int] | None] = [(0, 0, W, H)]  # first frame: everything
         self.part_table = _part_table()
         self._veh_cache: dict[int, np.ndarray] = {}
@@ -680,103 +702,112 @@ class Renderer:
             del self._pts_cache[k]
             del self._tri_cache[k]
 
-    def render(self, items: list[tuple]) -> np.ndarray:
-        """Draw vehicles ``(vehicle, mesh, world offset (3,)[, extra yaw])``; return the frame as RGBA uint8 (H, W, 4), top row
-        first, whose alpha is the vehicle slot of each pixel: 0 = no vehicle, k = items[k - 1] (so at most 255
-        vehicles per frame can be told apart)."""
+    def render(self, items: list[tuple]) -> tuple[np.ndarray, np.ndarray]:
+        """Draw vehicles ``(vehicle, mesh, world offset (3,)[, extra yaw])``; return the frame, top row first: RGB
+        uint8 (H, W, 3) and the vehicle slot of each pixel (H, W) uint8: 0 = no vehicle, k = items[k - 1] (so at
+        most 255 vehicles per frame can be told apart)."""
         import cv2
-        import moderngl
 
-        ctx = self.ctx
-        fbo = self.ms_fbo
         parts, shadows, glows, rects = [], [], [], []
         self.frame_points, self.frame_triangles = [], []
-        if items:
-            for k, (v, mesh, off, *turn) in enumerate(items):
-                rows = self.vehicle_rows(v, mesh).copy()
-                pts = self._pts_cache[(v.id, id(mesh))].copy()
-                self.frame_triangles.append(self._tri_cache[(v.id, id(mesh))])
-                if turn and turn[0]:  # extra yaw on a bend: rotate positions and normals about z
-                    c, s_ = np.cos(turn[0]), np.sin(turn[0])
-                    rot = np.array([[c, s_], [-s_, c]], np.float32)
-                    rows[:, 0:2] = rows[:, 0:2] @ rot
-                    rows[:, 3:5] = rows[:, 3:5] @ rot
-                    pts[:, 0:2] = pts[:, 0:2] @ rot
-                rows[:, 0:3] += off
-                rows[:, 10] = k + 1
-                pts += off
-                parts.append(rows)
-                self.frame_points.append(pts)
-                shadows.append(self._shadow_rows(v, pts, off, turn[0] if turn else 0.0))
-                if self.light.lights_on:
-                    g = self._glow_rows(v, off)
-                    if turn and turn[0]:
-                        c, s_ = np.cos(turn[0]), np.sin(turn[0])
-                        g[:, 0:2] = (g[:, 0:2] - off[:2]) @ np.array([[c, s_], [-s_, c]], np.float32) + off[:2]
-                    glows.append(g)
-                lo, hi = pts.min(0), pts.max(0)
-                box = np.stack(np.meshgrid(*zip(lo, hi), indexing="ij"), -1).reshape(-1, 3)
-                rects.append(self._screen_rect(np.concatenate([box, shadows[-1][:, :3]] +
-                                                              ([glows[-1][:, :3]] if self.light.lights_on else []))))
+        for k, item in enumerate(items):
+            rows, shadow, glow, rect = self._vehicle_geometry(k + 1, *item)
+            parts.append(rows)
+            shadows.append(shadow)
+            glows += [glow] if glow is not None else []
+            rects.append(rect)
         # only the pixels the vehicles touch now or touched in the previous frame are resolved; the static scene
         # (colour and depth, per sample) is restored whole: an unscissored copy between equal targets is a plain
         # memory copy on llvmpipe (0.7 ms at 960x540, 3.8 ms at 1080p), a scissored one a shader pass (~4 ms
         # for 30 % of a 960x540 frame)
         dirty = [r for r in self._dirty + rects if r is not None]
         self._dirty = rects
-        self.ctx.copy_framebuffer(fbo, self.ms_static)
-        fbo.use()
-        ctx.disable(moderngl.BLEND)
-        ctx.enable(moderngl.DEPTH_TEST)
-        self.noise.use(0)
-        if items:
-            # ground-level layers first (no depth writes): shadows, then headlight beams; the vehicles are drawn
-            # over them, so shadows never darken a body and the id target holds exactly the vehicles' pixels
-            fbo.depth_mask = False
-            ctx.enable(moderngl.BLEND)
-            srows = np.concatenate(shadows)
-            if len(srows):
-                self._shadow_buf = self._upload(self._shadow_buf, srows)
-                # colour blended, destination alpha (vehicle slots) kept
-                ctx.blend_func = moderngl.SRC_ALPHA, moderngl.ONE_MINUS_SRC_ALPHA, moderngl.ZERO, moderngl.ONE
-                vao = ctx.vertex_array(self.shadow, [(self._shadow_buf, "3f 1f", "in_pos", "in_alpha")])
-                vao.render(moderngl.TRIANGLES, vertices=len(srows))
-                vao.release()
-            if glows:
-                grows = np.concatenate(glows)
-                self._glow_buf = self._upload(self._glow_buf, grows)
-                ctx.blend_func = moderngl.ONE, moderngl.ONE, moderngl.ZERO, moderngl.ONE
-                vao = ctx.vertex_array(self.glow, [(self._glow_buf, "3f 2f 3f", "in_pos", "in_uv", "in_col")])
-                vao.render(moderngl.TRIANGLES, vertices=len(grows))
-                vao.release()
-            ctx.disable(moderngl.BLEND)
-            fbo.depth_mask = True
-            rows = np.concatenate(parts)
-            self._veh_buf = self._upload(self._veh_buf, rows)
-            ctx.depth_func = "<"
-            vao = ctx.vertex_array(self.veh_prog, [(self._veh_buf, "3f 3f 3f 1f 1f", "in_pos", "in_normal", "in_col",
-                                                "in_mat", "in_id")])
-            vao.render(moderngl.TRIANGLES, vertices=len(rows))
-            vao.release()
-        self._resolve(self.fbo, fbo, dirty)  # samples averaged (anti-aliased colour)
-        self.fbo.read_into(self._frame, components=4)
-        # vehicle ids: the same triangles single-sampled over the static depth, exact (never averaged)
+        self.ctx.copy_framebuffer(self.ms_fbo, self.ms_static)
         self.ctx.copy_framebuffer(self.id_fbo, self._id_src)  # zero ids, static depth (whole: a memory copy)
         if items:
-            self.id_fbo.use()
-            vao = ctx.vertex_array(self.id_prog, [(self._veh_buf, "3f 28x 1f", "in_pos", "in_id")])
-            vao.render(moderngl.TRIANGLES, vertices=len(rows))
-            vao.release()
+            self.ms_fbo.use()
+            self._draw_ground_layers(np.concatenate(shadows), np.concatenate(glows) if glows else None)
+            self._veh_buf = self._upload(self._veh_buf, np.concatenate(parts))
+            self._draw_vehicles(sum(len(r) for r in parts))
+        self._resolve(self.fbo, self.ms_fbo, dirty)  # samples averaged (anti-aliased colour)
+        self.fbo.read_into(self._frame, components=3)
         self.id_fbo.read_into(self._ids, components=1)
-        self._frame[..., 3] = self._ids
-        return cv2.flip(self._frame, 0)
+        return cv2.flip(self._frame, 0), cv2.flip(self._ids, 0)
+
+    def _vehicle_geometry(self, slot: int, v, mesh, off: np.ndarray, *turn) -> tuple:
+        """One vehicle's vertex rows (id = ``slot``), shadow rows, beam rows (None without lights) and screen
+        rectangle; its world vertices and triangles are appended to ``frame_points`` / ``frame_triangles``."""
+        key = (v.id, id(mesh))
+        rows = self.vehicle_rows(v, mesh).copy()
+        pts = self._pts_cache[key].copy()
+        self.frame_triangles.append(self._tri_cache[key])
+        yaw = turn[0] if turn else 0.0
+        if yaw:  # extra yaw on a bend: rotate positions and normals about z
+            c, s_ = np.cos(yaw), np.sin(yaw)
+            rot = np.array([[c, s_], [-s_, c]], np.float32)
+            rows[:, 0:2] = rows[:, 0:2] @ rot
+            rows[:, 3:5] = rows[:, 3:5] @ rot
+            pts[:, 0:2] = pts[:, 0:2] @ rot
+        rows[:, 0:3] += off
+        rows[:, 10] = slot
+        pts += off
+        self.frame_points.append(pts)
+        shadow = self._shadow_rows(v, pts, off, yaw)
+        glow = None
+        if self.light.lights_on:
+            glow = self._glow_rows(v, off)
+            if yaw:
+                c, s_ = np.cos(yaw), np.sin(yaw)
+                glow[:, 0:2] = (glow[:, 0:2] - off[:2]) @ np.array([[c, s_], [-s_, c]], np.float32) + off[:2]
+        lohi = np.stack([pts.min(0), pts.max(0)])
+        box = lohi[_BOX_CORNERS, [0, 1, 2]]  # the 8 corners of the vehicle's axis-aligned box
+        rect = self._screen_rect(np.concatenate([box, shadow[:, :3]] + ([glow[:, :3]] if glow is not None else [])))
+        return rows, shadow, glow, rect
+
+    def _draw_ground_layers(self, shadows: np.ndarray, glows: np.ndarray | None) -> None:
+        """Shadows, then headlight beams, blended into the colour (no depth writes, destination alpha kept); the
+        vehicles are drawn over them, so shadows never darken a body."""
+        import moderngl
+
+        ctx, fbo = self.ctx, self.ms_fbo
+        ctx.enable(moderngl.DEPTH_TEST)
+        self.noise.use(0)
+        fbo.depth_mask = False
+        ctx.enable(moderngl.BLEND)
+        if len(shadows):
+            self._shadow_buf = self._upload(self._shadow_buf, shadows)
+            ctx.blend_func = moderngl.SRC_ALPHA, moderngl.ONE_MINUS_SRC_ALPHA, moderngl.ZERO, moderngl.ONE
+            self._draw(self.shadow, self._shadow_buf, "3f 1f", ("in_pos", "in_alpha"), len(shadows))
+        if glows is not None:
+            self._glow_buf = self._upload(self._glow_buf, glows)
+            ctx.blend_func = moderngl.ONE, moderngl.ONE, moderngl.ZERO, moderngl.ONE
+            self._draw(self.glow, self._glow_buf, "3f 2f 3f", ("in_pos", "in_uv", "in_col"), len(glows))
+        ctx.disable(moderngl.BLEND)
+        fbo.depth_mask = True
+
+    def _draw_vehicles(self, n: int) -> None:
+        """The ``n`` vertices of ``_veh_buf``: shaded into the multisampled frame, and their ids single-sampled
+        with a trivial shader over the static depth (exact: never averaged; shadows and beams never enter it)."""
+        self.ctx.depth_func = "<"
+        self._draw(self.veh_prog, self._veh_buf, "3f 3f 3f 1f 1f",
+                   ("in_pos", "in_normal", "in_col", "in_mat", "in_id"), n)
+        self.id_fbo.use()  # (binding it hands the multisampled draws to llvmpipe's threads)
+        self._draw(self.id_prog, self._veh_buf, "3f 28x 1f", ("in_pos", "in_id"), n)
+
+    def _draw(self, prog, buf, fmt: str, names: tuple[str, ...], n: int) -> None:
+        """Draw the first ``n`` vertices of ``buf`` as triangles with ``prog``."""
+        import moderngl
+
+        vao = self.ctx.vertex_array(prog, [(buf, fmt, *names)])
+        vao.render(moderngl.TRIANGLES, vertices=n)
+        vao.release()
 
     def _screen_rect(self, pts: np.ndarray) -> Rect | None:
         """Pixel rectangle (x, y, w, h; OpenGL's bottom-left origin) holding the projections of what OpenGL
         draws of the convex hull of ``pts`` (cut at the near plane) with a one-pixel margin; None if it is off
         the frame."""
         W, H = self.size
-        clip = _clip_near(np.c_[pts, np.ones(len(pts))] @ self.mvp.T.astype(np.float64))
+        clip = _clip_near(np.c_[pts, np.ones(len(pts))] @ self._mvp_t)
         if len(clip) == 0:
             return None
         xy = clip[:, :2] / clip[:, 3:4]
@@ -828,20 +859,12 @@ class Renderer:
             sh[:, 3] = L.shadow
             out.append(sh)
         if L.contact > 0:
-            hl, hw = v.length / 2, v.width / 2
-            inner = np.array([[hl - 0.2, hw - 0.2], [-hl + 0.2, hw - 0.2], [-hl + 0.2, -hw + 0.2], [hl - 0.2, -hw + 0.2]])
-            outer = np.array([[hl + 0.5, hw + 0.45], [-hl - 0.5, hw + 0.45], [-hl - 0.5, -hw - 0.45],
-                              [hl + 0.5, -hw - 0.45]])
-            z = 0.004
-            tri = [(inner[0], L.contact), (inner[1], L.contact), (inner[2], L.contact),
-                   (inner[0], L.contact), (inner[2], L.contact), (inner[3], L.contact)]
-            for i in range(4):
-                j = (i + 1) % 4
-                tri += [(inner[i], L.contact), (outer[i], 0.0), (outer[j], 0.0),
-                        (inner[i], L.contact), (outer[j], 0.0), (inner[j], L.contact)]
+            local, alpha = _contact_shadow(v.length / 2, v.width / 2, L.contact)
             c, s_ = np.cos(turn), np.sin(turn)
-            rot = np.array([[c, s_], [-s_, c]])
-            arr = np.array([[*(np.asarray(p) @ rot + off[:2]), z, a] for p, a in tri], np.float32)
+            arr = np.empty((len(local), 4), np.float32)
+            arr[:, :2] = local @ np.array([[c, s_], [-s_, c]]) + off[:2]
+            arr[:, 2] = 0.004
+            arr[:, 3] = alpha
             out.append(arr)
         return np.concatenate(out) if out else np.zeros((0, 4), np.float32)
 
