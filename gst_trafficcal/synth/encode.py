@@ -33,6 +33,18 @@ def encoder_chain(bitrate: int, fps: float) -> str:
             f"! video/x-h264,profile=high ! h264parse ! mp4mux ! filesink location=")
 
 
+def _grow_pipe(pipe, size: int) -> None:
+    """Let ``pipe`` hold ``size`` bytes (a whole frame, at most the system's limit, 1 MiB by default) so that
+    writing a frame does not wait for the encoder to read it 64 KiB at a time (Linux only; else unchanged)."""
+    try:
+        import fcntl
+
+        limit = int(Path("/proc/sys/fs/pipe-max-size").read_text())
+        fcntl.fcntl(pipe.fileno(), fcntl.F_SETPIPE_SZ, min(size, limit))
+    except (ImportError, AttributeError, OSError, ValueError):
+        pass
+
+
 class VideoWriter:
     """Write RGB frames to an H.264 MP4 file; use as a context manager."""
 
@@ -61,6 +73,7 @@ class VideoWriter:
                     + encoder_chain(bitrate, fps) + str(self.path))
         self._proc = subprocess.Popen([exe, "-q", *pipeline.split()], stdin=subprocess.PIPE,
                                       stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+        _grow_pipe(self._proc.stdin, frame_bytes)
 
     def write(self, rgb: np.ndarray, pts: float | None = None) -> None:
         """Append a frame (H, W, 3) uint8 RGB; ``pts`` (seconds) is used by variable-timestamp videos."""
