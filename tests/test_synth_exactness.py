@@ -197,17 +197,24 @@ def _vehicles_below_the_camera():
 
 
 @pytest.mark.parametrize("make, near_cut", [(_night_scene, False), (_vehicles_below_the_camera, True)])
-def test_resolving_only_the_dirty_rectangles_renders_the_same_frames(tmp_path, monkeypatch, make, near_cut):
-    """Per frame the renderer resolves only where vehicles (with their shadows and headlight beams) are now or
-    were a frame ago; forcing whole-frame resolves must give identical pixels and ids."""
+def test_restoring_and_resolving_only_the_dirty_rectangles_renders_the_same_frames(tmp_path, monkeypatch, make,
+                                                                                    near_cut):
+    """Per frame the renderer restores the static scene and the zero ids only where the previous frame drew and
+    resolves only where vehicles (with their shadows and headlight beams) are now or were a frame ago; forcing
+    whole-frame copies and resolves must give identical pixels and ids."""
     from gst_trafficcal.synth import render
 
     cut = []
     clip_near = render._clip_near
     monkeypatch.setattr(render, "_clip_near", lambda c: cut.append(bool((c[:, 2] + c[:, 3] < 0).any())) or
                         clip_near(c))
+    copied = []  # rectangle copies still in use after each restore (glCopyImageSubData accepted)
+    restore = render.Renderer._restore
+    monkeypatch.setattr(render.Renderer, "_restore", lambda self, *a: restore(self, *a) or
+                        copied.append(self._copy_image is not None))
     rgb, ids = _frames(make(), tmp_path / "rects")
-    monkeypatch.setattr(render, "_BLIT_OVERHEAD", 1.0)  # any rectangle list becomes one whole-frame resolve
+    assert all(copied) == (render._copy_image_sub_data() is not None)
+    monkeypatch.setattr(render, "_BLIT_OVERHEAD", 1.0)  # any rectangle list becomes one whole-frame operation
     rgb_whole, ids_whole = _frames(make(), tmp_path / "whole")
     assert (ids > 0).any(axis=(1, 2)).sum() >= 20  # vehicles in most of the frames
     assert any(cut) == near_cut
