@@ -64,7 +64,11 @@ vec3 lamp_light(vec3 p, vec3 n) {
 }
 
 void main() {
+#ifdef ONLY_MAT
+    const int mat = ONLY_MAT;  // one material per draw: the compiler drops the other materials' branches
+#else
     int mat = int(v_mat + 0.5);
+#endif
     vec3 n = normalize(v_n);
     vec3 view = normalize(cam_pos - v_pos);
     if (dot(n, view) < 0.0) n = -n;
@@ -355,6 +359,37 @@ def _merge_rects(rects: list[Rect]) -> list[Rect]:
     return out
 
 
+def _material_only(frag: str, mat: int) -> str:
+    """The scene's fragment shader for fragments of material ``mat`` only (a constant, so the other materials'
+    branches, which llvmpipe would run masked for every fragment, are compiled out; same code for ``mat``)."""
+    return frag.replace("#version 330\n", f"#version 330\n#define ONLY_MAT {int(mat)}\n", 1)
+
+
+def _material_runs(mats: np.ndarray) -> list[tuple[int, int, int]]:
+    """(first vertex, vertex count, material) of each run of equal materials in ``mats`` (one per vertex)."""
+    m = np.rint(np.asarray(mats)).astype(int)
+    if len(m) == 0:
+        return []
+    starts = np.flatnonzero(np.r_[True, m[1:] != m[:-1]])
+    ends = np.r_[starts[1:], len(m)]
+    return [(int(a), int(b - a), int(m[a])) for a, b in zip(starts, ends)]
+
+
+_SCENE_ATTRIBUTES = (("3f", "in_pos"), ("3f", "in_normal"), ("3f", "in_col"), ("1f", "in_mat"), ("1f", "in_id"))
+
+
+def _attributes(prog, layout: tuple[tuple[str, str], ...]) -> tuple[str, ...]:
+    """moderngl vertex-array content (format, names...) for ``layout``, attributes ``prog`` does not use skipped."""
+    fmt, names = [], []
+    for f, name in layout:
+        if name in prog:
+            fmt.append(f)
+            names.append(name)
+        else:
+            fmt.append(f"{4 * int(f[:-1])}x")
+    return (" ".join(fmt), *names)
+
+
 def _vehicles_only(frag: str) -> str:
     """The scene's fragment shader for vehicle fragments only: the static materials' branches are left out
     (llvmpipe evaluates every branch of a fragment's material chain, masked, so they cost the vehicles more
@@ -547,7 +582,10 @@ class Renderer:
         self.noise.build_mipmaps()
         self.noise.repeat_x = self.noise.repeat_y = True
         self.noise.anisotropy = 1.0
-        self.prog = ctx.program(vertex_shader=_VERT, fragment_shader=_FRAG)
+        # the static scene is drawn run by run with one program per material, the vehicles with a program
+        # for vehicle materials only (the same shader code each)
+        self.mat_progs = {m: ctx.program(vertex_shader=_VERT, fragment_shader=_material_only(_FRAG, m))
+                          for m in sorted({r[2] for a in (ground, objects) for r in _material_runs(a[:, 9])})}
         self.veh_prog = ctx.program(vertex_shader=_VERT, fragment_shader=_vehicles_only(_FRAG))
         self.sky = ctx.program(vertex_shader=_SKY_VERT, fragment_shader=_SKY_FRAG)
         self.shadow = ctx.program(vertex_shader=_SHADOW_VERT, fragment_shader=_SHADOW_FRAG)
@@ -557,7 +595,7 @@ class Renderer:
         mvp = cam.gl_matrix().astype(np.float32)
         self.mvp = mvp
         self._mvp_t = mvp.T.astype(np.float64)  # clip = [world, 1] @ _mvp_t
-        for p in (self.prog, self.veh_prog, self.shadow, self.glow, self.id_prog):
+        for p in (*self.mat_progs.values(), self.veh_prog, self.shadow, self.glow, self.id_prog):
             p["mvp"].write(mvp.T.tobytes())
         self._set_uniforms(lamps, lamp_spacing)
         self.set_road(*road)
@@ -601,8 +639,8 @@ class Renderer:
                                       carriage_w=float(carriageway_width)))
 
     def _set_scene_uniforms(self, values: dict) -> None:
-        """Set uniforms of the scene program and of its vehicle-only variant (each where it uses them)."""
-        for prog in (self.prog, self.veh_prog):
+        """Set uniforms of the scene programs (per material and for vehicles; each where it uses them)."""
+        for prog in (*self.mat_progs.values(), self.veh_prog):
             for k, v in values.items():
                 if k in prog:
                     prog[k].value = tuple(np.asarray(v).tolist()) if np.ndim(v) else v
@@ -643,10 +681,11 @@ class Renderer:
             ctx.vertex_array(prog, [(self.quad, "2f", "in_pos")]).render(moderngl.TRIANGLE_STRIP)
             self._fill_ms_static(None)
             return
-        bufs = []
+        bufs, runs = [], []
         for arr in (ground, objects):
             rows = np.concatenate([arr, np.zeros((len(arr), 1), np.float32)], 1)
             bufs.append(ctx.buffer(rows.astype(np.float32).tobytes()) if len(rows) else None)
+            runs.append(_material_runs(arr[:, 9]))
 
         def draw(shaded: bool = True) -> None:
             """The static scene; unshaded: only its depth (the raised objects through the trivial id shader, the
@@ -661,17 +700,18 @@ class Renderer:
             ctx.disable(moderngl.DEPTH_TEST)
             ctx.vertex_array(self.sky, [(self.quad, "2f", "in_pos")]).render(moderngl.TRIANGLE_STRIP)
             # ground layers in paint order without depth (coplanar), then raised objects with depth
-            for buf, depth in zip(bufs, (False, True)):
+            for buf, buf_runs, depth in zip(bufs, runs, (False, True)):
                 if buf is None:
                     continue
                 if depth:
                     ctx.enable(moderngl.DEPTH_TEST)
                 else:
                     ctx.disable(moderngl.DEPTH_TEST)
-                vao = ctx.vertex_array(self.prog, [(buf, "3f 3f 3f 1f 1f", "in_pos", "in_normal", "in_col",
-                                                    "in_mat", "in_id")])
-                vao.render(moderngl.TRIANGLES)
-                vao.release()
+                for first, count, mat in buf_runs:  # in the rows' order (paint order, depth ties)
+                    prog = self.mat_progs[mat]
+                    vao = ctx.vertex_array(prog, [(buf, *_attributes(prog, _SCENE_ATTRIBUTES))])
+                    vao.render(moderngl.TRIANGLES, vertices=count, first=first)
+                    vao.release()
 
         draw(shaded=False)  # depth at the frame size (its colour is replaced below)
         # colour supersampled 2x2 and averaged: thin distant markings and rails do not shimmer (rendered once)
