@@ -68,3 +68,22 @@ def test_label_map_parsing():
 def test_coco91_table():
     assert len(COCO91_TO_80) == 80
     assert [COCO91_TO_80[i] for i in (3, 4, 6, 8)] == [2, 3, 5, 7]  # car, motorcycle, bus, truck
+
+
+def test_detections_carry_hulls_through_selection_and_merging():
+    hulls = [np.array([[0, 0], [4, 0], [4, 3]], float), None, np.array([[10, 10], [12, 10], [12, 14]], float)]
+    d = Detections(np.array([[0, 0, 5, 4], [1, 1, 2, 2], [10, 10, 13, 15]]), [0.9, 0.5, 0.7], [2, 2, 2],
+                   ["car"] * 3, hulls)
+    sub = d[np.array([2, 0])]
+    assert np.array_equal(sub.hulls[0], hulls[2]) and np.array_equal(sub.hulls[1], hulls[0])
+    assert d.above(0.6).hulls[1] is not None and len(d.above(0.6).hulls) == 2
+    merged = Detections.merge([d, Detections(np.array([[0, 0, 1, 1]]), [0.3], [2], ["car"])])
+    assert len(merged.hulls) == 4 and merged.hulls[3] is None and merged.hulls[1] is None
+    half = d.scaled(0.5)
+    assert np.allclose(half.hulls[0], (hulls[0] + 0.5) * 0.5 - 0.5)
+    assert [x.hull is None for x in d] == [False, True, False]
+    assert Detections.merge([Detections.empty(), d[[1]]]).hulls is not None
+    with pytest.raises(ValueError, match="2 hulls for 3 boxes"):
+        Detections(d.boxes, d.scores, d.class_ids, d.labels, hulls[:2])
+    with pytest.raises(ValueError, match="Kx2"):
+        Detections(d.boxes, d.scores, d.class_ids, d.labels, [np.zeros(3), None, None])

@@ -11,7 +11,8 @@ pytestmark = pytest.mark.gst
 
 from gst_trafficcal.gst._gi import GLib, Gst, GstVideo  # noqa: E402
 from gst_trafficcal.gst.element import register_plugin_file  # noqa: E402
-from gst_trafficcal.gst.meta import add_vehicle_roi, read_vehicle_rois, update_roi_params  # noqa: E402
+from gst_trafficcal.gst.meta import (HULL, add_vehicle_roi, detections_from_rois, hull_params, read_vehicle_rois,  # noqa: E402
+                                     roi_hull, update_roi_params)
 from gst_trafficcal.gst.pipeline import run_pipeline  # noqa: E402
 
 PLUGINS = Path(__file__).resolve().parent / "gst_plugins" / "python"
@@ -42,6 +43,19 @@ def test_round_trip_on_a_buffer() -> None:
     assert r0.params["speed"] == extra["speed"]
     assert (r1.meta_id, r1.label, r1.label_id, r1.object_id) == (1, "truck", 7, 12)
     assert r1.params["object_id"] == {"id": 12}
+
+
+def test_hulls_travel_with_the_rois_into_detections() -> None:
+    buf = _buffer()
+    hull = np.array([[10.25, 20.5], [60.0, 21.0], [58.5, 44.75], [11.0, 40.0]])
+    add_vehicle_roi(buf, SIZE, (10, 20, 61, 46), "car", 0.8, 2, params=hull_params(hull))
+    add_vehicle_roi(buf, SIZE, (100, 100, 140, 130), "car", 0.7, 2, params=hull_params(None))
+    rois = read_vehicle_rois(buf, SIZE)
+    assert rois[0].params[HULL]["points"] == hull.tolist() and HULL not in rois[1].params
+    assert np.array_equal(roi_hull(rois[0]), hull) and roi_hull(rois[1]) is None
+    det = detections_from_rois(rois)
+    assert np.array_equal(det.hulls[0], hull) and det.hulls[1] is None
+    assert detections_from_rois(rois[1:]).hulls is None  # no ROI with an outline: a boxes-only record
 
 
 def test_layout_is_what_dl_streamer_tools_read() -> None:

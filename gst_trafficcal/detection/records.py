@@ -21,6 +21,7 @@ class Detection:
     score: float
     class_id: int
     label: str
+    hull: np.ndarray | None = field(default=None, compare=False)  # Kx2 convex hull (pixel centres at integers)
 
 
 @dataclass
@@ -30,12 +31,18 @@ class Detections:
     ``boxes`` is an Nx4 float32 array of (x0, y0, x1, y1) image pixels, ``scores`` N confidences in
     0..1, ``class_ids`` N integer ids of the source model (COCO ids for the COCO detectors: car 2,
     motorcycle 3, bus 5, truck 7) and ``labels`` N vehicle labels ("car", "bus", ...).
+
+    ``hulls`` is None (the detector gives boxes only) or N convex hulls, one per row: a Kx2 float64 array of
+    image points (pixel centres at integers, as the tracker's hulls) or None for a row without an outline.  A
+    segmentation detector fills it; the tracker then builds its 3D boxes from these outlines instead of its
+    background model's.
     """
 
     boxes: np.ndarray
     scores: np.ndarray
     class_ids: np.ndarray
     labels: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=object))
+    hulls: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         self.boxes = np.asarray(self.boxes, dtype=np.float32).reshape(-1, 4)
@@ -48,6 +55,18 @@ class Detections:
         if len(labels) != n:
             raise ValueError(f"{len(labels)} labels for {n} boxes")
         self.labels = labels
+        if self.hulls is not None:
+            hulls = np.empty(n, dtype=object)
+            given = list(self.hulls)
+            if len(given) != n:
+                raise ValueError(f"{len(given)} hulls for {n} boxes")
+            for i, h in enumerate(given):
+                if h is not None:
+                    h = np.asarray(h, np.float64)
+                    if h.ndim != 2 or h.shape[1] != 2 or len(h) < 1:
+                        raise ValueError(f"hull {i} must be a Kx2 array of points, got shape {h.shape}")
+                hulls[i] = h
+            self.hulls = hulls
 
     @classmethod
     def empty(cls) -> "Detections":
@@ -60,11 +79,15 @@ class Detections:
         parts = [p for p in parts if len(p)]
         if not parts:
             return cls.empty()
+        hulls = None
+        if any(p.hulls is not None for p in parts):  # rows of parts without outlines get None
+            hulls = [h for p in parts for h in (p.hulls if p.hulls is not None else [None] * len(p))]
         return cls(
             np.concatenate([p.boxes for p in parts]),
             np.concatenate([p.scores for p in parts]),
             np.concatenate([p.class_ids for p in parts]),
             np.concatenate([p.labels for p in parts]),
+            hulls,
         )
 
     def __len__(self) -> int:
@@ -74,11 +97,13 @@ class Detections:
         """Rows selected by an index, slice, integer array or boolean mask (always a record)."""
         if isinstance(index, (int, np.integer)):
             index = [int(index)]
-        return Detections(self.boxes[index], self.scores[index], self.class_ids[index], self.labels[index])
+        return Detections(self.boxes[index], self.scores[index], self.class_ids[index], self.labels[index],
+                          None if self.hulls is None else self.hulls[index])
 
     def __iter__(self) -> Iterator[Detection]:
-        for box, score, cid, label in zip(self.boxes, self.scores, self.class_ids, self.labels):
-            yield Detection(tuple(float(v) for v in box), float(score), int(cid), str(label))
+        hulls = self.hulls if self.hulls is not None else [None] * len(self)
+        for box, score, cid, label, hull in zip(self.boxes, self.scores, self.class_ids, self.labels, hulls):
+            yield Detection(tuple(float(v) for v in box), float(score), int(cid), str(label), hull)
 
     @property
     def centers(self) -> np.ndarray:
@@ -113,7 +138,12 @@ class Detections:
     def scaled(self, sx: float, sy: float | None = None) -> "Detections":
         """The same detections with boxes multiplied by (sx, sy), e.g. to another frame size."""
         sy = sx if sy is None else sy
-        return Detections(self.boxes * np.array([sx, sy, sx, sy], np.float32), self.scores, self.class_ids, self.labels)
+        hulls = None
+        if self.hulls is not None:  # pixel centres at integers: the pixel edges scale, the centres follow
+            s = np.array([sx, sy])
+            hulls = [None if h is None else (h + 0.5) * s - 0.5 for h in self.hulls]
+        return Detections(self.boxes * np.array([sx, sy, sx, sy], np.float32), self.scores, self.class_ids, self.labels,
+                          hulls)
 
     def clipped(self, width: int, height: int) -> "Detections":
         """Boxes clipped to a width x height image; boxes left empty are dropped."""
@@ -121,7 +151,11 @@ class Detections:
         boxes[:, [0, 2]] = boxes[:, [0, 2]].clip(0, width)
         boxes[:, [1, 3]] = boxes[:, [1, 3]].clip(0, height)
         keep = (boxes[:, 2] > boxes[:, 0]) & (boxes[:, 3] > boxes[:, 1])
-        return Detections(boxes[keep], self.scores[keep], self.class_ids[keep], self.labels[keep])
+        hulls = None
+        if self.hulls is not None:
+            lo, hi = np.array([-0.5, -0.5]), np.array([width - 0.5, height - 0.5])
+            hulls = [None if h is None else h.clip(lo, hi) for h in self.hulls[keep]]
+        return Detections(boxes[keep], self.scores[keep], self.class_ids[keep], self.labels[keep], hulls)
 
 
 def box_iou(a: np.ndarray, b: np.ndarray) -> np.ndarray:

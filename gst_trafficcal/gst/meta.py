@@ -7,6 +7,9 @@ ROI within the frame (so ``GstVideo.buffer_get_video_region_of_interest_meta_id`
 - ``"detection"``: ``x_min, y_min, x_max, y_max`` (doubles normalised by the frame size),
   ``confidence`` (double), ``label_id`` (int), ``label`` (string) -- exactly as DL Streamer's gvadetect;
 - ``"object_id"``: ``id`` (int >= 1), written by the tracker, as DL Streamer's gvatrack;
+- ``"trafficcal-hull"``: ``points`` (K x [x, y] doubles, frame pixels with pixel centres at integers), the
+  vehicle's convex outline from a segmentation detector (``vehicledetect model=vehicleseg``); the tracker builds
+  its 3D boxes from it instead of its own background model;
 - any extra named structures (``"trafficcal-vehicle"``, ``"speed"``, ...) given as ``{name: {field: value}}``.
 
 Field values may be bool, int, float, str, or (nested) sequences of numbers (stored as
@@ -32,6 +35,7 @@ if TYPE_CHECKING:
 
 DETECTION = "detection"
 OBJECT_ID = "object_id"
+HULL = "trafficcal-hull"
 
 _INT32 = (-(2**31), 2**31 - 1)
 
@@ -199,14 +203,32 @@ def read_vehicle_rois(buffer: Gst.Buffer, frame_size: tuple[int, int]) -> list[R
     return out
 
 
+def hull_params(hull: np.ndarray | None) -> dict[str, dict[str, Any]] | None:
+    """The ``"trafficcal-hull"`` parameter structure for a Kx2 hull (None for no hull)."""
+    if hull is None:
+        return None
+    return {HULL: {"points": np.asarray(hull, np.float64).reshape(-1, 2).tolist()}}
+
+
+def roi_hull(roi: RoiRecord) -> np.ndarray | None:
+    """The ROI's convex hull (Kx2 frame pixels) from its ``"trafficcal-hull"`` structure, or None."""
+    points = roi.params.get(HULL, {}).get("points")
+    if not points:
+        return None
+    return np.asarray(points, np.float64).reshape(-1, 2)
+
+
 def detections_from_rois(rois: Sequence[RoiRecord]) -> Detections:
-    """The ROIs' boxes, confidences and labels as the library's :class:`Detections` (empty for no ROIs)."""
+    """The ROIs' boxes, confidences, labels and (when any ROI carries one) hulls as the library's
+    :class:`Detections` (empty for no ROIs)."""
     from ..detection.records import Detections
 
+    hulls = [roi_hull(r) for r in rois]
     return Detections(np.array([r.box for r in rois], np.float64).reshape(-1, 4),
                       np.array([r.confidence for r in rois], np.float64),
                       np.array([r.label_id for r in rois], np.int64),
-                      np.array([r.label for r in rois], dtype=object))
+                      np.array([r.label for r in rois], dtype=object),
+                      hulls if any(h is not None for h in hulls) else None)
 
 
 def update_roi_params(buffer: Gst.Buffer, meta_id: int, name: str, fields: Mapping[str, Any]) -> None:

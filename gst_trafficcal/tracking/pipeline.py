@@ -41,8 +41,9 @@ class TrackingPipeline:
         """Track one frame at time ``t`` (seconds).  Returns the association and the detections used.
 
         ``gray`` may be None when only boxes are available (no hulls: the 3D boxes then come from the boxes'
-        rectangles, which is coarser).  ``hulls`` (one per detection, e.g. from an instance-segmentation model)
-        replace the background model's.  A ``camera`` different from the current one switches the tracker to it.
+        rectangles, which is coarser).  ``hulls`` (one per detection, e.g. from an instance-segmentation model;
+        by default the detections' own ``hulls`` when they carry them) replace the background model's, which is then
+        not run on this frame (rows without a hull get their box as hull).  A ``camera`` different from the current one switches the tracker to it.
         ``chroma`` (the frame's U and V planes, H' x W' x 2, see ``background.chroma_from_bgr``) turns on the background model's
         colour tests (cleaner vehicle outlines: cast shadows are told from dark vehicle faces by their colour).
         """
@@ -51,9 +52,11 @@ class TrackingPipeline:
         mask = None
         scale = 1.0
         size = None
+        if hulls is None and detections is not None and detections.hulls is not None:
+            hulls = list(detections.hulls)
         if gray is not None:
             size = (gray.shape[1], gray.shape[0])
-            if self.background is not None:
+            if self.background is not None and hulls is None:
                 mask = self.background.apply(gray, chroma)
                 scale = self.background.scale
                 if not self.background.ready:
