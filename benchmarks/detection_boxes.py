@@ -1,4 +1,4 @@
-"""Box quality of the background detector on rendered scenes with per-frame truth (synth presets, replays).
+"""Box quality of the background detector (or the learned vehicleseg) on rendered scenes with per-frame truth (synth presets, replays).
 
 For each scene folder (video.mp4 + frames.jsonl, e.g. /tmp/aa_syn/<preset> or /tmp/replays/<session>_<view>)
 the detector runs on every frame in order (it learns the road); from frame ``--first`` on, its boxes are scored
@@ -8,7 +8,7 @@ against the moving vehicles at least 90 % visible whose box diagonal is at least
 * precision: fraction of boxes at IoU ≥ 0.5 with any vehicle more than 20 % visible;
 * box edges: median offset of the matched box's left/right edge from the vehicle's (in vehicle widths) and of its
   top/bottom edge (in vehicle heights) — positive right/bottom: a cast shadow to the right shows as +right;
-* CPU-time fps of the detector (grey frames as vehicledetect gets them; decoding excluded).
+* CPU-time fps of the detector (grey frames as vehicledetect gets them, BGR for vehicleseg; decoding excluded).
 
     .venv/bin/python benchmarks/detection_boxes.py --method average /tmp/aa_syn/highway_day /tmp/replays/session0_left
 
@@ -31,10 +31,11 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from gst_trafficcal.detection.background import BackgroundDetector  # noqa: E402
+from gst_trafficcal.detection.factory import detect  # noqa: E402
 from gst_trafficcal.detection.records import box_iou  # noqa: E402
 
 
-def score_scene(scene: Path, detector: BackgroundDetector, frames: int, first: int) -> dict:
+def score_scene(scene: Path, detector, frames: int, first: int) -> dict:
     truth: dict[int, list[dict]] = {}
     with open(scene / "frames.jsonl", encoding="utf-8") as f:
         for line in f:
@@ -48,9 +49,9 @@ def score_scene(scene: Path, detector: BackgroundDetector, frames: int, first: i
         ok, bgr = cap.read()
         if not ok:
             break
-        gray = cv2.cvtColor(bgr, cv2.COLOR_BGR2GRAY)
+        t = cap.get(cv2.CAP_PROP_POS_MSEC) / 1000.0
         c0 = time.process_time()
-        det = detector(gray)
+        det = detect(detector, bgr if getattr(detector, "timed", False) else cv2.cvtColor(bgr, cv2.COLOR_BGR2GRAY), t)
         busy += time.process_time() - c0
         count += 1
         if i < first:
@@ -96,7 +97,8 @@ def summary(name: str, rows: list[dict]) -> str:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("scenes", nargs="+", type=Path)
-    ap.add_argument("--method", default="mog2", choices=("mog2", "average"))
+    ap.add_argument("--method", default="mog2", choices=("mog2", "average", "vehicleseg"))
+    ap.add_argument("--model", default="", help="vehicleseg: another ONNX file than the shipped one")
     ap.add_argument("--no-peel", action="store_true", help="average: keep the cast shadows in the boxes")
     ap.add_argument("--frames", type=int, default=400, help="frames read per scene")
     ap.add_argument("--first", type=int, default=60, help="first scored frame (after the warm-up)")
@@ -105,7 +107,11 @@ def main() -> None:
     print("| scene | vehicles | recall | precision | median IoU | left / right edge | top / bottom edge |")
     print("|---|---|---|---|---|---|---|")
     for scene in args.scenes:
-        det = BackgroundDetector(method=args.method, peel=not args.no_peel)
+        if args.method == "vehicleseg":
+            from gst_trafficcal.detection.vehicleseg import VehicleSegDetector
+            det = VehicleSegDetector(args.model or None)
+        else:
+            det = BackgroundDetector(method=args.method, peel=not args.no_peel)
         r = score_scene(scene, det, args.frames, args.first)
         rows.append(r)
         print(summary(scene.name, [r]), flush=True)

@@ -59,6 +59,7 @@ def fps(detector, images: list, warmup: int = 5) -> tuple[float, float]:
 def main() -> None:
     from gst_trafficcal.detection.background import BackgroundDetector
     from gst_trafficcal.detection.onnx_detector import OnnxDetector
+    from gst_trafficcal.detection.vehicleseg import VehicleSegDetector
 
     sys.path.insert(0, str(ROOT / "benchmarks"))
     from tracking import core_fps, pipeline_fps
@@ -66,6 +67,7 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--frames", type=int, default=60)
     ap.add_argument("--threads", type=int, default=1, help="onnxruntime intra-op threads")
+    ap.add_argument("--only", default="", help="only the rows whose name contains this text (e.g. vehicleseg)")
     args = ap.parse_args()
     frames = read_frames(args.frames)
     detectors = {
@@ -76,7 +78,10 @@ def main() -> None:
                                          False, "≥ 25"),
         "vehicledetect: FastestDet 352": (lambda: OnnxDetector(DETECTORS / "FastestDet.onnx", threads=args.threads),
                                           False, ""),
+        "vehicledetect: vehicleseg (learned segmenter, 480 px, boxes + hulls)": (
+            lambda: VehicleSegDetector(threads=args.threads), False, "≤ 15 ms per frame per core"),
     }
+    detectors = {k: v for k, v in detectors.items() if args.only.lower() in k.lower()}
     head = "| element | " + " | ".join(f"{w}x{h} wall / CPU fps" for w, h in SIZES) + " | target |"
     print(head + "\n|---|" + "---|" * len(SIZES) + "---|", flush=True)
     for name, (make, grey, target) in detectors.items():
@@ -89,6 +94,8 @@ def main() -> None:
             cells.append(f"{wall:.0f} / {cpu:.0f}")
         print(f"| {name} | " + " | ".join(cells) + f" | {target} |", flush=True)
     for colour in (False, True):
+        if args.only and "tracker" not in args.only:
+            break
         cells, mean = [], []
         for w, h in SIZES:
             wall, cpu, n = pipeline_fps((w, h), colour=colour)
@@ -97,6 +104,8 @@ def main() -> None:
         name = "tracker colour=true" if colour else "tracker (default)"
         print(f"| {name} ({np.mean(mean):.1f} vehicles per frame) | " + " | ".join(cells)
               + " | ≥ 100 with 10 vehicles |", flush=True)
+    if args.only and "tracker" not in args.only:
+        return
     wall, cpu, n = core_fps()
     print(f"| tracker core only ({n:.1f} vehicles; no image work, size-independent) | {wall:.0f} / {cpu:.0f} | "
           f"{wall:.0f} / {cpu:.0f} | |")

@@ -173,9 +173,10 @@ def frame_count(video: Path) -> int:
         cap.release()
 
 
-def run_scene(scene: Scene, mode: str, work: Path, fresh: bool = False) -> Row:
+def run_scene(scene: Scene, mode: str, work: Path, fresh: bool = False, detector: str = "") -> Row:
     """``trafficcal run`` on one scene in one mode (unless an earlier run's outputs are there and not ``fresh``:
-    its ``run.json`` keeps the timing), scored against the scene's gt_data.pkl."""
+    its ``run.json`` keeps the timing), scored against the scene's gt_data.pkl; ``detector``: ``--detector`` of
+    ``trafficcal run`` (e.g. vehicleseg; empty: the default background detector)."""
     from gst_trafficcal.brnocompspeed import load_gt_data, load_results
     from gst_trafficcal.calibration import load_calibration
     from gst_trafficcal.errors import InputError
@@ -190,7 +191,8 @@ def run_scene(scene: Scene, mode: str, work: Path, fresh: bool = False) -> Row:
     done = out / "run.json"
     if fresh or not done.is_file():
         done.unlink(missing_ok=True)
-        cmd = [*TRAFFICCAL, "run", scene.folder / "video.mp4", "--out", out, "--no-overlay"]
+        cmd = [*TRAFFICCAL, "run", scene.folder / "video.mp4", "--out", out, "--no-overlay",
+               *(["--detector", detector] if detector else [])]
         if mode == "manual":
             cal_path = out.parent / "manual_calibration.json"
             proc = _run([*TRAFFICCAL, "calibrate-manual", "--gt", scene.folder / "gt_data.pkl", "--image-size",
@@ -402,8 +404,9 @@ def summary_table(rows: list[Row]) -> tuple[str, dict]:
 # --------------------------------------------------------------------------- throughput
 
 
-def throughput(video: Path, work: Path) -> dict:
-    """Decode-only and product-chain fps on ``video``, each a gst-launch-1.0 process in this invocation."""
+def throughput(video: Path, work: Path, detector: str = "") -> dict:
+    """Decode-only and product-chain fps on ``video``, each a gst-launch-1.0 process in this invocation
+    (``detector``: vehicledetect's model, e.g. vehicleseg)."""
     from gst_trafficcal.cli.run import RunPaths, pipeline_description, quote
     from gst_trafficcal.gst.env import elements_dir, gst_environment
 
@@ -416,9 +419,10 @@ def throughput(video: Path, work: Path) -> dict:
     pipelines = {
         "decode": f"{src} ! fakesink",
         "decode+videoconvert": f"{src} ! videoconvert ! video/x-raw,format=I420 ! fakesink",
-        "chain, one thread": pipeline_description(video, RunPaths(out), overlay=False, bbscale=bbscale,
-                                                  queues=False),
-        "chain": pipeline_description(video, RunPaths(out), overlay=False, bbscale=bbscale),
+        "chain, one thread": pipeline_description(video, RunPaths(out), detector=detector or None, overlay=False,
+                                                  bbscale=bbscale, queues=False),
+        "chain": pipeline_description(video, RunPaths(out), detector=detector or None, overlay=False,
+                                      bbscale=bbscale),
     }
     res = {"video": str(video), "frames": frames, "pipelines": {}}
     for name, desc in pipelines.items():
@@ -470,12 +474,13 @@ def main() -> None:
     ap.add_argument("--json", type=Path, default=None, help="write every row and the pooled figures here")
     ap.add_argument("--write", type=Path, default=None, help="also write the tables as markdown here, e.g. "
                     "docs/results/end_to_end.md")
+    ap.add_argument("--detector", default="", help="trafficcal run --detector (e.g. vehicleseg; use its own --work)")
     ap.add_argument("--throughput", type=Path, default=None, metavar="VIDEO",
                     help="only measure decode-only vs chain fps on this video")
     a = ap.parse_args()
     a.work.mkdir(parents=True, exist_ok=True)
     if a.throughput is not None:
-        res = throughput(a.throughput, a.work)
+        res = throughput(a.throughput, a.work, a.detector)
         if a.json:
             a.json.write_text(json.dumps(res, indent=2) + "\n")
         return
@@ -486,7 +491,8 @@ def main() -> None:
     jobs = [(scene, mode) for scene in scenes for mode in a.modes.split(",") if mode]
     rows = []
     with ProcessPoolExecutor(a.jobs) as pool:
-        for row in pool.map(run_scene, *zip(*jobs), [a.work] * len(jobs), [a.fresh] * len(jobs)):
+        for row in pool.map(run_scene, *zip(*jobs), [a.work] * len(jobs), [a.fresh] * len(jobs),
+                            [a.detector] * len(jobs)):
             rows.append(row)
             print(f"{row.scene} {row.mode}: {row.vehicles} vehicles, {row.measured} measured, mean error "
                   f"{_f(row.stat('mean'))} km/h, recall {_f(row.recall, '.3f')}, calibration {row.state}"

@@ -42,6 +42,7 @@ sys.path.insert(0, str(ROOT))
 
 from gst_trafficcal.brnocompspeed import BrnoCalibration, Results, Track as BrnoTrack, load_gt_data  # noqa: E402
 from gst_trafficcal.calibration import load_calibration  # noqa: E402
+from gst_trafficcal.detection.factory import detect  # noqa: E402
 from gst_trafficcal.detection.records import Detections, box_iou  # noqa: E402
 from gst_trafficcal.evaluation import lanes_of_points, points_between_lines  # noqa: E402
 from gst_trafficcal.tracking.background import BackgroundModel, chroma_from_bgr  # noqa: E402
@@ -177,6 +178,9 @@ def make_detector(name: str):
     if name == "background-average":  # vehicledetect background=average (moving average + shadow peeling)
         from gst_trafficcal.detection.factory import create_detector
         return create_detector("", background="average")
+    if name == "vehicleseg":  # vehicledetect model=vehicleseg (learned segmenter: boxes + hulls)
+        from gst_trafficcal.detection.factory import create_detector
+        return create_detector("vehicleseg")
     return None
 
 
@@ -236,7 +240,7 @@ def evaluate_scene(preset: str, scene: Path, detector_name: str, background: dic
         elif detector_name == "blobs":
             det = None
         else:
-            det = detector(bgr)
+            det = detect(detector, bgr, t)
         gray = cv2.cvtColor(bgr, cv2.COLOR_BGR2GRAY)
         chroma = chroma_from_bgr(bgr) if colour else None  # what an I420 buffer holds: not timed
         t0 = time.process_time()
@@ -409,11 +413,11 @@ def main() -> None:
     ap.add_argument("--duration", type=float, default=30.0, help="seconds of video per preset")
     ap.add_argument("--seed", type=int, default=1)
     ap.add_argument("--detector", default="oracle", choices=("oracle", "oracle-hull", "blobs", "background", "background-average",
-                                                    "nanodet"),
+                                                    "vehicleseg", "nanodet"),
                     help="ground-truth boxes (oracle: hulls from the background model; oracle-hull: exact), "
                          "foreground blobs inside the tracker (blobs), vehicledetect's default background "
                          "detector (background: the product's default chain; background-average: its "
-                         "background=average) or NanoDet")
+                         "background=average), the learned segmenter (vehicleseg: its boxes and hulls) or NanoDet")
     ap.add_argument("--vehicles", default="catalogue", choices=("catalogue", "boxes"),
                     help="vehicle meshes from the synth catalogue, or cuboids (exact silhouettes)")
     ap.add_argument("--work", type=Path, default=Path("/tmp/trafficcal-bench-tracking"),

@@ -4,7 +4,9 @@ Each vehicle becomes a ``GstVideoRegionOfInterestMeta`` (roi_type = label, e.g. 
 Streamer's ``"detection"`` structure (normalised box, confidence, label_id, label). With ``model``
 empty, the built-in background-subtraction detector (no weights) finds moving vehicles; otherwise
 ``model`` names an ONNX detector file (a path, or a model installed with ``trafficcal models
-install``) whose output layout is recognised or given by ``model-format``. A bad model file stops
+install``) whose output layout is recognised or given by ``model-format``; ``model=vehicleseg`` is the project's
+learned vehicle segmenter (shipped), whose ROIs also carry each vehicle's convex hull (``"trafficcal-hull"``),
+which the tracker then uses for its 3D boxes. A bad model file stops
 the pipeline at start-up with an error naming it. With ``interval`` N > 1 only every N-th frame is
 analysed; the frames in between carry no vehicle metadata (stale boxes of moving vehicles would
 mislead the tracker, which predicts across the gap itself).
@@ -22,10 +24,12 @@ class VehicleDetect(TrafficcalTransform):
                        "Detects vehicles (ONNX detector or background subtraction) and attaches ROI metas with "
                        "DL Streamer 'detection' params", "gst-trafficcal")
     __gproperties__ = {
-        "model": (str, "Model", "ONNX detector file or installed model name; empty = built-in background-"
+        "model": (str, "Model", "ONNX detector file or installed model name; vehicleseg = the shipped learned "
+                  "vehicle segmenter (boxes + convex hulls, keeps its own background); empty = built-in background-"
                   "subtraction detector (moving vehicles, no weights)", "", _RW),
         "model-format": (str, "Model format", "Output layout of the model: auto (recognised from the output "
-                         "shapes), fastestdet, nanodet, yolox, yolov5, yolov8 or ssd", "auto", _RW),
+                         "shapes or metadata), fastestdet, nanodet, yolox, yolov5, yolov8, ssd or vehicleseg", "auto",
+                         _RW),
         "labels": (str, "Labels", "Class ids kept and their vehicle labels, e.g. '2:car,3:motorcycle,5:bus,7:truck' "
                    "(COCO, the default when empty); a list of names such as 'car,truck' keeps those COCO "
                    "vehicles", "", _RW),
@@ -63,15 +67,17 @@ class VehicleDetect(TrafficcalTransform):
         return super().do_stop()
 
     def transform_frame(self, buffer):
-        from gst_trafficcal.gst.meta import add_vehicle_roi
+        from gst_trafficcal.detection.factory import detect
+        from gst_trafficcal.gst.buffers import pts_seconds
+        from gst_trafficcal.gst.meta import add_vehicle_roi, hull_params
 
         frame, self._frame = self._frame, self._frame + 1
         if frame % self.interval:
             return Gst.FlowReturn.OK
         with (self.bgr(buffer) if self.model else self.gray(buffer)) as image:
-            detections = self._detector(image)
+            detections = detect(self._detector, image, pts_seconds(buffer))
         for d in detections:
-            add_vehicle_roi(buffer, self.frame_size, d.box, d.label, d.score, d.class_id)
+            add_vehicle_roi(buffer, self.frame_size, d.box, d.label, d.score, d.class_id, params=hull_params(d.hull))
         return Gst.FlowReturn.OK
 
 

@@ -51,7 +51,8 @@ class RunPaths:
 QUEUE = "queue max-size-buffers=4 max-size-bytes=0 max-size-time=0"
 
 
-def pipeline_description(video: Path, paths: RunPaths, calibration: Path | None = None, detector: Path | None = None,
+def pipeline_description(video: Path, paths: RunPaths, calibration: Path | None = None,
+                         detector: Path | str | None = None,
                          overlay: bool = True, bbscale: bool = False, queues: bool = True) -> str:
     """The gst-launch description ``trafficcal run`` plays (also printed, so it can be re-run by hand).
 
@@ -231,11 +232,12 @@ def print_vehicles(console, events: list) -> None:
                    "with a scale, speeds are measured.")
 @click.option("--gt", "gt_path", type=click.Path(path_type=Path), default=None,
               help="BrnoCompSpeed ground truth (gt_data.pkl): adds the error table and plot to the report.")
-@click.option("--detector", type=click.Path(exists=True, dir_okay=False, path_type=Path), default=None,
-              help="ONNX detector for vehicledetect (default: the built-in background-subtraction detector).")
+@click.option("--detector", default=None,
+              help="vehicledetect's model: an ONNX detector file, or vehicleseg (the shipped learned vehicle "
+                   "segmenter: boxes and outlines) (default: the built-in background-subtraction detector).")
 @click.option("--no-overlay", is_flag=True, help="Do not encode overlay.mp4 (faster).")
 def command(video: Path, out_dir: Path, calibration_path: Path | None, gt_path: Path | None,
-            detector: Path | None, no_overlay: bool) -> None:
+            detector: str | None, no_overlay: bool) -> None:
     """Calibrate and measure every vehicle of VIDEO in one pass through the GStreamer elements.
 
     Writes to --out: calibration.json, system.json (BrnoCompSpeed results), vehicles.jsonl, vehicles.csv,
@@ -261,6 +263,10 @@ def command(video: Path, out_dir: Path, calibration_path: Path | None, gt_path: 
         from ..brnocompspeed import load_gt_data
 
         load_gt_data(gt_path)  # fail before the long run, not after
+    if detector:  # a bad model is a one-line error now, not a failed pipeline later
+        from ..detection.factory import create_detector
+
+        create_detector(detector)
     paths = RunPaths(out_dir)
     bbscale = (elements_dir() / "python" / "bbscale.py").exists()
     description = pipeline_description(video, paths, calibration_path, detector, overlay=not no_overlay,

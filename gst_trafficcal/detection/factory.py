@@ -23,18 +23,32 @@ def create_detector(
 ) -> Detector:
     """An ONNX detector for ``model`` (a path or an installed model's name), or the background
     detector when ``model`` is empty (``background``: its model, "mog2" or "average" — the moving average with
-    shadow peeling, tighter boxes). Bad files or names raise InputError here, at start-up."""
+    shadow peeling, tighter boxes).  ``model="vehicleseg"`` (or ``model_format="vehicleseg"``, or a file whose
+    metadata names it) is the project's learned vehicle segmenter, which also gives each vehicle's convex hull.
+    Bad files or names raise InputError here, at start-up."""
     if not model:
         from .background import BackgroundDetector
 
         if background not in ("mog2", "average"):
             raise InputError(f"background method must be mog2 or average, got {background!r}")
         return BackgroundDetector(method=background)
+    from . import vehicleseg
     from .models import resolve_model
     from .onnx_detector import OnnxDetector
 
-    return OnnxDetector(resolve_model(model), model_format=model_format, labels=labels, threshold=threshold,
+    if model == vehicleseg.NAME:
+        return vehicleseg.VehicleSegDetector(threads=threads)
+    path = resolve_model(model)
+    if model_format == vehicleseg.NAME or (model_format == "auto" and vehicleseg.is_vehicleseg(path)):
+        return vehicleseg.VehicleSegDetector(path, threads=threads)
+    return OnnxDetector(path, model_format=model_format, labels=labels, threshold=threshold,
                         threads=threads, tiles=parse_tiles(tiles) if isinstance(tiles, str) else tiles)
+
+
+def detect(detector: Detector, image: np.ndarray, t: float | None = None) -> Detections:
+    """Run any detector on one frame; detectors that keep a background over time (``timed``, e.g. vehicleseg) get
+    the frame time ``t`` in seconds."""
+    return detector(image, t) if getattr(detector, "timed", False) else detector(image)
 
 
 def parse_tiles(text: str) -> tuple[int, int]:

@@ -69,7 +69,7 @@ def scale_from_video(video: str | Path, calibration: Calibration, *, models=None
     "average", see :func:`~gst_trafficcal.detection.factory.create_detector`)."""
     import cv2
 
-    from ..detection.factory import create_detector
+    from ..detection.factory import create_detector, detect
     from ..tracking.background import BackgroundModel, chroma_from_bgr
     from ..tracking.pipeline import TrackingPipeline
     from .streaming import load_align_models
@@ -100,7 +100,7 @@ def scale_from_video(video: str | Path, calibration: Calibration, *, models=None
                 break
             # the elements see the decoder's Y plane (video range 16-235); OpenCV expands it to full range
             gray = cv2.convertScaleAbs(cv2.cvtColor(bgr, cv2.COLOR_BGR2GRAY), alpha=219 / 255, beta=16)
-            detections = det(bgr if detector else gray)
+            detections = detect(det, bgr if detector else gray, t)
             result, detections = pipe.process(gray, t, detections, chroma=chroma_from_bgr(bgr) if colour else None)
             sightings = frame_sightings(result, detections, camera, box)
             est.update(t, sightings)
