@@ -1,0 +1,221 @@
+"""Training data for the vehicle segmenter: randomised synthetic scenes rendered by ``gst_trafficcal.synth``.
+
+Every scene is a random variation of the renderer's presets (camera height, side, pan, tilt, roll and focal length;
+lanes and directions; traffic density up to jams with occlusions; day, overcast, dusk, night, low contrast; noise,
+blur, motion blur, shake, JPEG compression; catalogue models, generic cars of every body style and, when
+../shared has them, Kenney's low-poly meshes).  Seeds start at 1000: the benchmarks use seeds 1, 2 and the demo 7,
+and no BrnoCompSpeed background (replay mode) is ever rendered here.
+
+Each frame of a scene goes through the run-time path (:mod:`gst_trafficcal.detection.seginput`: reduction to the
+work size, running-average background), so the stored background carries the same ghosts as at run time.  A
+sample (one npz per kept frame, uint8) holds ``frame`` and ``background`` (work size, BGR), ``fg`` (fraction of
+each work pixel covered by vehicles, 0..255, from the renderer's exact id mask) and ``inst`` (vehicle instance per
+work pixel, 0 = none, 255 = unknown).
+
+    .venv/bin/python -m training.vehicleseg.data --out /tmp/vseg_data --scenes 0:120
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import shutil
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from gst_trafficcal.detection.seginput import RunningBackground, WorkGeometry, to_work
+from gst_trafficcal.errors import TrafficcalError
+from gst_trafficcal.synth.scenario import load_preset
+
+SEED_BASE = 1000  # held-out discipline: benchmark scenes use seeds 1, 2 and 7
+KENNEY = Path(__file__).resolve().parents[2] / ".." / "shared" / "models" / "vehicles" / "kenney_car_kit"
+BASES = ("highway_day", "country_two_way", "right_side_oneway", "curve", "centre_overpass", "left_side")
+RESOLUTIONS = ((960, 540), (960, 540), (960, 540), (640, 360), (800, 600), (1280, 720))
+KENNEY_FOR = {"sedan": ("sedan.glb", "sedan-sports.glb", "taxi.glb", "police.glb"),
+              "hatchback": ("hatchback-sports.glb",), "suv": ("suv.glb", "suv-luxury.glb"),
+              "van": ("van.glb", "delivery.glb")}
+
+
+@dataclasses.dataclass
+class SceneRecipe:
+    """How one training scene is made and sampled (stored next to its samples)."""
+
+    index: int
+    seed: int
+    base: str
+    scenario: dict
+    jpeg_quality: int  # 0 = no compression
+    kenney_share: float
+    work_width: int
+    every: int  # keep every n-th frame after ``start`` seconds
+    start: float
+
+
+def random_recipe(index: int, duration: float = 14.0, work_width: int = 480) -> SceneRecipe:
+    """A random scene for training index ``index`` (seed ``SEED_BASE + index``), reproducible."""
+    seed = SEED_BASE + index
+    rng = np.random.default_rng([seed, 7])
+    base = str(rng.choice(BASES))
+    scen = load_preset(base)
+    cam = scen.camera
+    side = rng.choice([-1.0, 1.0], p=[0.7, 0.3])
+    cam.height = float(rng.uniform(4.5, 18.0))
+    cam.offset = float(side * rng.uniform(0.0, 14.0)) if base != "centre_overpass" else float(rng.uniform(-2, 2))
+    cam.pan = float(-side * rng.uniform(0.0, 32.0))
+    cam.tilt = float(np.clip(rng.normal(8.0 + cam.height * 0.8, 4.0), 4.0, 35.0))
+    cam.roll = float(np.clip(rng.normal(0.0, 5.0), -15.0, 15.0))
+    cam.hfov = float(rng.uniform(30.0, 85.0))
+    cam.resolution = list(RESOLUTIONS[int(rng.integers(len(RESOLUTIONS)))])
+    road = scen.road
+    if base not in ("country_two_way", "right_side_oneway"):
+        road.lanes = int(rng.integers(1, 5))
+        road.directions = int(rng.choice([1, 2], p=[0.25, 0.75]))
+    road.curve_radius = float(rng.choice([0.0, 0.0, 1.0]) * rng.choice([-1, 1]) * rng.uniform(300, 2000))
+    road.trees = int(rng.integers(0, 80))
+    tr = scen.traffic
+    density = rng.choice(["sparse", "normal", "dense", "jam"], p=[0.15, 0.45, 0.25, 0.15])
+    tr.flow = float({"sparse": rng.uniform(150, 400), "normal": rng.uniform(400, 1000),
+                     "dense": rng.uniform(1000, 1800), "jam": rng.uniform(1600, 2500)}[density])
+    tr.speed = float({"jam": rng.uniform(20, 45), "dense": rng.uniform(40, 80)}.get(density, rng.uniform(60, 130)))
+    tr.speed_std = float(rng.uniform(3, 15))
+    tr.min_speed = min(tr.min_speed, tr.speed * 0.5)
+    tr.headway = float(rng.uniform(0.5, 1.2) if density in ("dense", "jam") else rng.uniform(0.8, 2.0))
+    tr.directions = [0, 1] if road.directions == 2 else [int(rng.integers(0, 2))]
+    tr.mix = {"sedan": 0.3, "estate": 0.18, "hatchback": 0.2, "suv": 0.12, "van": 0.09,
+              "truck": float(rng.uniform(0.02, 0.1)), "bus": float(rng.uniform(0.0, 0.04)),
+              "motorcycle": float(rng.uniform(0.0, 0.04))}
+    if rng.random() < 0.4:  # named catalogue models as well as generic cars
+        tr.models = {"skoda_octavia_mk1_liftback": 0.1, "skoda_octavia_mk2_combi": 0.08, "vw_golf_mk6_hatchback": 0.08,
+                     "skoda_superb_mk2_liftback": 0.05, "skoda_fabia_mk2_hatchback": 0.06, "vw_tiguan_mk1_suv": 0.05,
+                     "ford_transit_mk7_van_swb_low_roof": 0.03}
+    light = scen.lighting
+    light.preset = str(rng.choice(["day", "overcast", "dusk", "night"], p=[0.45, 0.25, 0.15, 0.15]))
+    light.sun_azimuth = float(rng.uniform(0, 360))
+    light.sun_elevation = float(rng.uniform(5, 25) if light.preset == "dusk" else rng.uniform(15, 75))
+    light.contrast = float(rng.choice([rng.uniform(0.45, 0.75), rng.uniform(0.8, 1.25)], p=[0.25, 0.75]))
+    light.haze = float(rng.uniform(0.0, 0.5))
+    im = scen.imaging
+    im.fps = 12.5
+    im.noise = float(rng.uniform(0.5, 6.0))
+    im.blur = float(rng.uniform(0.0, 1.4))
+    im.motion_blur = float(rng.choice([0.0, rng.uniform(0.002, 0.015)], p=[0.7, 0.3]))
+    im.shake = float(rng.choice([0.0, rng.uniform(0.02, 0.12)], p=[0.8, 0.2]))
+    im.vignette = float(rng.uniform(0.0, 0.35))
+    scen.duration = float(duration)
+    scen.seed = seed
+    scen.name = f"vseg_{index}"
+    scen.validate(f"training scene {index}")
+    quality = int(rng.choice([0, int(rng.integers(25, 90))], p=[0.4, 0.6]))
+    return SceneRecipe(index=index, seed=seed, base=base, scenario=scen.to_dict(), jpeg_quality=quality,
+                       kenney_share=float(rng.uniform(0.1, 0.35)) if KENNEY.is_dir() else 0.0,
+                       work_width=work_width, every=3, start=2.0)
+
+
+def kenney_factory(share: float, seed: int):
+    """A traffic ``model_factory``: the catalogue's models and body styles, a ``share`` of the passenger cars and
+    vans drawn with one of Kenney's meshes instead of the procedural one (other shapes for the same class)."""
+    from gst_trafficcal.synth.traffic import draw_model
+
+    rng = np.random.default_rng([seed, 11])
+
+    def factory(kind, name, r):
+        model = draw_model(kind, name, r)
+        files = KENNEY_FOR.get(model.body_style)
+        if files and model.mesh is None and rng.random() < share:
+            model = dataclasses.replace(model, mesh=(KENNEY / files[int(rng.integers(len(files)))]).resolve())
+        return model
+
+    return factory
+
+
+class SampleWriter:
+    """Receives the renderer's frames (``generate(keep_masks=...)`` calls ``append``), runs the run-time input
+    path on every frame and writes the kept ones."""
+
+    def __init__(self, recipe: SceneRecipe, out: Path, frame_size: tuple[int, int]) -> None:
+        self.recipe, self.out = recipe, out
+        self.geometry = WorkGeometry(frame_size, recipe.work_width)
+        self.background = RunningBackground()
+        self.rng = np.random.default_rng([recipe.seed, 13])
+        self.count = 0
+        self.frames = 0
+
+    def append(self, item) -> None:
+        t, rgb, ids, _recs, _items, shake = item
+        bgr = cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR)
+        q = self.recipe.jpeg_quality
+        if q:
+            ok, enc = cv2.imencode(".jpg", bgr, [cv2.IMWRITE_JPEG_QUALITY, q])
+            bgr = cv2.imdecode(enc, cv2.IMREAD_COLOR)
+        work = to_work(bgr, self.geometry)
+        background = self.background.update(work, t)
+        i = self.frames
+        self.frames += 1
+        early = i in (2, 6, 12)  # a few samples while the background is still forming
+        if not early and (t < self.recipe.start or i % self.recipe.every):
+            return
+        if shake is not None:  # the id mask is drawn unshaken; the delivered frame is warped
+            h, w = ids.shape
+            ids = cv2.warpPerspective(ids, shake, (w, h), flags=cv2.INTER_NEAREST, borderValue=0)
+        size = self.geometry.size
+        fg = cv2.resize((ids > 0).astype(np.float32), size, interpolation=cv2.INTER_AREA)
+        inst = cv2.resize(ids, size, interpolation=cv2.INTER_NEAREST)
+        np.savez_compressed(self.out / f"s{self.recipe.index:05d}_{i:04d}.npz", frame=work, background=background,
+                            fg=np.round(fg * 255).astype(np.uint8), inst=inst, t=np.float32(t))
+        self.count += 1
+
+
+def render_scene(recipe: SceneRecipe, out: Path) -> int:
+    """Render one recipe, writing its samples into ``out``; the number of samples."""
+    from gst_trafficcal.synth.generate import generate
+    from gst_trafficcal.synth.scenario import scenario_from_dict
+
+    scen = scenario_from_dict(recipe.scenario, f"training scene {recipe.index}")
+    writer = SampleWriter(recipe, out, tuple(scen.camera.resolution))
+    tmp = Path(tempfile.mkdtemp(prefix="vseg_scene_"))
+    try:
+        factory = kenney_factory(recipe.kenney_share, recipe.seed) if recipe.kenney_share > 0 else None
+        generate(scen, tmp, write_video=False, keep_masks=writer, model_factory=factory)
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
+    return writer.count
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--out", type=Path, required=True)
+    ap.add_argument("--scenes", default="0:100", help="training scene indices START:STOP (seeds 1000+index)")
+    ap.add_argument("--duration", type=float, default=14.0)
+    ap.add_argument("--work-width", type=int, default=480)
+    args = ap.parse_args(argv)
+    a, b = (int(v) for v in args.scenes.split(":"))
+    args.out.mkdir(parents=True, exist_ok=True)
+    for index in range(a, b):
+        marker = args.out / f"scene_{index:05d}.json"
+        if marker.exists():
+            continue
+        t0 = time.perf_counter()
+        for attempt in range(5):  # a random camera may not see the road: draw the next variation
+            recipe = random_recipe(index + 100000 * attempt, args.duration, args.work_width)
+            try:
+                n = render_scene(recipe, args.out)
+                break
+            except TrafficcalError as exc:
+                print(f"scene {index}: {exc}; redrawing", file=sys.stderr)
+        else:
+            continue
+        info = dataclasses.asdict(recipe) | {"samples": n, "seconds": round(time.perf_counter() - t0, 1)}
+        marker.write_text(json.dumps(info, indent=1) + "\n", encoding="utf-8")
+        print(f"scene {index} ({recipe.base}, {recipe.scenario['lighting']['preset']}, "
+              f"{recipe.scenario['traffic']['flow']:.0f} veh/h/lane): {n} samples in {info['seconds']} s", flush=True)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
