@@ -35,6 +35,15 @@ class SynthResult:
     vehicles: int  # vehicles with at least one measurement-line crossing
     calibration: Calibration
     loop_seconds: float = 0.0  # wall time of the frame loop including the encoder finishing
+    loop_cpu_seconds: float = 0.0  # CPU time of the frame loop: this process (all threads) + the encoder process
+
+
+def _cpu_seconds() -> float:
+    """User + system CPU time of this process (all its threads) and of its waited-for children (the encoder)."""
+    import resource
+
+    me, kids = resource.getrusage(resource.RUSAGE_SELF), resource.getrusage(resource.RUSAGE_CHILDREN)
+    return me.ru_utime + me.ru_stime + kids.ru_utime + kids.ru_stime
 
 
 def _mesh_for(v: Vehicle, box_vehicles: bool):
@@ -116,7 +125,7 @@ def generate(scen: Scenario, out_dir: str | Path, progress: Callable[[int, int],
         if write_video else None
     exposure = scen.imaging.motion_blur
     areas = SilhouetteAreas()
-    t_loop = time.perf_counter()
+    t_loop, cpu_loop = time.perf_counter(), _cpu_seconds()
     try:
         with open(out / FRAMES_JSONL, "w", encoding="utf-8") as jf:
             for i in range(n):
@@ -182,10 +191,10 @@ def generate(scen: Scenario, out_dir: str | Path, progress: Callable[[int, int],
         if writer is not None:
             writer.close()
         renderer.release()
-    loop_seconds = time.perf_counter() - t_loop
+    loop_seconds, loop_cpu = time.perf_counter() - t_loop, _cpu_seconds() - cpu_loop
     contact_sheet(sheet, out / PREVIEW)
     return SynthResult(out_dir=out, frames=written, dropped=int(dropped.sum()), vehicles=len(gt.cars),
-                       calibration=cal, loop_seconds=loop_seconds)
+                       calibration=cal, loop_seconds=loop_seconds, loop_cpu_seconds=loop_cpu)
 
 
 # projected 3D-box extents (pixels) below which vehicles are drawn as a few boxes / as a simplified mesh

@@ -1,14 +1,17 @@
 """Headless OpenGL renderer of the road scene and vehicles (moderngl, EGL, runs on Mesa llvmpipe).
 
-Per frame the work is: one blit restoring the cached static scene (colour and depth, rendered once) into a
-4x multisampled target, one draw call for the planar and contact shadows of all vehicles, one for headlight
-beams at night, one for all vehicles (their triangles merged into one vertex buffer), a resolve of the
-multisampled colour (anti-aliased vehicle and shadow edges, as a real camera's optics and sensor give; aliased
-staircase edges biased edgelet vanishing points), and its read-back.  The alpha channel of the frame carries a
-vehicle-ID mask drawn by a second, single-sampled pass of the same triangles with a trivial shader into a
-one-channel target over the static depth, read back too (exact: each pixel holds the vehicle seen at its
-centre, IDs never blend; used for visibility and by the exactness tests).
-Full-screen shader passes cost ~10 ms at 1080p on llvmpipe, so the imaging chain runs in OpenCV instead.  Textures are procedural noise made with numpy; materials are chosen per vertex.
+Per frame the work is: a copy restoring the cached static scene (colour and depth, rendered once) into a 4x
+multisampled target where the previous frame drew, one draw call for the planar and contact shadows of all
+vehicles, one for headlight beams at night, one for all vehicles (their triangles merged into one vertex
+buffer), a resolve of the multisampled colour where vehicles are or were (anti-aliased vehicle and shadow
+edges, as a real camera's optics and sensor give; aliased staircase edges biased edgelet vanishing points),
+and its read-back.  A vehicle-ID mask is drawn by a second, single-sampled pass of the same triangles with a
+trivial shader into a one-channel target over the static depth, read back too (exact: each pixel holds the
+vehicle seen at its centre, IDs never blend; used for visibility and by the exactness tests).
+llvmpipe runs every branch of a shader for every fragment (masked), so the scene shader is compiled in
+variants: one per static material (the static scene is drawn run by run) and one with the vehicle materials
+only.  Full-screen shader passes cost ~10 ms at 1080p on llvmpipe, so the imaging chain runs in OpenCV
+instead.  Textures are procedural noise made with numpy; materials are chosen per vertex.
 """
 
 from __future__ import annotations
