@@ -141,7 +141,7 @@ class SideEstimators:
 
 
 def measure(folder: Path, min_vehicles: int, cache_dir: Path, background: str = "mog2",
-            duration: float | None = None) -> dict:
+            duration: float | None = None, detector: str = "") -> dict:
     from gst_trafficcal.brnocompspeed import load_gt_data
     from gst_trafficcal.calibration import load_calibration
     from gst_trafficcal.manual_calibration import manual_scale
@@ -157,7 +157,7 @@ def measure(folder: Path, min_vehicles: int, cache_dir: Path, background: str = 
     models = load_align_models(None)
     side = SideEstimators(folder, cal.camera.with_scale(None), models, min_vehicles)
     res = scale_from_video(folder / "video.mp4", cal.with_scale(None), models=models, min_vehicles=min_vehicles,
-                           on_frame=side, background=background, max_duration=duration)
+                           on_frame=side, background=background, max_duration=duration, detector=detector)
     r = res.result
     hull, exact = side.results()
     base = bmvc14_scale(res.box_params) if len(res.box_params) else None
@@ -218,6 +218,8 @@ def main() -> None:
     ap.add_argument("--traffic", choices=("preset", "catalogue"), default="preset",
                     help="the presets' traffic (generic cars only) or CATALOGUE_TRAFFIC (half the cars catalogue types)")
     ap.add_argument("--background", choices=("mog2", "average"), default="mog2", help="background detector method")
+    ap.add_argument("--detector", default="", help="vehicledetect's model instead of the background detector, e.g. "
+                    "vehicleseg (boxes + hulls)")
     ap.add_argument("--write", type=Path, default=ROOT / "docs" / "results" / "scale.md")
     a = ap.parse_args()
     a.work.mkdir(parents=True, exist_ok=True)
@@ -234,11 +236,11 @@ def main() -> None:
                                     [a.seed] * len(presets), [a.traffic] * len(presets)))
         n_synth = len(folders)
         folders += [render_replay(r, a.replay_work, a.traffic) for r in replays]
-        cache = a.work / f"results_{a.background}_{a.traffic}"
+        cache = a.work / (f"results_{a.detector}_{a.traffic}" if a.detector else f"results_{a.background}_{a.traffic}")
         cache.mkdir(exist_ok=True)
         durations = [a.duration] * n_synth + [None] * (len(folders) - n_synth)
         rows = list(pool.map(measure, folders, [a.min_vehicles] * len(folders), [cache] * len(folders),
-                             [a.background] * len(folders), durations))
+                             [a.background] * len(folders), durations, [a.detector] * len(folders)))
     reg = loo_regression(rows)
     lines = ["| scene | true λ (m) | BBScale % | BBScale+reg (LOO) % | BMVC14 % | ManualScale % | matched / agreeing "
              "| BBScale, hull box % | BBScale, exact box % |",
@@ -277,7 +279,8 @@ def main() -> None:
         "BBScale+reg is leave-one-out (the regression fitted on the other scenes). λ* is reported even when "
         "the stage did not converge (fewer than --min-vehicles agreeing vehicles; marked). A dash: no estimate. "
         f"Traffic: {a.traffic} ({'half of the passenger cars named catalogue types, benchmarks/scale.py CATALOGUE_TRAFFIC' if a.traffic == 'catalogue' else 'the presets own: generic cars of random dimensions, none of a catalogue type'}); "
-        f"background detector method: {a.background}. "
+        + (f"detector: vehicledetect model={a.detector}. " if a.detector else
+           f"background detector method: {a.background}. ") +
         "Replays (session*): true λ = the rendering camera's (our ManualCalib+ManualScale of the recording); "
         "ManualScale recomputed from the recording's measured distances with the true VPs. Diagnostic columns "
         "from the same tracking pass: BBScale aligned with the tracker's hull box instead of the detector's "

@@ -146,9 +146,9 @@ class VehicleSegDetector:
 
 
 def centre_peaks(centre: np.ndarray, threshold: float) -> tuple[np.ndarray, np.ndarray]:
-    """Local maxima (5x5 cells) of the sigmoid heatmap above ``threshold``: (K x 2 quarter-cell x, y; K scores)."""
+    """Local maxima (3x3 cells) of the sigmoid heatmap above ``threshold``: (K x 2 quarter-cell x, y; K scores)."""
     heat = 1.0 / (1.0 + np.exp(-centre))
-    peak = (heat >= cv2.dilate(heat, np.ones((5, 5), np.uint8))) & (heat > threshold)
+    peak = (heat >= cv2.dilate(heat, np.ones((3, 3), np.uint8))) & (heat > threshold)
     ys, xs = np.nonzero(peak)
     return np.stack([xs, ys], axis=1).astype(np.float64), heat[ys, xs]
 
@@ -187,7 +187,7 @@ def merge_split_peaks(label: np.ndarray, px: np.ndarray, py: np.ndarray, peak_co
     rep = best[group]
     score = peak_score.copy()
     np.maximum.at(score, rep, peak_score)
-    relabel = np.arange(label.max() + 1)
+    relabel = np.arange(max(int(label.max()), k) + 1)
     relabel[1:k + 1] = rep + 1
     return relabel[label], score
 
