@@ -40,8 +40,8 @@ from .geometry import Camera
 from .lanes import LaneModel, lateral_offset
 from .outputs import AWAY_FROM_VP1, TOWARDS_VP1, VehicleEvent
 from .speed import DEFAULT_TAU, SpeedChecks, VehicleSpeed, _median_velocity, metres_per_pixel, vehicle_speed
-from .tracking.box3d import boxes_from_hulls, corners_fit_hulls, pixels_to_road
-from .tracking.tracker import Observation, Track, TrackerConfig, TrackState
+from .tracking.box3d import corners_fit_hulls, pixels_to_road
+from .tracking.tracker import Observation, Track, TrackerConfig, TrackState, apply_shape, fit_boxes, track_shape
 from .tracking.tracker import _set_references, _update_direction  # the tracker's own finishing step
 
 DEFAULT_MIN_TRACK_LENGTH = 10
@@ -67,6 +67,7 @@ class Sighting:
     corners_px: np.ndarray | None = None  # 8x2 corners of the 3D box (tracking.box3d.CORNER_BITS order)
     ref_px: np.ndarray | None = None  # the tracker's reference point of this frame
     hull: np.ndarray | None = None  # Kx2 convex hull when known (builds the 3D box later if VPs come late)
+    silhouette: bool = False  # the hull is a segmentation's clean outline (car body shapes apply, tracker.py)
 
     @classmethod
     def from_fields(cls, object_id: int, label: str, confidence: float, fields: Mapping[str, Any],
@@ -82,7 +83,7 @@ class Sighting:
         hull = fields.get("hull")
         hull = None if hull is None else np.asarray(hull, np.float64).reshape(-1, 2)
         return cls(int(object_id), str(label), time, box, float(confidence), bool(fields.get("truncated", False)),
-                   bool(fields.get("occluded", False)), corners, ref, hull)
+                   bool(fields.get("occluded", False)), corners, ref, hull, bool(fields.get("silhouette", False)))
 
 
 @dataclass(frozen=True)
@@ -261,10 +262,11 @@ class SpeedMeter:
         obs = rec.observations
         if rec.unboxed:  # seen without a 3D box (no vanishing points at the time): build it from the hull now
             idx, rec.unboxed = rec.unboxed, []
-            boxes = boxes_from_hulls(camera, [obs[k].hull for k in idx])
-            for j, k in enumerate(idx):
-                if boxes.valid[j]:
-                    obs[k].box3d, obs[k].corners_px = boxes.params[j], boxes.corners_px[j]
+            late = [obs[k] for k in idx]
+            fit_boxes(camera, late)
+            holder = Track(id=rec.id, state=TrackState.FINISHED, observations=late)
+            holder.shape = track_shape(holder)
+            apply_shape(camera, holder, late)
         if last is not None:
             obs = obs[-last:]
         track = Track(id=rec.id, state=TrackState.FINISHED, observations=obs)
@@ -339,7 +341,7 @@ def _observation(s: Sighting, camera: Camera | None) -> Observation:
     if hull is None and np.all(np.isfinite(box)):
         hull = np.array([[box[0], box[1]], [box[2], box[1]], [box[2], box[3]], [box[0], box[3]]])
     obs = Observation(t=float(s.t), box=box, det_box=box, score=float(s.confidence), label=s.label, hull=hull,
-                      truncated=s.truncated, occluded=s.occluded)
+                      truncated=s.truncated, occluded=s.occluded, silhouette=s.silhouette and s.hull is not None)
     # a 3D box far outside the tracked hull (a degenerate solve upstream) gives no reference point
     if (s.corners_px is not None and camera is not None
             and corners_fit_hulls(s.corners_px[None], box[None, :2], box[None, 2:])[0]):

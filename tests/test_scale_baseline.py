@@ -55,8 +55,9 @@ def test_minimum_of_the_per_dimension_scales():
 
 def test_bbscale_with_the_base_point_of_the_trackers_3d_box():
     """The realistic chain: b = base centre of the 3D box built from the vehicle's image hull (not the model's
-    true base).  Car bodies are not boxes, so b moves a little with the viewpoint; BBScale stays close, and
-    closer still with b corrected for the box construction."""
+    true base).  Car bodies are not boxes; with the box construction's car body shapes b stays on the car's
+    base, so the paper's method is within 0.5 % (plain construction, measured: up to 2.3 %), and the correction of b
+    for the box construction (the default) stays within 1 %."""
     rng = np.random.default_rng(3)
     cat = load_catalogue()
     models = {n: align_model(cat[n]) for n in ("skoda_octavia_mk1_liftback", "skoda_octavia_mk1_combi")}
@@ -76,6 +77,5 @@ def test_bbscale_with_the_base_point_of_the_trackers_3d_box():
         errs.append(abs(est.scale / cam.scale - 1))
         est = estimate_scale(cam0, real, models, refine_base=False)  # the paper's method
         paper.append(abs(est.scale / cam.scale - 1))
-    assert np.median(paper) < 0.01 and max(paper) < 0.04, paper
+    assert np.median(paper) < 0.005 and max(paper) < 0.01, paper
     assert np.median(errs) < 0.005 and max(errs) < 0.01, errs
-    assert np.mean(errs) < np.mean(paper)

@@ -225,6 +225,7 @@ class Speedometer(TrafficcalTransform):
             hull = track.last.hull
             if hull is not None:
                 fields["hull"] = hull  # builds the 3D box later when the vanishing points come late
+                fields["silhouette"] = bool(track.last.silhouette)  # ... with the tracker's body-shape rule
             out.append((roi, Sighting.from_fields(track.id, track.label, roi.confidence, fields, t=t)))
         pipe.pop_finished()  # the meter decides when a vehicle has left (same rule with or without tracker)
         return out

@@ -48,10 +48,11 @@ def bmvc14_scale(box_params: np.ndarray, car_size: tuple[float, float, float] = 
 
 def bmvc14_scale_from_hulls(cam: Camera, hulls: Sequence[np.ndarray],
                             car_size: tuple[float, float, float] = BMVC14_CAR_SIZE) -> BaselineScale:
-    """The baseline from vehicles' image convex hulls (pixels) through the tracker's 3D box construction."""
+    """The baseline from vehicles' image convex hulls (pixels) through Dubská's plain (tight) 3D box
+    construction, as the paper's BMVC14 does (no car body shapes)."""
     from ..tracking.box3d import boxes_from_hulls
 
     if len(hulls) == 0:
         return BaselineScale(None, "no vehicle hulls")
-    boxes = boxes_from_hulls(cam, list(hulls))
+    boxes = boxes_from_hulls(cam, list(hulls), shapes=())
     return bmvc14_scale(boxes.params, car_size, boxes.valid)

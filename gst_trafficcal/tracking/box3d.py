@@ -24,11 +24,13 @@ road, VPs near infinity):
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import lru_cache
 from typing import Sequence
 
 import numpy as np
 
 from ..geometry import Camera
+from .shapes import BodyShape, box_shape, default_shapes
 
 #: order of the 8 corners: index = ix + 2*iy + 4*iz with ix -> (x0, x1), iy -> (y0, y1), iz -> (0, h)
 CORNER_BITS = np.array([[i & 1, (i >> 1) & 1, (i >> 2) & 1] for i in range(8)])
@@ -125,35 +127,36 @@ def _pad_hulls(hulls: Sequence[np.ndarray]) -> np.ndarray:
     return out
 
 
-def boxes_from_hulls(camera: Camera, hulls: Sequence[np.ndarray] | np.ndarray) -> Boxes3D:
-    """3D boxes standing on the road whose silhouettes are tangent to the given convex hulls (pixels).
-
-    ``hulls`` is a list of (K_i, 2) point arrays (any points of the blob work; only the extreme ones matter) or
-    an (N, K, 2) array.
-    """
-    if isinstance(hulls, np.ndarray) and hulls.ndim == 3:
-        pts = hulls.astype(np.float64)
-    else:
-        if len(hulls) == 0:
-            z = np.zeros((0,))
-            return Boxes3D(np.zeros((0, 5)), np.zeros((0, 8, 3)), np.zeros((0, 8, 2)), z.astype(bool), z)
-        pts = _pad_hulls(hulls)
+def _tangents(camera: Camera, pts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The six tangent rays of each hull (N, K, 2 pixels): their directions (N, 6, 2) in the sections of
+    :data:`_SECTIONS` (two per section, the one with the smaller angle first) and whether every hull point lies
+    below the horizon and the hull spans less than a half-turn in every section (N,)."""
     n = len(pts)
     W = world_rays(camera, pts)  # (N, K, 3)
     valid = np.all(W[..., 2] < -1e-9, axis=1)  # every hull point below the horizon
-
-    A = np.zeros((n, 6, 5))
-    b = np.zeros((n, 6))
-    sel = np.zeros((n, 6, 2), np.int64)  # unknown indices of the touched corner (u, v), -1 = 0
-    for s, ((iu, iv), ((ulo, uhi), (vlo, vhi)), (qu, qv)) in enumerate(_SECTIONS):
+    dirs = np.zeros((n, 6, 2))
+    for s, ((iu, iv), _, _) in enumerate(_SECTIONS):
         D = W[..., [iu, iv]]
         D = D / np.linalg.norm(D, axis=-1, keepdims=True)
         m = D.mean(axis=1, keepdims=True)
         ang = np.arctan2(m[..., 0] * D[..., 1] - m[..., 1] * D[..., 0], np.sum(m * D, axis=-1))
-        ia, ib = ang.argmin(axis=1), ang.argmax(axis=1)
         valid &= (ang.max(axis=1) - ang.min(axis=1)) < np.pi - 1e-3
-        for row, idx, sign in ((2 * s, ia, 1.0), (2 * s + 1, ib, -1.0)):
-            d = D[np.arange(n), idx]  # (N, 2) tangent ray direction
+        dirs[:, 2 * s] = D[np.arange(n), ang.argmin(axis=1)]
+        dirs[:, 2 * s + 1] = D[np.arange(n), ang.argmax(axis=1)]
+    return dirs, valid
+
+
+def _corner_equations(dirs: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Dubská's equations: each tangent ray touches the box corner that the signs of its direction select.
+    Returns A (N, 6, 5), b (N, 6) and the touched corner's unknown indices (N, 6, 2; -1 = the constant 0)."""
+    n = len(dirs)
+    A = np.zeros((n, 6, 5))
+    b = np.zeros((n, 6))
+    sel = np.zeros((n, 6, 2), np.int64)
+    for s, (_, ((ulo, uhi), (vlo, vhi)), (qu, qv)) in enumerate(_SECTIONS):
+        for row in (2 * s, 2 * s + 1):
+            d = dirs[:, row]
+            sign = _SIGNS[row]
             # the rectangle lies on one side of the ray: the touched corner minimises sign*cross(d, c - q)
             cu = np.where(sign * d[:, 1] > 0, uhi, ulo)
             cv = np.where(sign * d[:, 0] > 0, vlo, vhi)
@@ -163,10 +166,166 @@ def boxes_from_hulls(camera: Camera, hulls: Sequence[np.ndarray] | np.ndarray) -
             A[np.arange(n)[has_v], row, cv[has_v]] += d[has_v, 0]
             b[:, row] = d[:, 0] * qv - d[:, 1] * qu
             sel[:, row] = np.stack([cu, cv], axis=1)
+    return A, b, sel
 
-    theta, resid = _tightest_box(A, b, sel, valid)
+
+#: per tangent row: the unknowns of its touched point (u_lo, u_hi, v_lo, v_hi; 5 = the constant 0) and the
+#: section's camera point
+_ROW_COLS = np.array([[ulo, uhi, vlo if vlo >= 0 else 5, vhi] for _, ((ulo, uhi), (vlo, vhi)), _ in _SECTIONS
+                      for _ in range(2)])
+_ROW_Q = np.array([q for *_, q in _SECTIONS for _ in range(2)], np.float64)
+
+
+def _shape_equations(dirs: np.ndarray, theta: np.ndarray, sections: np.ndarray
+                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The equations with body shapes scaled to the boxes ``theta`` (N, 5): each tangent ray touches the
+    shape's point extreme along the ray's normal, at unit coordinates (a, c) of its section, i.e. at
+    ((1 - a) u_lo + a u_hi, (1 - c) v_lo + c v_hi), still linear in the unknowns.  ``sections``: the shape
+    points of each tangent row's section, (N or 1, 6, K, 2).  Returns A (N, 6, 5), b (N, 6) and the distance of
+    each touched point from its section's camera point (N, 6), the equations' natural weight."""
+    n = len(dirs)
+    th = np.concatenate([theta, np.zeros((n, 1))], axis=1)[:, _ROW_COLS]  # (N, 6, 4)
+    P = np.broadcast_to(sections, (n, *sections.shape[1:]))  # (N, 6, K, 2)
+    cu = th[..., :1] + P[..., 0] * (th[..., 1:2] - th[..., :1])  # (N, 6, K) touched-point candidates
+    cv = th[..., 2:3] + P[..., 1] * (th[..., 3:4] - th[..., 2:3])
+    du, dv = dirs[..., :1], dirs[..., 1:]  # (N, 6, 1)
+    qu, qv = _ROW_Q[:, :1], _ROW_Q[:, 1:]
+    k = (_SIGNS[:, None] * (du * (cv - qv) - dv * (cu - qu))).argmin(axis=2)[..., None]  # (N, 6, 1)
+    a = np.take_along_axis(P[..., 0], k, axis=2)[..., 0]
+    c = np.take_along_axis(P[..., 1], k, axis=2)[..., 0]
+    du, dv = du[..., 0], dv[..., 0]
+    A = np.zeros((n, 6, 6))
+    vals = np.stack([-dv * (1 - a), -dv * a, du * (1 - c), du * c], axis=2)  # (N, 6, 4), distinct columns
+    A[np.arange(n)[:, None, None], np.arange(6)[None, :, None], _ROW_COLS[None]] = vals
+    b = du * _ROW_Q[:, 1] - dv * _ROW_Q[:, 0]
+    rng = np.hypot(np.take_along_axis(cu, k, axis=2)[..., 0] - _ROW_Q[:, 0],
+                   np.take_along_axis(cv, k, axis=2)[..., 0] - _ROW_Q[:, 1])
+    return A[..., :5], b, rng
+
+
+def _shape_residual(A: np.ndarray, b: np.ndarray, rng: np.ndarray, theta: np.ndarray) -> np.ndarray:
+    """RMS angle (radians) by which the six tangents miss the touched points of the fitted body (N,)."""
+    r = (np.einsum("nij,nj->ni", A, theta) - b) / np.maximum(rng, 1e-9)
+    return np.sqrt(np.mean(r ** 2, axis=1))
+
+
+@lru_cache(maxsize=8)
+def _row_sections(shapes: tuple[BodyShape, ...]) -> np.ndarray:
+    """Every shape's points of each tangent row's section, (S, 6, K, 2), padded by repeating the last point."""
+    k = max(len(p) for sh in shapes for p in sh.sections)
+    pad = [[np.concatenate([p, np.repeat(p[-1:], k - len(p), 0)]) for p in sh.sections] for sh in shapes]
+    return np.stack([np.stack([sec[r // 2] for r in range(6)]) for sec in pad])
+
+
+def _fit_shapes(dirs: np.ndarray, theta: np.ndarray, shapes: Sequence[BodyShape], valid: np.ndarray,
+                iterations: int = 2) -> tuple[np.ndarray, np.ndarray]:
+    """For every (vehicle, shape) pair at once: the least-squares box whose scaled body touches the six tangents,
+    started at ``theta`` (N, 5; the touched points depend on the box's proportions, so a few fixed-point rounds).
+    Returns boxes (S, N, 5) and residuals (S, N)."""
+    n, m = len(dirs), len(shapes)
+    sections = np.repeat(_row_sections(tuple(shapes)), n, axis=0)  # (S*N, 6, K, 2)
+    D = np.tile(dirs, (m, 1, 1))
+    th = np.tile(theta, (m, 1))
+    ok_rows = np.tile(valid, m)
+    for _ in range(iterations):
+        A, b, rng = _shape_equations(D, np.nan_to_num(th), sections)
+        new = _weighted_solve(A, b, 1.0 / np.maximum(rng, 1e-6), ok_rows & np.all(np.isfinite(th), axis=1))
+        with np.errstate(invalid="ignore"):
+            ok = np.all(np.isfinite(new), axis=1) & (new[:, 1] > new[:, 0]) & (new[:, 3] > new[:, 2]) & (new[:, 4] > 0)
+        th = np.where(ok[:, None], new, np.nan)
+    A, b, rng = _shape_equations(D, np.nan_to_num(th), sections)
+    res = np.where(np.all(np.isfinite(th), axis=1), _shape_residual(A, b, rng, th), np.inf)
+    return th.reshape(m, n, 5), res.reshape(m, n)
+
+
+def _is_rectangle(pts: np.ndarray) -> np.ndarray:
+    """(N,) whether each hull (N, K, 2) is an axis-aligned rectangle: every point on two of its box's sides."""
+    lo, hi = pts.min(axis=1, keepdims=True), pts.max(axis=1, keepdims=True)
+    on = (np.isclose(pts, lo, atol=1e-6) | np.isclose(pts, hi, atol=1e-6)).all(axis=2)
+    return on.all(axis=1)
+
+
+@dataclass
+class ShapeFits:
+    """Every body shape fitted to every hull: ``params`` (S, N, 5) boxes (x0, x1, y0, y1, h, plane units; NaN
+    where the shape was not fitted), ``fit`` (S, N) how far (RMS angle, radians) the six tangents miss the
+    fitted body (inf where not fitted), ``names`` (S,) of the shapes (the plain box first when present), and the
+    padded hulls (N, K, 2) and tangent validity (N,) the boxes are checked against."""
+
+    params: np.ndarray
+    fit: np.ndarray
+    names: tuple[str, ...]
+    pts: np.ndarray
+    valid: np.ndarray
+
+    def best(self) -> np.ndarray:
+        """(N,) index of the shape that explains each hull's tangents best."""
+        return self.fit.argmin(axis=0)
+
+
+def fit_shapes(camera: Camera, hulls: Sequence[np.ndarray] | np.ndarray,
+               shapes: Sequence[BodyShape] | None = None) -> ShapeFits:
+    """Fit the plain box (Dubská's construction) and each car body shape to each convex hull (pixels).
+
+    ``shapes`` defaults to the box and the catalogue's car bodies (:func:`.shapes.default_shapes`); ``()`` is the
+    plain box alone.  A hull that is an upright rectangle (a detector's box standing in for a missing outline)
+    says nothing about the body and is fitted with the box only."""
+    if isinstance(hulls, np.ndarray) and hulls.ndim == 3:
+        pts = hulls.astype(np.float64)
+    elif len(hulls) == 0:
+        pts = np.zeros((0, 1, 2))
+    else:
+        pts = _pad_hulls(hulls)
+    n = len(pts)
+    shapes = default_shapes() if shapes is None else tuple(shapes)
+    cars = [s for s in shapes if not s.is_box]
+    if n == 0:
+        k = 1 + len(cars)
+        return ShapeFits(np.zeros((k, 0, 5)), np.zeros((k, 0)), ("box", *(s.name for s in cars)), pts, np.zeros(0, bool))
+    dirs, valid = _tangents(camera, pts)
+    A, b, sel = _corner_equations(dirs)
+    theta, _ = _tightest_box(A, b, sel, valid)
+    start = np.where(np.all(np.isfinite(theta), axis=1)[:, None], theta, np.nan)
+    box_fit = _shape_residual(*_shape_equations(dirs, np.nan_to_num(start), _row_sections((box_shape(),))), start)
+    params, fit = [theta], [np.where(np.isfinite(box_fit), box_fit, np.inf)]
+    if cars:
+        ok = ~_is_rectangle(pts)
+        ths, fits = _fit_shapes(dirs, np.where(ok[:, None], start, np.nan), cars, valid)
+        params += list(ths)
+        fit += list(np.where(ok[None], fits, np.inf))
+    return ShapeFits(np.stack(params), np.stack(fit), ("box", *(s.name for s in cars)), pts, valid)
+
+
+def boxes_from_fits(camera: Camera, fits: ShapeFits, choice: np.ndarray | None = None) -> Boxes3D:
+    """The boxes of the chosen shape per hull (``choice`` (N,) shape indices; default: each hull's best)."""
+    n = fits.pts.shape[0]
+    k = fits.best() if choice is None else np.asarray(choice, np.int64).reshape(n)
+    theta = fits.params[k, np.arange(n)] if n else np.zeros((0, 5))
+    resid = fits.fit[k, np.arange(n)] if n else np.zeros(0)
+    return _boxes(camera, theta, fits.valid.copy(), fits.pts, resid)
+
+
+def boxes_from_hulls(camera: Camera, hulls: Sequence[np.ndarray] | np.ndarray,
+                     shapes: Sequence[BodyShape] | None = None) -> Boxes3D:
+    """3D boxes standing on the road whose silhouettes are tangent to the given convex hulls (pixels).
+
+    ``hulls`` is a list of (K_i, 2) point arrays (any points of the blob work; only the extreme ones matter) or
+    an (N, K, 2) array.  ``shapes`` (default: the box and the catalogue's car bodies, :func:`.shapes.default_shapes`)
+    are the bodies the box may hold: per vehicle, the one that explains its six tangents best gives the box (an
+    exact box silhouette keeps the plain box, exactly); ``()`` is Dubská's plain construction.
+    """
+    if not isinstance(hulls, np.ndarray) and len(hulls) == 0:
+        z = np.zeros((0,))
+        return Boxes3D(np.zeros((0, 5)), np.zeros((0, 8, 3)), np.zeros((0, 8, 2)), z.astype(bool), z)
+    return boxes_from_fits(camera, fit_shapes(camera, hulls, shapes))
+
+
+def _boxes(camera: Camera, theta: np.ndarray, valid: np.ndarray, pts: np.ndarray, resid: np.ndarray) -> Boxes3D:
+    """Corners, pixels and validity of boxes ``theta`` (N, 5) fitted to the padded hulls ``pts``."""
+    n = len(theta)
     x0, x1, y0, y1, h = theta.T
-    valid &= np.all(np.isfinite(theta), axis=1) & (x1 > x0) & (y1 > y0) & (h > 0) & (h < 1)
+    with np.errstate(invalid="ignore"):
+        valid &= np.all(np.isfinite(theta), axis=1) & (x1 > x0) & (y1 > y0) & (h > 0) & (h < 1)
     lo = theta[:, [0, 2]]
     hi = theta[:, [1, 3]]
     corners = np.empty((n, 8, 3))

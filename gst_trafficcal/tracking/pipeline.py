@@ -54,6 +54,7 @@ class TrackingPipeline:
         size = None
         if hulls is None and detections is not None and detections.hulls is not None:
             hulls = list(detections.hulls)
+        silhouettes = hulls is not None  # a segmentation's outlines, not the background model's (cast shadows)
         if gray is not None:
             size = (gray.shape[1], gray.shape[0])
             if self.background is not None and hulls is None:
@@ -76,7 +77,7 @@ class TrackingPipeline:
         else:
             hulls = [None] * len(detections)
         hulls = [h if h is not None else _box_hull(b) for h, b in zip(hulls, detections.boxes)]
-        return self.tracker.update(t, detections, hulls, image_size=size), detections
+        return self.tracker.update(t, detections, hulls, image_size=size, silhouettes=silhouettes), detections
 
     def flush(self) -> list[Track]:
         return self.tracker.flush()

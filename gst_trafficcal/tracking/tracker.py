@@ -10,6 +10,10 @@
 * The paper's heuristic: a detection partly covered by a nearer one is not measured, so only fully visible
   vehicles give 3D boxes and reference points.  It still keeps its track alive (association and the 2D Kalman
   filter), so a vehicle that passes behind another one keeps its id; it never starts a track.
+* 3D boxes (:mod:`.box3d`): from clean vehicle silhouettes (a segmentation model's hulls) the box holds the
+  car body shape that explains the track's tangents best, one shape per track so the reference point does not
+  jump between bodies; from background-model hulls (which keep part of the cast shadow) the plain box
+  (``TrackerConfig.body_shapes``).
 * Works in 2D without a calibration; :meth:`Tracker.set_camera` switches to 3D boxes at any time without losing
   tracks: every observation keeps its convex hull and timestamp, and the boxes and reference points of the
   observations already made are rebuilt, so a vehicle seen before calibration is still measured.
@@ -27,7 +31,7 @@ from scipy.optimize import linear_sum_assignment
 from ..detection.records import Detections, box_iou
 from ..errors import InputError
 from ..geometry import Camera
-from .box3d import boxes_from_hulls, pixels_to_road, world_rays, world_to_pixels
+from .box3d import _boxes, _pad_hulls, fit_shapes, pixels_to_road, world_rays, world_to_pixels
 from .kalman import BoxKF, ConstantVelocityKF
 
 
@@ -55,6 +59,10 @@ class Observation:
     ref_px: np.ndarray | None = None  # reference point (centre of the bottom-front edge), pixels
     ref_road: np.ndarray | None = None  # the same on the road plane, world plane units (x along VP1, y across)
     ref_road_filtered: np.ndarray | None = None  # Kalman-filtered reference point on the road
+    silhouette: bool = False  # the hull is a clean vehicle silhouette (segmentation), so car body shapes apply
+    shape_params: np.ndarray | None = field(default=None, repr=False)  # (S, 5) box of each body shape
+    shape_fit: np.ndarray | None = field(default=None, repr=False)  # (S,) misfit of each shape (radians)
+    shape_ok: bool = field(default=False, repr=False)  # the hull's tangents were valid
 
 
 @dataclass
@@ -71,6 +79,7 @@ class Track:
     road_kf: ConstantVelocityKF | None = field(default=None, repr=False)
     road_kf_t: float = field(default=0.0, repr=False)
     ever_confirmed: bool = False
+    shape: int = 0  # index of the body shape its 3D boxes hold (0 = the plain box; see box3d.fit_shapes)
 
     @property
     def label(self) -> str:
@@ -97,7 +106,9 @@ class Track:
 
     def recompute(self, camera: Camera) -> None:
         """(Re)build the 3D boxes and reference points of every observation with ``camera``."""
-        _attach_boxes(camera, self.observations)
+        fit_boxes(camera, self.observations)
+        self.shape = track_shape(self)
+        apply_shape(camera, self, self.observations)
         _update_direction(self)
         _set_references(camera, self, self.observations)
         self.road_kf = None
@@ -121,12 +132,18 @@ class TrackerConfig:
     border: float = 2.0  # pixels: boxes this close to the image edge are truncated (not fully visible)
     duplicate_iou: float = 0.5  # an unmatched detection overlapping a matched one this much starts no track
     min_direction_span: float = 0.02  # plane units the box centre must move along the road to fix the direction
+    # 3D boxes: "auto" = car body shapes for clean silhouettes (hulls that come with the detections, e.g. from
+    # vehicleseg), the plain box for the background model's hulls (their cast-shadow part misleads a body fit:
+    # measured, speeds got worse); "cars" = body shapes always; "box" = Dubská's plain box always
+    body_shapes: str = "auto"
 
     def __post_init__(self) -> None:
         if self.n_init < 1:
             raise InputError(f"n_init must be at least 1, got {self.n_init}")
         if self.max_lost < 0:
             raise InputError(f"max_lost must be non-negative, got {self.max_lost}")
+        if self.body_shapes not in ("auto", "cars", "box"):
+            raise InputError(f"body_shapes must be auto, cars or box, got {self.body_shapes!r}")
 
 
 @dataclass
@@ -172,9 +189,11 @@ class Tracker:
 
     # ----------------------------------------------------------------- main step
     def update(self, t: float, detections: Detections, hulls: list[np.ndarray | None] | None = None,
-               image_size: tuple[int, int] | None = None) -> FrameResult:
-        """Advance to time ``t`` (seconds) with this frame's detections; returns the association."""
+               image_size: tuple[int, int] | None = None, silhouettes: bool = False) -> FrameResult:
+        """Advance to time ``t`` (seconds) with this frame's detections; returns the association.  ``silhouettes``:
+        the hulls are clean vehicle outlines (a segmentation model's), not a background model's."""
         cfg = self.config
+        self._silhouettes = cfg.body_shapes == "cars" or (cfg.body_shapes == "auto" and silhouettes)
         if image_size is not None:
             self.image_size = image_size
         if self.t is not None and t < self.t:
@@ -315,7 +334,7 @@ class Tracker:
             trunc = bool(np.any((both[:, :2] <= b) | (both[:, 2:] >= np.array([w - 1 - b, h - 1 - b]))))
         return Observation(t=t, box=np.asarray(box, np.float64).copy(), det_box=det.boxes[i].astype(np.float64),
                            score=float(det.scores[i]), label=str(det.labels[i]), hull=hull, truncated=trunc,
-                           occluded=bool(occluded))
+                           occluded=bool(occluded), silhouette=bool(getattr(self, "_silhouettes", False)))
 
     def _occluded(self, boxes: np.ndarray) -> np.ndarray:
         """Detections partly covered by a nearer detection (the paper's heuristic)."""
@@ -364,11 +383,23 @@ class Tracker:
 
     def _attach_3d(self, observations: list[Observation], tracks: list[Track]) -> None:
         cam = self.camera
-        _attach_boxes(cam, observations)
+        fit_boxes(cam, observations)
         for tr, obs in zip(tracks, observations):
+            shape = track_shape(tr)
+            if shape != tr.shape:  # the track's body shape changed: every box of the track holds the new one
+                tr.shape = shape
+                apply_shape(cam, tr, tr.observations)
+                reshaped = True
+            else:
+                apply_shape(cam, tr, [obs])
+                reshaped = False
             old = tr.direction
             _update_direction(tr, self.config.min_direction_span)
-            if tr.direction != old and old != 0:
+            if reshaped:
+                _set_references(cam, tr, tr.observations)
+                if tr.direction != old and old != 0:
+                    tr.road_kf = None
+            elif tr.direction != old and old != 0:
                 _set_references(cam, tr, tr.observations)
                 tr.road_kf = None
             elif tr.direction != old:
@@ -378,18 +409,44 @@ class Tracker:
             _filter_road(tr, obs)
 
 
-def _attach_boxes(camera: Camera, observations: list[Observation]) -> None:
-    """3D boxes for all observations that have a hull and are fully visible (one vectorised solve)."""
-    idx = [k for k, o in enumerate(observations) if o.hull is not None and not o.truncated and not o.occluded]
+def fit_boxes(camera: Camera, observations: list[Observation]) -> None:
+    """Fit the 3D box (the plain box, and the car body shapes for silhouettes) to every observation that has a
+    hull and is fully visible, in two vectorised solves; the box itself is set by :func:`apply_shape`."""
+    for o in observations:
+        o.box3d = o.corners_px = o.shape_params = o.shape_fit = None
+        o.shape_ok = False
+    for cars in (False, True):
+        idx = [k for k, o in enumerate(observations)
+               if o.hull is not None and not o.truncated and not o.occluded and o.silhouette == cars]
+        if not idx:
+            continue
+        fits = fit_shapes(camera, [observations[k].hull for k in idx], None if cars else ())
+        for j, k in enumerate(idx):
+            o = observations[k]
+            o.shape_params, o.shape_fit, o.shape_ok = fits.params[:, j], fits.fit[:, j], bool(fits.valid[j])
+
+
+def track_shape(track: Track) -> int:
+    """The body shape that explains the tangents of the track's silhouettes best (summed misfit; 0 = box)."""
+    fits = [o.shape_fit for o in track.observations if o.shape_fit is not None and len(o.shape_fit) > 1]
+    if not fits:
+        return 0
+    return int(np.argmin(np.sum(np.minimum(np.array(fits), 1.0), axis=0)))
+
+
+def apply_shape(camera: Camera, track: Track, observations: list[Observation]) -> None:
+    """3D box and image corners of ``observations`` (of ``track``) from the track's body shape."""
+    sel = [o for o in observations if o.shape_params is not None]
     for o in observations:
         o.box3d = o.corners_px = None
-    if not idx:
+    if not sel:
         return
-    boxes = boxes_from_hulls(camera, [observations[k].hull for k in idx])
-    for j, k in enumerate(idx):
+    theta = np.array([o.shape_params[track.shape if len(o.shape_params) > track.shape else 0] for o in sel])
+    boxes = _boxes(camera, theta, np.array([o.shape_ok for o in sel]), _pad_hulls([o.hull for o in sel]),
+                   np.zeros(len(sel)))
+    for j, o in enumerate(sel):
         if boxes.valid[j]:
-            observations[k].box3d = boxes.params[j]
-            observations[k].corners_px = boxes.corners_px[j]
+            o.box3d, o.corners_px = boxes.params[j], boxes.corners_px[j]
 
 
 def _update_direction(track: Track, min_span: float = 0.02) -> None:
