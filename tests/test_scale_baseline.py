@@ -6,7 +6,7 @@ import pytest
 from gst_trafficcal.scale import Observation, align_model, estimate_scale
 from gst_trafficcal.scale.alignment import vehicle_to_camera
 from gst_trafficcal.scale.baseline import BMVC14_CAR_SIZE, bmvc14_scale, bmvc14_scale_from_hulls
-from gst_trafficcal.tracking.box3d import boxes_from_hulls, world_to_pixels
+from gst_trafficcal.tracking.box3d import fit_shapes, world_to_pixels
 from gst_trafficcal.vehicles import load_catalogue
 
 from .test_scale_alignment import random_camera, scene
@@ -68,10 +68,11 @@ def test_bbscale_with_the_base_point_of_the_trackers_3d_box():
         real = []
         for o, t in zip(obs, truth):
             pos = cam.to_world(np.array(o.base))
-            box = boxes_from_hulls(cam0, [hull_of(project(cam, models[t].mesh.vertices, pos, o.heading))])
-            x0, x1, y0, y1, _ = box.params[0]
+            fits = fit_shapes(cam0, [hull_of(project(cam, models[t].mesh.vertices, pos, o.heading))])
+            k = int(fits.best()[0])  # the body shape the tracker would hold (one sighting per track here)
+            x0, x1, y0, y1, _ = fits.params[k, 0]
             b = world_to_pixels(cam0, np.array([(x0 + x1) / 2, (y0 + y1) / 2, 0.0]))
-            real.append(Observation(o.box, tuple(b), o.heading, o.track_id))
+            real.append(Observation(o.box, tuple(b), o.heading, o.track_id, body_shape=fits.names[k]))
         est = estimate_scale(cam0, real, models)  # b corrected for the box construction (default)
         assert est.ok, est.status
         errs.append(abs(est.scale / cam.scale - 1))

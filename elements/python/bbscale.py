@@ -149,7 +149,8 @@ class BBScale(TrafficcalTransform):
             sightings.append(Sighting(int(r.object_id), float(v.get("t", t)), box, base,
                                       float(v.get("direction", 0)), r.label, bool(v.get("occluded", False)),
                                       bool(v.get("truncated", False)), p,
-                                      corners=v["box3d"] if base is not None else None))
+                                      corners=v["box3d"] if base is not None else None,
+                                      body_shape=str(v.get("body_shape", "box"))))
         if self._est.update(t, sightings, cal.camera if cal is not None else None):
             self._report()
         return Gst.FlowReturn.OK

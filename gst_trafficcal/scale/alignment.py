@@ -84,6 +84,7 @@ class Observation:
     heading: float = 1.0
     track_id: int = 0
     type_probs: dict | None = None
+    body_shape: str = "box"  # the body the 3D box that gave b holds (tracking.shapes; "box" = the plain box)
 
 
 def heading_from_track(cam: Camera, points_px) -> float:
@@ -210,10 +211,13 @@ def corrected_base(cam: Camera, model: AlignModel, obs: Observation, lam: float)
     sits off the true centre of its base by an amount that depends on the viewpoint.  The model placed at b with
     scale λ shows that offset: build the same box from the model's projected hull, and move b back by the
     difference between that box's base centre and the model's own base centre (road-plane coordinates)."""
-    from ..tracking.box3d import boxes_from_hulls, pixels_to_road, world_to_pixels
+    from ..tracking.box3d import boxes_from_fits, fit_shapes, pixels_to_road, world_to_pixels
 
     X = base_point(cam, obs.base) + (model.hull @ vehicle_to_camera(cam, obs.heading).T) / float(lam)
-    box = boxes_from_hulls(cam, [cam.from_road(X)])
+    # the same construction as the tracker's: the plain box, or the body shape its track held
+    fits = fit_shapes(cam, [cam.from_road(X)], () if obs.body_shape == "box" else None)
+    k = fits.names.index(obs.body_shape) if obs.body_shape in fits.names else 0
+    box = boxes_from_fits(cam, fits, np.array([k]))
     if not box.valid[0]:
         return tuple(float(v) for v in obs.base)
     x0, x1, y0, y1, _ = box.params[0]

@@ -60,6 +60,7 @@ class Sighting:
     truncated: bool = False
     type_probs: Mapping[str, float] | None = None
     corners: Sequence[Sequence[float]] | None = None  # the 3D box's 8 image corners (order box3d.CORNER_BITS)
+    body_shape: str = "box"  # the body the tracker's 3D box holds (box or a catalogue car body, tracking.shapes)
 
 
 def length_to_width(camera: Camera, corners_px) -> float | None:
@@ -258,7 +259,8 @@ class ScaleEstimator:
 
     def _observation(self, s: Sighting, probs: dict | None) -> Observation:
         return Observation(box=tuple(float(v) for v in s.box), base=(float(s.base[0]), float(s.base[1])),
-                           heading=1.0 if s.heading > 0 else -1.0, track_id=int(s.track_id), type_probs=probs)
+                           heading=1.0 if s.heading > 0 else -1.0, track_id=int(s.track_id), type_probs=probs,
+                           body_shape=s.body_shape)
 
     def _align(self, model: AlignModel, obs: Observation, refine: bool):
         try:

@@ -16,6 +16,7 @@ import numpy as np
 
 from ..calibration import Calibration
 from ..errors import InputError
+from ..tracking.tracker import body_shape_name
 from .streaming import ScaleEstimator, ScaleResult, Sighting, base_centre
 
 
@@ -40,7 +41,8 @@ def frame_sightings(result, detections, camera, box: str = "detector") -> list[S
         b = o.box if box == "hull" else detections.boxes[i]
         out.append(Sighting(int(track.id), float(o.t), tuple(float(v) for v in b), base,
                             float(track.direction), str(detections.labels[i]), bool(o.occluded),
-                            bool(o.truncated), corners=o.corners_px if base is not None else None))
+                            bool(o.truncated), corners=o.corners_px if base is not None else None,
+                            body_shape=body_shape_name(track)))
     return out
 
 

@@ -426,6 +426,16 @@ def fit_boxes(camera: Camera, observations: list[Observation]) -> None:
             o.shape_params, o.shape_fit, o.shape_ok = fits.params[:, j], fits.fit[:, j], bool(fits.valid[j])
 
 
+def body_shape_name(track: Track) -> str:
+    """Name of the body shape the track's 3D boxes hold ("box" = Dubská's plain box; see box3d.fit_shapes)."""
+    if track.shape == 0:
+        return "box"
+    from .shapes import default_shapes
+
+    cars = [s.name for s in default_shapes() if not s.is_box]
+    return cars[track.shape - 1] if track.shape - 1 < len(cars) else "box"
+
+
 def track_shape(track: Track) -> int:
     """The body shape that explains the tangents of the track's silhouettes best (summed misfit; 0 = box)."""
     fits = [o.shape_fit for o in track.observations if o.shape_fit is not None and len(o.shape_fit) > 1]

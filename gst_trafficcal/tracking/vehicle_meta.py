@@ -12,6 +12,8 @@ Fields (all present unless noted):
 * ``box3d`` (8 pairs of doubles): image corners of the 3D box, index = ix + 2·iy + 4·iz with ix/iy the
   low/high end along the road (VP1) / across it (VP2) and iz bottom/top;
 * ``ref_x``, ``ref_y`` (doubles): the reference point (centre of the bottom-front edge) in pixels;
+* ``body_shape`` (string): the body the 3D box holds — ``box`` (Dubská's plain box) or a catalogue car body
+  (``tracking.shapes``), chosen per track for clean silhouettes;
 * ``road_x``, ``road_y`` (doubles): the reference point on the road plane, world frame in plane units (x along
   VP1, camera foot at 0; multiply by the scale λ for metres);
 * ``world_x``, ``world_y`` (doubles, only when the scale is known): the same in metres;
@@ -23,7 +25,7 @@ from __future__ import annotations
 from typing import Any
 
 from ..geometry import Camera
-from .tracker import Observation, Track
+from .tracker import Observation, Track, body_shape_name
 
 STRUCTURE = "trafficcal-vehicle"
 
@@ -40,6 +42,7 @@ def vehicle_fields(track: Track, obs: Observation, camera: Camera | None, calibr
     if has_3d:
         fields["box3d"] = [[float(x), float(y)] for x, y in obs.corners_px]
         fields["ref_x"], fields["ref_y"] = (float(v) for v in obs.ref_px)
+        fields["body_shape"] = body_shape_name(track)
         fields["road_x"], fields["road_y"] = (float(v) for v in obs.ref_road)
         if camera.scale is not None:
             fields["world_x"], fields["world_y"] = (float(v) * camera.scale for v in obs.ref_road)
