@@ -181,9 +181,17 @@ def test_gst_inspect_documents_every_property(tmp_path):
     out = subprocess.run(["gst-inspect-1.0", "tracker"], env=env, capture_output=True, text=True, timeout=120)
     assert out.returncode == 0, out.stderr
     for prop in ("min-hits", "max-lost", "iou-threshold", "drop-occluded", "background", "background-width",
-                 "blob-detection", "min-blob-area", "colour", "peel"):
+                 "blob-detection", "min-blob-area", "colour", "peel", "body-shapes"):
         assert prop in out.stdout, prop
     assert "object_id" in out.stdout
+
+
+def test_bad_body_shapes_value_is_an_error_at_start_up(tmp_path):
+    env = dict(os.environ, **gst_environment(), GST_REGISTRY=str(tmp_path / "registry.bin"))
+    out = subprocess.run(["gst-launch-1.0", "videotestsrc", "num-buffers=3", "!", "tracker", "body-shapes=cuboid",
+                          "!", "fakesink"], env=env, capture_output=True, text=True, timeout=120)
+    assert out.returncode != 0
+    assert "body_shapes must be auto, cars or box" in out.stdout + out.stderr
 
 
 @pytest.mark.shared

@@ -41,6 +41,10 @@ class Tracker(TrafficcalTransform):
         "peel": (bool, "Peel", "Take the hulls from the background detector's foreground (moving average, cast shadows "
                  "peeled off each blob's outline: keeps grey vehicle faces) instead of the per-pixel shadow test; "
                  "ignores colour", False, _RW),
+        "body-shapes": (str, "Body shapes", "3D boxes: auto = a catalogue car body fitted to clean silhouettes (hulls "
+                        "that come with the ROIs, e.g. vehicledetect model=vehicleseg) and the plain box for the "
+                        "background model's hulls (their cast shadow misleads a body fit); cars = body shapes "
+                        "always; box = Dubska's plain box always", "auto", _RW),
         "blob-detection": (bool, "Blob detection", "When a frame carries no vehicle ROI, use the foreground blobs "
                            "as vehicles and add ROIs for them (detector-free mode)", False, _RW),
         "min-blob-area": (float, "Minimum blob area", "Smallest blob (pixels) taken as a vehicle in blob-detection "
@@ -59,7 +63,7 @@ class Tracker(TrafficcalTransform):
 
         try:
             config = TrackerConfig(n_init=self.min_hits, max_lost=self.max_lost, iou_gate=self.iou_threshold,
-                                   drop_occluded=self.drop_occluded)
+                                   drop_occluded=self.drop_occluded, body_shapes=self.body_shapes)
             if not self.background:
                 background = None
             elif self.peel:
