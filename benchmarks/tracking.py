@@ -178,7 +178,7 @@ def make_detector(name: str):
     if name == "background-average":  # vehicledetect background=average (moving average + shadow peeling)
         from gst_trafficcal.detection.factory import create_detector
         return create_detector("", background="average")
-    if name == "vehicleseg":  # vehicledetect model=vehicleseg (learned segmenter: boxes + hulls)
+    if name in ("vehicleseg", "vehicleseg-boxes"):  # vehicledetect model=vehicleseg (learned segmenter: boxes + hulls)
         from gst_trafficcal.detection.factory import create_detector
         return create_detector("vehicleseg")
     return None
@@ -241,6 +241,8 @@ def evaluate_scene(preset: str, scene: Path, detector_name: str, background: dic
             det = None
         else:
             det = detect(detector, bgr, t)
+            if detector_name == "vehicleseg-boxes":  # its boxes only: hulls from the tracker's background model
+                det = Detections(det.boxes, det.scores, det.class_ids, det.labels)
         gray = cv2.cvtColor(bgr, cv2.COLOR_BGR2GRAY)
         chroma = chroma_from_bgr(bgr) if colour else None  # what an I420 buffer holds: not timed
         t0 = time.process_time()
@@ -413,11 +415,12 @@ def main() -> None:
     ap.add_argument("--duration", type=float, default=30.0, help="seconds of video per preset")
     ap.add_argument("--seed", type=int, default=1)
     ap.add_argument("--detector", default="oracle", choices=("oracle", "oracle-hull", "blobs", "background", "background-average",
-                                                    "vehicleseg", "nanodet"),
+                                                    "vehicleseg", "vehicleseg-boxes", "nanodet"),
                     help="ground-truth boxes (oracle: hulls from the background model; oracle-hull: exact), "
                          "foreground blobs inside the tracker (blobs), vehicledetect's default background "
                          "detector (background: the product's default chain; background-average: its "
-                         "background=average), the learned segmenter (vehicleseg: its boxes and hulls) or NanoDet")
+                         "background=average), the learned segmenter (vehicleseg: its boxes and hulls; vehicleseg-boxes: its boxes, hulls from the "
+                         "tracker's background model) or NanoDet")
     ap.add_argument("--vehicles", default="catalogue", choices=("catalogue", "boxes"),
                     help="vehicle meshes from the synth catalogue, or cuboids (exact silhouettes)")
     ap.add_argument("--work", type=Path, default=Path("/tmp/trafficcal-bench-tracking"),

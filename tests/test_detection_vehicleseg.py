@@ -63,7 +63,7 @@ def polygon_mask(poly: np.ndarray, shape) -> np.ndarray:
     return out > 0
 
 
-def scored_vehicles(frame: Frame, min_visible: float = 0.95, min_size: float = 30.0):
+def scored_vehicles(frame: Frame, min_visible: float = 0.95, min_size: float = 45.0):
     """(slot, record, truth box from the id mask) of the fully visible vehicles clear of the image border."""
     h, w = frame.ids.shape
     for slot, r in frame.slots.items():
@@ -167,7 +167,7 @@ def test_library_paths_agree(render, detected):
                                                                             geometry)})
         w, h = geometry.size
         c, _ = decode(outs[0][0, 0, :h, :w], outs[1][0, 0, :-(-h // 4), :-(-w // 4)],
-                      outs[2][0, :, :-(-h // 4), :-(-w // 4)], geometry)
+                      outs[2][0, :, :-(-h // 4), :-(-w // 4)], geometry, min_area=round(0.0015 * w * h))
         for d in (a, b, c):
             assert np.array_equal(d.boxes, expected.boxes)
             assert all(np.array_equal(p, q) for p, q in zip(d.hulls, expected.hulls))
