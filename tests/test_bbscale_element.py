@@ -32,7 +32,7 @@ TOLERANCE = 0.06
 
 @pytest.fixture(scope="module", autouse=True)
 def _elements() -> None:
-    for name in ("vpdetect", "vehicledetect", "tracker", "bbscale"):
+    for name in ("vpdetect", "vehicledetect", "tracker", "bbscale", "speedometer"):
         register_plugin_file(ELEMENTS / f"{name}.py")
 
 
@@ -194,3 +194,36 @@ def test_calibrate_help_lists_the_scale_options():
                            text=True, timeout=60)
     for opt in ("--scale", "--scale-models", "--iou-threshold", "--min-vehicles", "--regression-file"):
         assert opt in help_.stdout
+
+
+def test_speedometer_finds_the_scale_itself_without_bbscale(clip, tmp_path):
+    """The product card's line with vanishing points but no scale: speedometer runs bbscale's stage itself and
+    measures speeds — the same events, byte for byte, as the explicit ``tracker ! bbscale ! speedometer``."""
+    from gst_trafficcal.outputs import read_events
+
+    head = (f"filesrc location={clip / 'video.mp4'} ! decodebin ! videoconvert ! vpdetect mode=fixed "
+            f"calibration-file={clip / 'vps.json'} ! vehicledetect")
+    short = run_pipeline(f"{head} ! speedometer scale-min-vehicles=3 events-file={tmp_path / 'short.jsonl'} "
+                         "! appsink name=sink", timeout=300)
+    explicit = run_pipeline(f"{head} ! tracker ! bbscale min-vehicles=3 ! speedometer "
+                            f"events-file={tmp_path / 'explicit.jsonl'} ! appsink name=sink", timeout=300)
+    assert (tmp_path / "short.jsonl").read_text() == (tmp_path / "explicit.jsonl").read_text()
+    events = read_events(tmp_path / "short.jsonl").events
+    measured = [e for e in events if e.speed_kmh is not None]
+    assert len(measured) >= 3, [e.reason for e in events]
+    true = load_calibration(clip / "calibration.json").camera.scale
+    scaled = [c for c in short.calibrations if c.camera is not None and c.camera.scale is not None]
+    assert scaled and scaled[-1].source.endswith("bbscale"), [c.source for c in short.calibrations]
+    assert abs(scaled[-1].camera.scale / true - 1) < TOLERANCE
+    assert {e.calibration_id for e in measured} <= {c.id for c in scaled}
+    msgs = [m.fields for m in short.messages if m.name == "trafficcal-speedometer"]
+    assert msgs and msgs[0]["scale"] == "internal" and msgs[0]["tracking"] == "internal"
+    assert [m.fields for m in explicit.messages if m.name == "trafficcal-speedometer"][0]["scale"] == "upstream"
+
+
+def test_speedometer_scale_stage_bad_regression_file_is_an_error_at_start(clip, tmp_path):
+    bad = tmp_path / "reg.json"
+    bad.write_text("{not json")
+    with pytest.raises(PipelineError, match="reg.json"):
+        run_pipeline(f"filesrc location={clip / 'video.mp4'} ! decodebin ! videoconvert ! vehicledetect ! "
+                     f"speedometer scale-regression-file={bad} ! appsink name=sink", timeout=120)

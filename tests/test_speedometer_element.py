@@ -251,7 +251,7 @@ def test_gst_inspect_documents_every_property(tmp_path):
     text = subprocess.run(["gst-inspect-1.0", "speedometer"], env=env, capture_output=True, text=True,
                           timeout=120).stdout
     for prop in ("events-file", "results-file", "csv-file", "frames-file", "calibration-file", "scale", "tau",
-                 "min-track-length", "vehicle-timeout"):
+                 "min-track-length", "vehicle-timeout", "scale-models", "scale-min-vehicles", "scale-regression-file"):
         assert prop in text
 
 

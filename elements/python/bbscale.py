@@ -41,13 +41,13 @@ class BBScale(TrafficcalTransform):
 
     def __init__(self):
         super().__init__()
-        self._est = None
+        self._stage = None
         self._classifier = None
-        self._published = None
         self._warned_pts = False
 
     def do_start(self):
         from gst_trafficcal.errors import TrafficcalError
+        from gst_trafficcal.scale.stage import ScaleStage
         from gst_trafficcal.scale.streaming import ScaleEstimator, load_align_models
 
         try:
@@ -67,67 +67,42 @@ class BBScale(TrafficcalTransform):
             if self.classifier:
                 from gst_trafficcal.scale.classifier import TypeClassifier
                 self._classifier = TypeClassifier(self.classifier)
-            self._est = ScaleEstimator(load_align_models(self.models), iou_threshold=self.iou_threshold,
-                                       min_vehicles=self.min_vehicles, regression=regression, renderer=renderer)
+            self._stage = ScaleStage(ScaleEstimator(load_align_models(self.models), iou_threshold=self.iou_threshold,
+                                                    min_vehicles=self.min_vehicles, regression=regression,
+                                                    renderer=renderer))
         except TrafficcalError as exc:
             self.post_error(f"bbscale: {exc}")
             return False
-        self._published = None
         return True
 
     def do_stop(self):
-        if self._est is not None and getattr(self._est.renderer, "release", None):
-            self._est.renderer.release()
-        self._est = None
+        if self._stage is not None and getattr(self._stage.estimator.renderer, "release", None):
+            self._stage.estimator.renderer.release()
+        self._stage = None
         self._classifier = None
         return super().do_stop()
 
-    def _upstream_has_scale(self, cal) -> bool:
-        return cal is not None and cal.camera is not None and cal.camera.scale is not None and \
-            not cal.source.endswith("bbscale")
-
     def on_calibration(self, cal):
-        if self._est is None or cal.camera is None or self._upstream_has_scale(cal):
+        if self._stage is None:
             return True
-        self._est.set_camera(cal.camera)
-        r = self._est.result()
-        if r.converged:  # same vanishing points again: keep our scale on what goes downstream
-            self._publish(cal, r, force=True)
+        ours = self._stage.on_calibration(cal)
+        if ours is not None:  # same vanishing points again: keep our scale on what goes downstream
+            self.publish_calibration(ours)
             return False
-        self._published = None  # new vanishing points: the next convergence is published whatever its value
         return True
 
-    def _publish(self, cal, r, force=False):
-        if self._published is not None and not force and abs(r.scale / self._published - 1) <= 0.005:
-            return
-        self._published = r.scale
-        conf = dict(cal.confidence)
-        conf["scale"] = float(r.confidence)
-        source = cal.source if cal.source.endswith("bbscale") else f"{cal.source}+bbscale"
-        self.publish_calibration(cal.with_scale(float(r.scale), confidence=conf, source=source))
-
-    def _report(self):
-        r = self._est.result()
-        fields = {"status": r.status, "converged": bool(r.converged), "confidence": float(r.confidence),
-                  "vehicles": int(r.n_vehicles), "matched": int(r.n_matched), "agreeing": int(r.n_agreeing),
-                  "matches": int(r.n_matches),
-                  "types": ",".join(f"{k}:{v}" for k, v in sorted(r.types.items()))}
-        if r.raw_scale is not None:
-            fields["raw_scale"] = float(r.raw_scale)
-        if r.scale is not None:
-            fields["scale"] = float(r.scale)
-        self.post_element_message("trafficcal-scale", fields)
-        cal = self.calibration
-        if r.converged and cal is not None and cal.camera is not None and not self._upstream_has_scale(cal):
-            self._publish(cal, r)
+    def _report(self, ours):
+        self.post_element_message("trafficcal-scale", self._stage.report())
+        if ours is not None:
+            self.publish_calibration(ours)
 
     def transform_frame(self, buffer):
         from gst_trafficcal.gst.buffers import pts_seconds
         from gst_trafficcal.gst.meta import read_vehicle_rois
-        from gst_trafficcal.scale.streaming import Sighting, base_centre
+        from gst_trafficcal.scale.stage import sighting_from_fields, upstream_has_scale
 
         cal = self.calibration
-        if self._upstream_has_scale(cal):
+        if upstream_has_scale(cal):
             return Gst.FlowReturn.OK
         t = pts_seconds(buffer)
         if t is None:
@@ -141,31 +116,21 @@ class BBScale(TrafficcalTransform):
         if self._classifier is not None and rois:
             with self.bgr(buffer) as bgr:
                 probs = self._classifier(bgr, [r.box for r in rois])
-        sightings = []
-        for r, p in zip(rois, probs):
-            v = r.params["trafficcal-vehicle"]
-            base = base_centre(v["box3d"]) if v.get("has_3d") and "box3d" in v else None
-            box = tuple(v.get("hull_box", r.box)) if self.box == "hull" else tuple(r.box)
-            sightings.append(Sighting(int(r.object_id), float(v.get("t", t)), box, base,
-                                      float(v.get("direction", 0)), r.label, bool(v.get("occluded", False)),
-                                      bool(v.get("truncated", False)), p,
-                                      corners=v["box3d"] if base is not None else None,
-                                      body_shape=str(v.get("body_shape", "box"))))
-        if self._est.update(t, sightings, cal.camera if cal is not None else None):
-            self._report()
+        sightings = [sighting_from_fields(r.object_id, r.label, tuple(r.box), r.params["trafficcal-vehicle"], t, p,
+                                          use_hull_box=self.box == "hull") for r, p in zip(rois, probs)]
+        changed, ours = self._stage.update(t, sightings, cal)
+        if changed:
+            self._report(ours)
         return Gst.FlowReturn.OK
 
     def on_eos(self):
-        if self._est is None or self._upstream_has_scale(self.calibration):
+        from gst_trafficcal.scale.stage import upstream_has_scale
+
+        if self._stage is None or upstream_has_scale(self.calibration):
             return
-        self._est.finish()
-        self._report()
-        r = self._est.result()
-        cal = self.calibration
-        if r.converged and r.scale != self._published and cal is not None and cal.camera is not None:
-            self._publish(cal, r, force=True)  # the final estimate, however small the change
-        if not r.converged:
-            self.post_warning(f"bbscale: no scale: {r.status}")
+        self._report(self._stage.finish(self.calibration))
+        if not self._stage.result().converged:
+            self.post_warning(f"bbscale: no scale: {self._stage.result().status}")
 
 
 GObject.type_register(BBScale)

@@ -7,8 +7,11 @@ model), with the tracker element's defaults, and writes the same ``object_id``/`
 and ``vehicledetect ! tracker ! speedometer`` give the same numbers.
 
 Calibration: the upstream ``trafficcal-calibration`` event when it has a scale; else ``calibration-file``; else the
-upstream vanishing points with the ``scale`` property.  (Estimating the scale inside speedometer when no
-``bbscale`` ran upstream is pending: the library's scale stage has no streaming estimator yet.)  Vehicles that
+upstream vanishing points with the ``scale`` property; else, when no ``bbscale`` runs upstream, speedometer runs
+bbscale's stage itself (:class:`gst_trafficcal.scale.stage.ScaleStage`: BBScale on the tracked vehicles, the
+same publishing rule, properties ``scale-models``, ``scale-min-vehicles``, ``scale-regression-file``) and measures
+with the upstream vanishing points and the λ it finds, so ``vpdetect ! vehicledetect ! speedometer`` measures
+speeds with nothing given and gives the numbers of ``... ! tracker ! bbscale ! speedometer``.  Vehicles that
 leave before a calibration with scale exists are measured as soon as one arrives; at end of stream the ones still
 waiting are written unmeasured, with the reason.
 
@@ -49,6 +52,14 @@ class Speedometer(TrafficcalTransform):
         "scale": (float, "Scale", "Scene scale (metres per road-plane unit = camera height in metres) applied "
                   "to an upstream calibration that has vanishing points but no scale (0: none)", 0.0, 1e6, 0.0,
                   _RW),
+        "scale-models": (str, "Scale models", "With no bbscale upstream and no scale given: the vehicle types its "
+                         "own scale stage aligns (as bbscale's models)", "", _RW),
+        "scale-min-vehicles": (int, "Scale minimum vehicles", "With no bbscale upstream and no scale given: "
+                               "matched vehicles that must agree before its own scale is used (as bbscale's "
+                               "min-vehicles)", 1, 100000, 5, _RW),
+        "scale-regression-file": (str, "Scale regression file", "With no bbscale upstream and no scale given: "
+                                  "scale-correction regression JSON for its own scale stage (as bbscale's)", "",
+                                  _RW),
         "tau": (int, "Tau", "Observations between the two points of each speed sample", 1, 1000, 5, _RW),
         "min-track-length": (int, "Minimum track length", "Reference points a vehicle needs to be measured "
                              "(at least tau + 1)", 2, 100000, 10, _RW),
@@ -76,6 +87,9 @@ class Speedometer(TrafficcalTransform):
         self._failed = False
         self._last_pts = None
         self._dts = []
+        self._own_stage = None  # bbscale's stage, built at start
+        self._stage = None  # ... in use: no bbscale upstream, no scale given (decided at the first frame)
+        self._scaled = None  # the upstream calibration with the λ that stage found
 
     # ------------------------------------------------------------------ life cycle
     def do_start(self):
@@ -95,6 +109,7 @@ class Speedometer(TrafficcalTransform):
                 from gst_trafficcal.outputs import FrameJsonlWriter
 
                 self._frames = FrameJsonlWriter(self.frames_file, skip_empty=True)
+            self._own_stage = self._new_scale_stage()
         except Exception as exc:  # bad properties / unreadable calibration / unwritable file: readable error
             self.post_error(f"speedometer: {exc}")
             return False
@@ -109,6 +124,8 @@ class Speedometer(TrafficcalTransform):
         return super().do_stop()
 
     def on_eos(self):
+        if self._stage is not None and not self._failed:  # bbscale's final estimate, then every vehicle leaves
+            self._scale_changed(True, self._stage.finish(self._upstream))
         self._finish(post=True)
 
     def on_caps(self, info):
@@ -122,6 +139,10 @@ class Speedometer(TrafficcalTransform):
 
     def on_calibration(self, cal):
         self._upstream = cal
+        if self._stage is not None:
+            ours = self._stage.on_calibration(cal)
+            if ours is not None:
+                self._scaled = ours
         return self._apply_calibration(from_upstream=True)
 
     # ------------------------------------------------------------------ calibration
@@ -133,6 +154,11 @@ class Speedometer(TrafficcalTransform):
             return self._file_cal
         if up is not None and up.camera is not None and self.scale > 0:
             return up.with_scale(self.scale, source=f"{up.source}+speedometer-scale")
+        if self._scaled is not None:
+            from gst_trafficcal.scale.stage import same_vanishing_points
+
+            if same_vanishing_points(self._scaled, up):
+                return self._scaled
         return up
 
     def _apply_calibration(self, from_upstream=False):
@@ -166,8 +192,12 @@ class Speedometer(TrafficcalTransform):
             max_lost = (float(upstream.get_property("max-lost")) if upstream is not None
                         else self._tracking.config.max_lost)
             self._meter.end_after = max(self.vehicle_timeout, max_lost + END_AFTER_MARGIN)
+            self._stage = self._scale_stage()
             self.post_element_message("trafficcal-speedometer",
-                                      {"tracking": "upstream" if self._tracking is False else "internal"})
+                                      {"tracking": "upstream" if self._tracking is False else "internal",
+                                       "scale": "internal" if self._stage is not None else "upstream"})
+            if self._stage is not None and self._upstream is not None:
+                self._stage.on_calibration(self._upstream)
         rois = read_vehicle_rois(buffer, self.frame_size)
         if self._tracking is False:
             labelled = [(r, Sighting.from_fields(r.object_id, r.label, r.confidence, r.params["trafficcal-vehicle"],
@@ -175,6 +205,8 @@ class Speedometer(TrafficcalTransform):
                         for r in rois if r.object_id is not None and "trafficcal-vehicle" in r.params]
         else:
             labelled = self._track(buffer, rois, t)
+        if self._stage is not None:  # bbscale's stage, on what bbscale would read here: the tracked ROIs
+            self._scale_frame(buffer, t)
         out = self._meter.update(t, [s for _, s in labelled])
         for roi, s in labelled:
             live = out.speeds.get(s.id)
@@ -189,6 +221,44 @@ class Speedometer(TrafficcalTransform):
             if not self._write_results():
                 return Gst.FlowReturn.ERROR
         return Gst.FlowReturn.OK
+
+    def _new_scale_stage(self):
+        """bbscale's stage with our scale-* properties (built at start, so bad models or a bad regression file
+        are an error there)."""
+        from gst_trafficcal.scale.regression import load_regression
+        from gst_trafficcal.scale.stage import ScaleStage
+        from gst_trafficcal.scale.streaming import ScaleEstimator, load_align_models
+
+        regression = load_regression(self.scale_regression_file) if self.scale_regression_file else None
+        return ScaleStage(ScaleEstimator(load_align_models(self.scale_models), min_vehicles=self.scale_min_vehicles,
+                                         regression=regression))
+
+    def _scale_stage(self):
+        """Our own scale stage when nothing else can give the scale: no bbscale upstream, no ``scale``, no
+        calibration file with a scale."""
+        if _upstream_element(self, "bbscale") is not None or self.scale > 0 or \
+                (self._file_cal is not None and self._file_cal.camera is not None
+                 and self._file_cal.camera.scale is not None):
+            return None
+        return self._own_stage
+
+    def _scale_frame(self, buffer, t):
+        """Feed this frame's tracked vehicles to our scale stage; use the calibration it publishes."""
+        from gst_trafficcal.gst.meta import read_vehicle_rois
+        from gst_trafficcal.scale.stage import sighting_from_fields
+
+        sightings = [sighting_from_fields(r.object_id, r.label, tuple(r.box), r.params["trafficcal-vehicle"], t)
+                     for r in read_vehicle_rois(buffer, self.frame_size)
+                     if r.object_id is not None and "trafficcal-vehicle" in r.params]
+        changed, ours = self._stage.update(t, sightings, self._upstream)
+        self._scale_changed(changed, ours)
+
+    def _scale_changed(self, changed, ours):
+        if changed:
+            self.post_element_message("trafficcal-scale", self._stage.report())
+        if ours is not None:
+            self._scaled = ours
+            self._apply_calibration()
 
     def _tracking_pipeline(self):
         """The tracker element's stage with its default properties (no tracker upstream)."""
@@ -336,6 +406,11 @@ def _tracker_default(name, fallback):
 
 def _tracker_upstream(element):
     """The gst-trafficcal ``tracker`` element feeding ``element`` (directly or through other elements/bins), or None."""
+    return _upstream_element(element, "tracker")
+
+
+def _upstream_element(element, factory_name):
+    """The element made by ``factory_name`` feeding ``element`` (directly or through other elements/bins), or None."""
     seen = set()
     pads = list(element.sinkpads)
     while pads:
@@ -352,7 +427,7 @@ def _tracker_upstream(element):
             continue
         seen.add(owner)
         factory = owner.get_factory()
-        if factory is not None and factory.get_name() == "tracker":
+        if factory is not None and factory.get_name() == factory_name:
             return owner
         pads.extend(owner.sinkpads)
     return None
