@@ -12,7 +12,9 @@ Post-processing (vectorised): centres are the heatmap's local maxima above ``cen
 connected components that hold exactly one centre are that vehicle; the pixels of components with several
 centres go to the centre their offsets point nearest to (touching vehicles come out separate), and the pixels of
 components without a centre go to the centre they point at when it is close, else form a vehicle of their own.
-Each vehicle's box and convex hull come from its pixels (hull of the pixel squares, in frame pixels).
+Each vehicle's convex hull is that of the 0.5 level line of its bilinearly interpolated probability (sub-pixel: a
+hull of whole work-pixel squares lies up to 0.7 work pixel outside a slanted outline, i.e. 2.8 frame pixels at
+1080p), its box that hull's extent, both in frame pixels.
 
 The detector keeps the background itself, so call it once per frame in order, with the frame's timestamp.
 """
@@ -36,6 +38,8 @@ WEIGHTS = Path(__file__).resolve().parent / "weights" / "vehicleseg.onnx"
 CAR_ID = next(cid for cid, name in COCO_VEHICLES.items() if name == "car")
 OUTPUTS = ("mask", "centre", "offset")
 QUARTER = 4
+SUBPIXEL = 4  # the outline is traced on the probability upsampled this many times (error <= 0.7 / SUBPIXEL px)
+SQUARE = np.array([[0, 0], [1, 0], [0, 1], [1, 1]], np.float32)
 
 
 @dataclass
@@ -72,14 +76,14 @@ class VehicleSegDetector:
     vehicles are too coarse to measure, and their flickering far-field tracks made the speed stage reject or
     mis-measure whole tracks: offline, the product's speed function measured 17 of the demo scene's 50 cars with a
     20-pixel minimum, 50 with 300 pixels);
-    ``tau``: the background's time constant in seconds.
+    ``tau``: the background's time constant in seconds; ``mask_threshold``: vehicle probability at the outline.
     """
 
     timed = True  # __call__ takes the frame time: the element passes buffer timestamps
 
     def __init__(self, path: str | Path | None = None, threads: int = 1, work_width: int | None = None,
                  threshold: float = 0.3, centre_threshold: float = 0.3, min_area: float = 0.0015,
-                 tau: float | None = None) -> None:
+                 tau: float | None = None, mask_threshold: float = 0.5) -> None:
         import onnxruntime as ort
 
         self.path = Path(path) if path is not None else WEIGHTS
@@ -112,6 +116,9 @@ class VehicleSegDetector:
         if not 0 <= min_area < 1:
             raise InputError(f"vehicleseg min_area is a fraction of the image, 0..1, got {min_area}")
         self.min_area = float(min_area)
+        if not 0 < mask_threshold < 1:
+            raise InputError(f"vehicleseg mask_threshold is a probability, 0..1 exclusive, got {mask_threshold}")
+        self.mask_threshold = float(mask_threshold)
         self.background = RunningBackground(tau=self.tau)
         self.geometry: WorkGeometry | None = None
         self.last: Segmentation | None = None
@@ -147,7 +154,7 @@ class VehicleSegDetector:
         boxes and hulls in that frame's pixels."""
         mask, centre, offset = self.infer(image, t)
         detections, self.last = decode(mask, centre, offset, self.geometry, self.threshold, self.centre_threshold,
-                                       max(1, round(self.min_area * mask.size)))
+                                       max(1, round(self.min_area * mask.size)), self.mask_threshold)
         return detections
 
 
@@ -198,12 +205,39 @@ def merge_split_peaks(label: np.ndarray, px: np.ndarray, py: np.ndarray, peak_co
     return relabel[label], score
 
 
+def outline_hull(prob: np.ndarray, inst: np.ndarray, label: int, sl: tuple[slice, slice],
+                 factor: int = SUBPIXEL, level: float = 0.5) -> np.ndarray:
+    """Convex hull (K x 2, work-pixel edge coordinates: pixel i spans [i, i+1]) of the ``level`` line of the
+    probability of vehicle ``label``, interpolated bilinearly between pixel centres.
+
+    Other vehicles' pixels count as probability 0 (touching vehicles part where their pixels meet) and the image
+    outside as 0 (a vehicle cut by the border ends there).  The level line is traced on the probability upsampled
+    ``factor`` times; the hull is that of the upsampled pixel squares above ``level``.
+    """
+    h, w = inst.shape
+    y0, y1, x0, x1 = sl[0].start - 1, sl[0].stop + 1, sl[1].start - 1, sl[1].stop + 1
+    a, b, c, d = max(y0, 0), min(y1, h), max(x0, 0), min(x1, w)
+    own = inst[a:b, c:d]
+    p = np.where((own == label) | (own == 0), prob[a:b, c:d], 0.0).astype(np.float32)
+    p = np.pad(p, ((a - y0, y1 - b), (c - x0, x1 - d)))
+    up = cv2.resize(p, (p.shape[1] * factor, p.shape[0] * factor), interpolation=cv2.INTER_LINEAR)
+    contours, _ = cv2.findContours((up > level).view(np.uint8), cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
+    if not contours:  # a one-pixel vehicle whose interpolated peak stays below the level: its pixel squares
+        ys, xs = np.nonzero(inst[sl] == label)
+        pts = np.stack([xs + sl[1].start, ys + sl[0].start], axis=1).astype(np.float32)
+        return cv2.convexHull((pts[:, None] + SQUARE).reshape(-1, 2)).reshape(-1, 2).astype(np.float64)
+    pts = np.concatenate([cv2.convexHull(cc).reshape(-1, 2) for cc in contours]).astype(np.float32)
+    corners = ((pts[:, None, :] + SQUARE).reshape(-1, 2) / factor + np.float32([x0, y0])).astype(np.float32)
+    return cv2.convexHull(corners).reshape(-1, 2).astype(np.float64)
+
+
 def decode(mask: np.ndarray, centre: np.ndarray, offset: np.ndarray, geometry: WorkGeometry, threshold: float = 0.3,
-           centre_threshold: float = 0.3, min_area: int = 20) -> tuple[Detections, Segmentation]:
+           centre_threshold: float = 0.3, min_area: int = 20,
+           mask_threshold: float = 0.5) -> tuple[Detections, Segmentation]:
     """Network outputs (work size) -> vehicles with boxes and hulls in frame pixels (see the module docstring);
-    ``min_area`` in work pixels."""
+    ``min_area`` in work pixels; ``mask_threshold``: the vehicle probability where a vehicle ends."""
     prob = 1.0 / (1.0 + np.exp(-mask))
-    fg = (mask > 0).view(np.uint8)
+    fg = (mask > np.log(mask_threshold / (1.0 - mask_threshold))).view(np.uint8)
     h, w = fg.shape
     peaks, peak_score = centre_peaks(centre, centre_threshold)
     n, comp = cv2.connectedComponents(fg, connectivity=8)
@@ -247,13 +281,10 @@ def decode(mask: np.ndarray, centre: np.ndarray, offset: np.ndarray, geometry: W
         score = float(peak_score[i]) if i < len(peaks) else float(prob[sl][region].mean()) * 0.5
         if score < threshold:
             continue
-        y0, x0 = sl[0].start, sl[1].start
-        contours, _ = cv2.findContours(region.view(np.uint8), cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
-        pts = np.concatenate([c.reshape(-1, 2) for c in contours]).astype(np.float32)
-        corners = (pts[:, None, :] + np.array([[0, 0], [1, 0], [0, 1], [1, 1]], np.float32)).reshape(-1, 2)
-        hull = cv2.convexHull(corners).reshape(-1, 2).astype(np.float64) + (x0, y0)
+        hull = outline_hull(prob, inst, i + 1, sl, level=mask_threshold)
         hulls.append(hull * (sx, sy) - 0.5)  # work pixel edges -> frame pixels (centres at integers)
-        boxes.append((x0 * sx, y0 * sy, sl[1].stop * sx, sl[0].stop * sy))
+        lo, hi = hull.min(axis=0), hull.max(axis=0)
+        boxes.append((lo[0] * sx, lo[1] * sy, hi[0] * sx, hi[1] * sy))
         scores.append(score)
         kept.append(i + 1)
     remap = np.zeros(int(inst.max()) + 1, np.int32)
