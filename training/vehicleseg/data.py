@@ -57,8 +57,28 @@ class SceneRecipe:
     start: float
 
 
-def random_recipe(index: int, duration: float = 14.0, work_width: int = 480) -> SceneRecipe:
-    """A random scene for training index ``index`` (seed ``SEED_BASE + index``), reproducible."""
+PROFILES = ("base", "outline")
+OUTLINE_RESOLUTIONS = ((960, 540), (1280, 720), (1920, 1080))
+
+
+def outline_lighting(scen, rng: np.random.Generator) -> None:
+    """The ``outline`` profile's light and picture, drawn over a base recipe: the scenes where the first model's
+    outlines were too large — low sun with long hard shadows, overcast light whose soft contact shadow is the only
+    shadow, dusk — at up to 1080p (the replays' size, where a work pixel is 4 frame pixels), busier traffic."""
+    light = scen.lighting
+    kind = str(rng.choice(["low_sun", "overcast", "day", "dusk", "night"], p=[0.32, 0.36, 0.12, 0.12, 0.08]))
+    light.preset = "day" if kind == "low_sun" else kind
+    light.sun_elevation = float(rng.uniform(8, 25) if kind in ("low_sun", "dusk") else rng.uniform(25, 70))
+    light.contrast = float(rng.choice([rng.uniform(0.5, 0.8), rng.uniform(0.8, 1.2)], p=[0.3, 0.7]))
+    scen.camera.resolution = list(OUTLINE_RESOLUTIONS[int(rng.integers(len(OUTLINE_RESOLUTIONS)))])
+    tr = scen.traffic
+    tr.flow = float(min(2500.0, tr.flow * rng.uniform(1.0, 1.6)))
+
+
+def random_recipe(index: int, duration: float = 14.0, work_width: int = 480, profile: str = "base") -> SceneRecipe:
+    """A random scene for training index ``index`` (seed ``SEED_BASE + index``), reproducible; ``profile``
+    ``outline`` redraws light and picture size (:func:`outline_lighting`) from a separate random stream, so the
+    base recipes stay as they were."""
     seed = SEED_BASE + index
     rng = np.random.default_rng([seed, 7])
     base = str(rng.choice(BASES))
@@ -107,6 +127,10 @@ def random_recipe(index: int, duration: float = 14.0, work_width: int = 480) -> 
     im.motion_blur = float(rng.choice([0.0, rng.uniform(0.002, 0.015)], p=[0.7, 0.3]))
     im.shake = float(rng.choice([0.0, rng.uniform(0.02, 0.12)], p=[0.8, 0.2]))
     im.vignette = float(rng.uniform(0.0, 0.35))
+    if profile == "outline":
+        outline_lighting(scen, np.random.default_rng([seed, 17]))
+    elif profile != "base":
+        raise ValueError(f"unknown data profile {profile!r} (one of {', '.join(PROFILES)})")
     scen.duration = float(duration)
     scen.seed = seed
     scen.name = f"vseg_{index}"
@@ -193,6 +217,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--scenes", default="0:100", help="training scene indices START:STOP (seeds 1000+index)")
     ap.add_argument("--duration", type=float, default=14.0)
     ap.add_argument("--work-width", type=int, default=480)
+    ap.add_argument("--profile", choices=PROFILES, default="base",
+                    help="outline: low sun, overcast, dusk, up to 1080p, busier (see outline_lighting)")
     args = ap.parse_args(argv)
     a, b = (int(v) for v in args.scenes.split(":"))
     args.out.mkdir(parents=True, exist_ok=True)
@@ -202,7 +228,7 @@ def main(argv: list[str] | None = None) -> int:
             continue
         t0 = time.perf_counter()
         for attempt in range(5):  # a random camera may not see the road: draw the next variation
-            recipe = random_recipe(index + 100000 * attempt, args.duration, args.work_width)
+            recipe = random_recipe(index + 100000 * attempt, args.duration, args.work_width, args.profile)
             try:
                 n = render_scene(recipe, args.out)
                 break
@@ -210,7 +236,8 @@ def main(argv: list[str] | None = None) -> int:
                 print(f"scene {index}: {exc}; redrawing", file=sys.stderr)
         else:
             continue
-        info = dataclasses.asdict(recipe) | {"samples": n, "seconds": round(time.perf_counter() - t0, 1)}
+        info = dataclasses.asdict(recipe) | {"samples": n, "seconds": round(time.perf_counter() - t0, 1),
+                                             "profile": args.profile}
         marker.write_text(json.dumps(info, indent=1) + "\n", encoding="utf-8")
         print(f"scene {index} ({recipe.base}, {recipe.scenario['lighting']['preset']}, "
               f"{recipe.scenario['traffic']['flow']:.0f} veh/h/lane): {n} samples in {info['seconds']} s", flush=True)

@@ -16,6 +16,10 @@ QUARTER = 4
 UNKNOWN = 255  # the renderer's id mask saturates at 255 vehicles in view
 HARD_WEIGHT = 3.0  # loss weight of pixels that changed against the background but are no vehicle (shadows, beams)
 CHANGED = 18  # grey levels: what counts as changed
+SHADOW_WEIGHT = 6.0  # loss weight of the faint changes next to a vehicle that are no vehicle: cast, contact shadows
+SHADOW_NEAR = 6  # work pixels around a vehicle where they are looked for
+SHADOW_CHANGED = 6  # grey levels: a soft overcast shadow changes the road by less than CHANGED
+BOUNDARY_WEIGHT = 2.0  # loss weight of the pixels on a vehicle's outline (either side), where the box edges come from
 
 
 @dataclass
@@ -65,8 +69,34 @@ def photometric(frame: np.ndarray, background: np.ndarray, rng: np.random.Genera
     return np.clip(f, 0, 1), np.clip(b, 0, 1)
 
 
-def make_sample(data: dict, crop: tuple[int, int], rng: np.random.Generator, augment: bool = True) -> Sample:
-    """A random crop (``crop`` = height, width, multiples of 16) of one stored sample with its targets."""
+def mask_weights(fg: np.ndarray, known: np.ndarray, diff: np.ndarray, shadow_weight: float = SHADOW_WEIGHT,
+                 boundary_weight: float = BOUNDARY_WEIGHT) -> np.ndarray:
+    """Per-pixel weight of the mask loss: 0 where the truth is unknown or padding; ``HARD_WEIGHT`` where the frame
+    changed by more than ``CHANGED`` against the background and no vehicle is (shadows, beams, ghosts);
+    ``shadow_weight`` where it changed by more than ``SHADOW_CHANGED`` within ``SHADOW_NEAR`` pixels of a vehicle
+    and no vehicle is (the shadow strips and halos that made the first model's boxes too large);
+    ``boundary_weight`` on the outline (pixels whose 3x3 neighbourhood holds vehicle and no vehicle).
+    ``diff``: the largest absolute frame - background difference over the channels, grey levels."""
+    w = known.astype(np.float32)
+    empty = fg < 0.05
+    w[(diff > CHANGED) & empty] *= HARD_WEIGHT
+    body = (fg >= 0.5).astype(np.uint8)
+    if shadow_weight > 0:
+        k = 2 * SHADOW_NEAR + 1
+        near = cv2.dilate((~empty).astype(np.uint8), np.ones((k, k), np.uint8)) > 0
+        shadow = near & empty & (diff > SHADOW_CHANGED)
+        w[shadow] = np.maximum(w[shadow], shadow_weight * known[shadow])
+    if boundary_weight != 1:
+        square = np.ones((3, 3), np.uint8)
+        edge = cv2.dilate(body, square) != cv2.erode(body, square)
+        w[edge] *= boundary_weight
+    return w
+
+
+def make_sample(data: dict, crop: tuple[int, int], rng: np.random.Generator, augment: bool = True,
+                shadow_weight: float = SHADOW_WEIGHT, boundary_weight: float = BOUNDARY_WEIGHT) -> Sample:
+    """A random crop (``crop`` = height, width, multiples of 16) of one stored sample with its targets
+    (mask-loss weights: :func:`mask_weights`)."""
     frame, background, fg, inst = data["frame"], data["background"], data["fg"], data["inst"]
     if augment and rng.random() < 0.6:  # vehicles nearer / farther than in the render
         s = float(rng.uniform(0.6, 1.3))
@@ -91,14 +121,13 @@ def make_sample(data: dict, crop: tuple[int, int], rng: np.random.Generator, aug
     if augment and rng.random() < 0.5:
         frame, background, fg, inst, valid = (a[:, ::-1] for a in (frame, background, fg, inst, valid))
         cx = cw - 1 - cx
-    changed = np.abs(frame.astype(np.int16) - background.astype(np.int16)).max(axis=2) > CHANGED
+    diff = np.abs(frame.astype(np.int16) - background.astype(np.int16)).max(axis=2)
     if augment:
         f, b = photometric(frame, background, rng)
     else:
         f, b = frame.astype(np.float32) / 255.0, background.astype(np.float32) / 255.0
     x = np.concatenate([f, b], axis=2).transpose(2, 0, 1) - np.float32(0.5)
-    fg_w = (valid & (inst != UNKNOWN)).astype(np.float32)
-    fg_w[changed & (fg < 0.05)] *= HARD_WEIGHT  # cast shadows, headlight beams, ghosts: the hard negatives
+    fg_w = mask_weights(fg, valid & (inst != UNKNOWN), diff, shadow_weight, boundary_weight)
 
     qh, qw = ch // QUARTER, cw // QUARTER
     qi = inst[QUARTER // 2::QUARTER, QUARTER // 2::QUARTER][:qh, :qw]

@@ -3,7 +3,8 @@
     nice -n 5 .venv/bin/python -m training.vehicleseg.train --data /tmp/vseg_data --out /tmp/vseg_run
 
 Losses: mask — binary cross-entropy against the vehicle fraction of each work pixel (pixels that changed against the
-background but are no vehicle — cast shadows, headlight beams, ghosts — weigh 3x) plus a soft Dice term;
+background but are no vehicle — cast shadows, headlight beams, ghosts — weigh 3x, faint changes next to a vehicle
+that are no vehicle — soft and contact shadows — 6x, the outline 2x: ``targets.mask_weights``) plus a soft Dice term;
 centre — CenterNet's penalty-reduced focal loss on the 1/4-resolution heatmap; offset — smooth L1 to the
 instance centre on vehicle cells.  Scenes whose index ends in 9 (every tenth) are the validation set.  The folder
 is re-scanned every ``--rescan`` steps so training can start while the data is still being rendered.
@@ -24,18 +25,19 @@ import torch
 import torch.nn.functional as F
 
 from .model import VehicleSegNet
-from .targets import make_sample
+from .targets import BOUNDARY_WEIGHT, SHADOW_WEIGHT, make_sample
 
-SCENE = re.compile(r"s(\d{5})_\d{4}\.npz$")
+SCENE = re.compile(r"s(\d{5,})_\d{4}\.npz$")  # redrawn scenes have index + 100000 (six digits)
 
 
-def split_files(folder: Path) -> tuple[list[Path], list[Path]]:
-    """(training, validation) sample files; validation = scenes whose index ends in 9."""
+def split_files(folders: Path | list[Path]) -> tuple[list[Path], list[Path]]:
+    """(training, validation) sample files of one or several folders; validation = scenes whose index ends in 9."""
     train, val = [], []
-    for p in sorted(folder.glob("s*_*.npz")):
-        m = SCENE.search(p.name)
-        if m:
-            (val if int(m.group(1)) % 10 == 9 else train).append(p)
+    for folder in [folders] if isinstance(folders, Path) else folders:
+        for p in sorted(folder.glob("s*_*.npz")):
+            m = SCENE.search(p.name)
+            if m:
+                (val if int(m.group(1)) % 10 == 9 else train).append(p)
     return train, val
 
 
@@ -44,8 +46,10 @@ def load(path: Path) -> dict:
         return {k: d[k] for k in ("frame", "background", "fg", "inst")}
 
 
-def batch(files: list[Path], crop: tuple[int, int], rng: np.random.Generator, augment: bool = True) -> dict:
-    samples = [make_sample(load(f), crop, rng, augment) for f in files]
+def batch(files: list[Path], crop: tuple[int, int], rng: np.random.Generator, augment: bool = True,
+          **weights: float) -> dict:
+    """A training batch of random crops (``weights``: :func:`targets.make_sample`'s loss weights)."""
+    samples = [make_sample(load(f), crop, rng, augment, **weights) for f in files]
     out = {k: torch.from_numpy(np.stack([getattr(s, k) for s in samples])) for k in
            ("x", "fg", "fg_w", "heat", "offset", "off_w")}
     out["x"] = out["x"].contiguous(memory_format=torch.channels_last)
@@ -74,14 +78,14 @@ def total(parts: dict[str, torch.Tensor]) -> torch.Tensor:
 
 
 @torch.no_grad()
-def validate(model: torch.nn.Module, files: list[Path], crop: tuple[int, int]) -> dict[str, float]:
+def validate(model: torch.nn.Module, files: list[Path], crop: tuple[int, int], **weights: float) -> dict[str, float]:
     """Loss parts and mask IoU (threshold 0.5) over the validation files, one fixed crop each."""
     model.eval()
     rng = np.random.default_rng(0)
     acc: dict[str, float] = {}
     inter = union = 0.0
     for i in range(0, len(files), 8):
-        b = batch(files[i:i + 8], crop, rng, augment=False)
+        b = batch(files[i:i + 8], crop, rng, augment=False, **weights)
         for k, v in losses(model, b).items():
             acc[k] = acc.get(k, 0.0) + float(v) * len(files[i:i + 8])
         pred = model(b["x"])[0][:, 0] > 0
@@ -97,7 +101,7 @@ def validate(model: torch.nn.Module, files: list[Path], crop: tuple[int, int]) -
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--data", type=Path, required=True)
+    ap.add_argument("--data", type=Path, nargs="+", required=True, help="sample folders")
     ap.add_argument("--out", type=Path, required=True)
     ap.add_argument("--steps", type=int, default=2000)
     ap.add_argument("--batch", type=int, default=6)
@@ -108,7 +112,12 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--resume", type=Path, default=None, help="checkpoint to continue from (weights, optimiser, step)")
     ap.add_argument("--init", type=Path, default=None, help="start from these weights with a fresh schedule")
+    ap.add_argument("--shadow-weight", type=float, default=SHADOW_WEIGHT,
+                    help="mask-loss weight of faint changes next to vehicles (0: off, the first model's loss)")
+    ap.add_argument("--boundary-weight", type=float, default=BOUNDARY_WEIGHT,
+                    help="mask-loss weight of outline pixels (1: off, the first model's loss)")
     args = ap.parse_args(argv)
+    weights = {"shadow_weight": args.shadow_weight, "boundary_weight": args.boundary_weight}
     torch.set_num_threads(args.threads)
     torch.manual_seed(args.seed)
     rng = np.random.default_rng(args.seed)
@@ -136,7 +145,7 @@ def main(argv: list[str] | None = None) -> int:
         for g in opt.param_groups:
             g["lr"] = lr
         pick = rng.choice(len(train_files), size=args.batch, replace=len(train_files) < args.batch)
-        parts = losses(model, batch([train_files[i] for i in pick], crop, rng))
+        parts = losses(model, batch([train_files[i] for i in pick], crop, rng, **weights))
         loss = total(parts)
         opt.zero_grad()
         loss.backward()
@@ -148,7 +157,7 @@ def main(argv: list[str] | None = None) -> int:
             rec = {"step": step + 1, "lr": lr, "train": {k: round(v, 4) for k, v in running.items()},
                    "files": len(train_files), "wall": round(time.perf_counter() - t0), "cpu": round(time.process_time() - c0)}
             if (step + 1) % 250 == 0 or step + 1 == args.steps:
-                rec["val"] = {k: round(v, 4) for k, v in validate(model, val_files[::4], crop).items()}
+                rec["val"] = {k: round(v, 4) for k, v in validate(model, val_files[::4], crop, **weights).items()}
                 torch.save({"model": model.state_dict(), "opt": opt.state_dict(), "step": step + 1},
                            args.out / "checkpoint.pt")
             log.write(json.dumps(rec) + "\n")
