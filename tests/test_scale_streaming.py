@@ -271,3 +271,41 @@ def test_vehicles_that_are_not_car_shaped_are_not_aligned(cam, models):
         assert r.converged is aligned, r
         if not aligned:
             assert "1 not car-shaped" in r.status and r.n_vehicles == 0
+
+
+def test_vehicles_seen_before_the_vanishing_points_count_once_they_arrive(cam, models):
+    """Before a calibration the tracker publishes only each vehicle's hull (no 3D box, no heading): those
+    sightings are kept, and when the vanishing points arrive their 3D boxes are built from the hulls (the
+    tracker's construction), so the vehicles that passed before count as well."""
+    from dataclasses import replace
+
+    from gst_trafficcal.scale.alignment import base_point, vehicle_to_camera
+
+    names = list(models)
+    frames = vehicle_sightings(cam, models, np.random.default_rng(3), 6)
+
+    def early(s: Sighting) -> Sighting:  # what the tracker publishes before the calibration
+        m = models[names[(s.track_id - 1) % len(names)]]
+        X = base_point(cam, s.base) + (m.hull @ vehicle_to_camera(cam, s.heading).T) / TRUE_SCALE
+        return replace(s, base=None, heading=0.0, hull=cam.from_road(X))
+
+    half = len(frames) // 2
+    est = ScaleEstimator(models, min_vehicles=5)
+    for f, ss in enumerate(frames[:half]):  # no camera yet
+        est.update(f * 0.1, [early(s) for s in ss])
+    assert est.result().status.startswith("waiting for the vanishing points")
+    est.set_camera(cam)
+    for f, ss in enumerate(frames[half:], half):
+        est.update(f * 0.1, ss)
+    est.finish()
+    r = est.result()
+    assert r.n_matched >= 5, r  # those that passed before the calibration are matched too
+    assert r.converged and r.scale == pytest.approx(TRUE_SCALE, rel=0.03), r
+    without = ScaleEstimator(models, min_vehicles=5)  # the same stream without the early hulls
+    for f, ss in enumerate(frames[:half]):
+        without.update(f * 0.1, [replace(early(s), hull=None) for s in ss])
+    without.set_camera(cam)
+    for f, ss in enumerate(frames[half:], half):
+        without.update(f * 0.1, ss)
+    without.finish()
+    assert without.result().n_matched <= 3 and not without.result().converged, without.result()

@@ -37,11 +37,14 @@ def sighting_from_fields(object_id: int, label: str, box: tuple[float, float, fl
     base = base_centre(fields["box3d"]) if fields.get("has_3d") and "box3d" in fields else None
     if use_hull_box:
         box = tuple(fields.get("hull_box", box))
+    hull = fields.get("hull") if base is None else None  # before the vanishing points: the 3D box comes later
     return Sighting(int(object_id), float(fields.get("t", t)), tuple(float(v) for v in box), base,
                     float(fields.get("direction", 0)), str(label), bool(fields.get("occluded", False)),
                     bool(fields.get("truncated", False)), probs,
                     corners=fields["box3d"] if base is not None else None,
-                    body_shape=str(fields.get("body_shape", "box")))
+                    body_shape=str(fields.get("body_shape", "box")),
+                    hull=None if hull is None else np.asarray(hull, np.float64).reshape(-1, 2),
+                    silhouette=bool(fields.get("silhouette", False)))
 
 
 def upstream_has_scale(cal: Calibration | None) -> bool:

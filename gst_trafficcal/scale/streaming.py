@@ -22,6 +22,11 @@ unknown make is matched with the catalogue type of most similar shape, whose len
 the optional regression (:mod:`.regression`) maps λ* to λ_reg.  Alignment work
 is bounded: ``per_track`` sightings per vehicle, each aligned once.  When the vanishing points change, what
 was accumulated is dropped (the alignments depend on them).
+
+Vehicles seen before the vanishing points are known are not lost: a sighting without a 3D box but with its convex
+hull (the tracker publishes the hull until a calibration arrives) is kept, and once the vanishing points are known
+its 3D box is built from the hull with the tracker's construction (:func:`..tracking.box3d.fit_shapes`, one body
+shape per track), so in a clip whose calibration converges half-way the first half's vehicles still count.
 """
 
 from __future__ import annotations
@@ -61,6 +66,8 @@ class Sighting:
     type_probs: Mapping[str, float] | None = None
     corners: Sequence[Sequence[float]] | None = None  # the 3D box's 8 image corners (order box3d.CORNER_BITS)
     body_shape: str = "box"  # the body the tracker's 3D box holds (box or a catalogue car body, tracking.shapes)
+    hull: np.ndarray | None = None  # Kx2 convex hull, pixels: a sighting before the vanishing points were known
+    silhouette: bool = False  # the hull is a segmentation's outline (car body shapes apply, tracking.tracker)
 
 
 def length_to_width(camera: Camera, corners_px) -> float | None:
@@ -111,6 +118,8 @@ class _TrackBuffer:
     last_t: float = 0.0
     probs_sum: dict = field(default_factory=dict)
     probs_n: int = 0
+    early: list[Sighting] = field(default_factory=list)  # hull sightings from before the vanishing points
+    heading: float = 0.0  # the tracker's direction once known
 
 
 @dataclass
@@ -184,7 +193,12 @@ class ScaleEstimator:
 
     # ------------------------------------------------------------------ state
     def _reset(self) -> None:
-        self._tracks: dict[int, _TrackBuffer] = {}
+        if not hasattr(self, "_waiting"):
+            self._waiting: list[tuple[int, _TrackBuffer]] = []  # tracks that ended before any vanishing points
+        for tid, buf in getattr(self, "_tracks", {}).items():  # their hull sightings hold under any VPs
+            buf.sightings = []
+        self._tracks: dict[int, _TrackBuffer] = {tid: b for tid, b in getattr(self, "_tracks", {}).items()
+                                                 if b.early}
         self._matches: list[_TrackMatch] = []
         self._n_aligned = 0
         self._n_geometry_failures = 0
@@ -207,10 +221,12 @@ class ScaleEstimator:
     # ------------------------------------------------------------------ input
     def usable(self, s: Sighting) -> bool:
         """Fully visible, unoccluded, with a 3D box base and a known heading, of a vehicle label, large enough."""
+        return self._visible(s) and s.base is not None and s.heading != 0 and bool(np.all(np.isfinite(s.base)))
+
+    def _visible(self, s: Sighting) -> bool:
         x0, y0, x1, y1 = s.box
-        return (not s.occluded and not s.truncated and s.base is not None and s.heading != 0
-                and s.label not in SKIPPED_LABELS and min(x1 - x0, y1 - y0) >= self.min_box
-                and bool(np.all(np.isfinite(s.base))))
+        return (not s.occluded and not s.truncated and s.label not in SKIPPED_LABELS
+                and min(x1 - x0, y1 - y0) >= self.min_box)
 
     def update(self, t: float, sightings: Iterable[Sighting], camera: Camera | None = None) -> bool:
         """Add one frame's sightings (time ``t`` seconds).  Tracks not seen for ``track_timeout`` are aligned.
@@ -224,12 +240,25 @@ class ScaleEstimator:
                 buf.probs_n += 1
                 for k, p in s.type_probs.items():
                     buf.probs_sum[k] = buf.probs_sum.get(k, 0.0) + float(p)
+            if s.heading != 0:
+                buf.heading = float(s.heading)
             if self.camera is not None and self.usable(s):
                 buf.sightings.append(s)
                 if len(buf.sightings) > 128:  # a vehicle that stays (queue, parked): bounded memory
                     buf.sightings = self._choose(buf.sightings)
+            elif s.base is None and s.hull is not None and self._visible(s):  # before the vanishing points
+                buf.early.append(s)
+                if len(buf.early) > 128:
+                    buf.early = sorted(buf.early, key=lambda e: e.t)[::2]
         ended = [tid for tid, b in self._tracks.items() if t - b.last_t > self.track_timeout]
-        return self._close(ended)
+        changed = self._close(ended)
+        if self.camera is not None and self._waiting:  # tracks that ended before the first vanishing points
+            waiting, self._waiting = self._waiting, []
+            for tid, buf in waiting:
+                changed |= self._align_track(tid, buf)
+            if changed:
+                self._result = None
+        return changed
 
     def finish(self) -> bool:
         """Align every open track (end of stream).  Returns True when the result changed."""
@@ -239,11 +268,41 @@ class ScaleEstimator:
         changed = False
         for tid in track_ids:
             buf = self._tracks.pop(tid)
-            if self.camera is not None and buf.sightings:
+            if self.camera is not None and (buf.sightings or buf.early):
                 changed |= self._align_track(tid, buf)
+            elif self.camera is None and buf.early:
+                self._waiting.append((tid, buf))
+                del self._waiting[:-500]  # bounded: the last 500 vehicles before any calibration
         if changed:
             self._result = None
         return changed
+
+    def _boxed(self, buf: _TrackBuffer) -> list[Sighting]:
+        """The track's early hull sightings with the 3D boxes the tracker would have built (its construction,
+        one body shape per track) and the track's heading (the tracker's, or from the boxes' motion)."""
+        from dataclasses import replace
+
+        from ..tracking.box3d import boxes_from_fits, fit_shapes
+        from .alignment import heading_from_track
+
+        early = sorted(buf.early, key=lambda e: e.t)
+        silhouette = any(e.silhouette for e in early)
+        fits = fit_shapes(self.camera, [np.asarray(e.hull, np.float64).reshape(-1, 2) for e in early],
+                          None if silhouette else ())
+        k = int(np.argmin(np.sum(np.minimum(fits.fit, 1.0), axis=1))) if silhouette else 0
+        boxes = boxes_from_fits(self.camera, fits, np.full(len(early), k))
+        out = []
+        for j, e in enumerate(early):
+            base = base_centre(boxes.corners_px[j]) if boxes.valid[j] else None
+            if base is not None:
+                out.append(replace(e, base=base, corners=boxes.corners_px[j], body_shape=fits.names[k], hull=None))
+        heading = buf.heading
+        if heading == 0 and len(out) >= 2:
+            try:
+                heading = heading_from_track(self.camera, np.array([s.base for s in out]))
+            except InputError:  # no two of its points on the visible road
+                heading = 0.0
+        return [replace(s, heading=heading) for s in out] if heading != 0 else []
 
     # ------------------------------------------------------------------ alignment
     def _choose(self, sightings: list[Sighting]) -> list[Sighting]:
@@ -292,6 +351,11 @@ class ScaleEstimator:
         return [s for s, r in zip(sightings, ratios) if r is None or abs(r / med - 1) <= self.shape_tolerance]
 
     def _align_track(self, tid: int, buf: _TrackBuffer) -> bool:
+        if buf.early:
+            buf.sightings = buf.sightings + [s for s in self._boxed(buf) if self.usable(s)]
+            buf.early = []
+        if not buf.sightings:
+            return False
         self._n_selected += 1
         sightings = self._car_shaped(buf.sightings)
         if not sightings:

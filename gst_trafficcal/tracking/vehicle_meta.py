@@ -17,6 +17,9 @@ Fields (all present unless noted):
 * ``road_x``, ``road_y`` (doubles): the reference point on the road plane, world frame in plane units (x along
   VP1, camera foot at 0; multiply by the scale λ for metres);
 * ``world_x``, ``world_y`` (doubles, only when the scale is known): the same in metres;
+* ``hull`` (K pairs of doubles) and ``silhouette`` (boolean), only before a calibration with vanishing points:
+  the tracked convex hull and whether it is a segmentation's outline, so that bbscale can build the 3D box of
+  vehicles seen before the calibration once it arrives;
 * ``calibration_id`` (string): id of the calibration used ("" before there is one).
 """
 
@@ -39,6 +42,9 @@ def vehicle_fields(track: Track, obs: Observation, camera: Camera | None, calibr
     }
     has_3d = camera is not None and obs.corners_px is not None and obs.ref_px is not None
     fields["has_3d"] = bool(has_3d)
+    if camera is None and obs.hull is not None:  # no vanishing points yet: bbscale builds the 3D box later
+        fields["hull"] = [[float(x), float(y)] for x, y in obs.hull]
+        fields["silhouette"] = bool(obs.silhouette)
     if has_3d:
         fields["box3d"] = [[float(x), float(y)] for x, y in obs.corners_px]
         fields["ref_x"], fields["ref_y"] = (float(v) for v in obs.ref_px)
