@@ -5,7 +5,7 @@ Each preset is rendered once (``trafficcal synth``, cached in --work), then the 
 true vanishing points.  BBScale+reg: the regression λ_reg = αλ* + β fitted on all *other* scenes (leave-one-out
 cross-validation).  BMVC14: median 3D-box dimensions of the same tracks against a mean car.  ManualScale: the
 scene's measured distances towards VP1 (gt_data.pkl) with the true VPs.  Prints a markdown table and writes
-docs/results/scale.md.
+docs/results/scale.md (with ``--write``).
 
 BrnoCompSpeed replays (``--replays session0_center,...``, folders in --replay-work): each recording of
 sessions 0-3 replayed by ``trafficcal synth`` (docs/synth.md "Replay mode") with the camera of its
@@ -220,7 +220,8 @@ def main() -> None:
     ap.add_argument("--background", choices=("mog2", "average"), default="mog2", help="background detector method")
     ap.add_argument("--detector", default="", help="vehicledetect's model instead of the background detector, e.g. "
                     "vehicleseg (boxes + hulls)")
-    ap.add_argument("--write", type=Path, default=ROOT / "docs" / "results" / "scale.md")
+    ap.add_argument("--write", type=Path, default=None,
+                    help="also write the table as markdown here, e.g. docs/results/scale.md")
     a = ap.parse_args()
     a.work.mkdir(parents=True, exist_ok=True)
     presets = [p for p in a.presets.split(",") if p]
@@ -268,13 +269,16 @@ def main() -> None:
     table = "\n".join(lines)
     print(table)
     cmd = " ".join(["benchmarks/scale.py", *sys.argv[1:]])
+    if a.write is None:
+        return
     a.write.parent.mkdir(parents=True, exist_ok=True)
     a.write.write_text(
         "# Scene scale λ on synthetic scenes and BrnoCompSpeed replays\n\n"
         f"Command: `.venv/bin/python {cmd}` ("
         + (f"the first {a.duration:g} s of each preset's render in {a.renders}" if a.renders is not None else
            f"each preset rendered for {a.duration:g} s, seed {a.seed}") + "; the "
-        "chain: vehicledetect's background detector, the tracker, BBScale with every passenger-car type of the "
+        f"chain: vehicledetect ({f'model={a.detector}' if a.detector else 'background detector'}), the tracker, "
+        "BBScale with every passenger-car type of the "
         "catalogue, no classifier, the scene's true vanishing points). Relative error λ/λ_true − 1 in %; "
         "BBScale+reg is leave-one-out (the regression fitted on the other scenes). λ* is reported even when "
         "the stage did not converge (fewer than --min-vehicles agreeing vehicles; marked). A dash: no estimate. "
