@@ -174,3 +174,23 @@ def test_full_disk_keeps_every_vehicle_already_measured(clip, with_truth, tmp_pa
     assert kept[0].to_dict() == reference[kept[0].id].to_dict()
     assert len({e.id for e in kept}) == len(kept)
     assert load_calibration(out / "calibration.json").camera.scale is not None
+
+
+def test_unreadable_scale_regression_is_refused_before_the_run(clip, tmp_path):
+    reg = tmp_path / "reg.json"
+    reg.write_text("[1, 2]")
+    line = one_line_error(trafficcal("run", clip / "video.mp4", "--out", tmp_path / "out", "--scale-regression", reg))
+    assert str(reg) in line
+    assert not (tmp_path / "out").exists()
+
+
+def test_scale_regression_reaches_bbscale(clip, tmp_path):
+    """--scale-regression is bbscale's regression-file in the pipeline the run plays (and prints)."""
+    from gst_trafficcal.scale.regression import ScaleRegression, save_regression
+
+    reg = tmp_path / "reg.json"
+    save_regression(ScaleRegression(1.05, 0.0), reg)
+    proc = trafficcal("run", clip / "video.mp4", "--out", tmp_path / "out", "--no-overlay", "--scale-regression", reg)
+    assert proc.returncode == 0, proc.stdout[-2000:] + proc.stderr[-2000:]
+    printed = " ".join(proc.stdout.split())
+    assert "bbscale regression-file=" in printed and str(reg) in printed.split("bbscale regression-file=")[1][:400]

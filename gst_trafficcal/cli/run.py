@@ -53,7 +53,8 @@ QUEUE = "queue max-size-buffers=4 max-size-bytes=0 max-size-time=0"
 
 def pipeline_description(video: Path, paths: RunPaths, calibration: Path | None = None,
                          detector: Path | str | None = None,
-                         overlay: bool = True, bbscale: bool = False, queues: bool = True) -> str:
+                         overlay: bool = True, bbscale: bool = False, queues: bool = True,
+                         scale_regression: Path | None = None) -> str:
     """The gst-launch description ``trafficcal run`` plays (also printed, so it can be re-run by hand).
 
     With ``queues`` two ``queue`` elements split the chain into three streaming threads (decoding; vpdetect and
@@ -65,7 +66,7 @@ def pipeline_description(video: Path, paths: RunPaths, calibration: Path | None 
     chain = [f"filesrc location={quote(video)}", "decodebin", "videoconvert", "video/x-raw,format=I420",
              *([QUEUE] if queues else []), vp, det, *([QUEUE] if queues else []), "tracker"]
     if bbscale:
-        chain.append("bbscale")
+        chain.append(f"bbscale regression-file={quote(scale_regression)}" if scale_regression else "bbscale")
     chain.append(f"speedometer events-file={quote(paths.events)} csv-file={quote(paths.csv)} "
                  f"results-file={quote(paths.results)}")
     if overlay:
@@ -235,9 +236,11 @@ def print_vehicles(console, events: list) -> None:
 @click.option("--detector", default=None,
               help="vehicledetect's model: an ONNX detector file, or vehicleseg (the shipped learned vehicle "
                    "segmenter: boxes and outlines) (default: the built-in background-subtraction detector).")
+@click.option("--scale-regression", "regression_path", type=click.Path(path_type=Path), default=None,
+              help="Scale-correction regression (trafficcal fit-scale) for bbscale's λ: the paper's BBScaleReg.")
 @click.option("--no-overlay", is_flag=True, help="Do not encode overlay.mp4 (faster).")
 def command(video: Path, out_dir: Path, calibration_path: Path | None, gt_path: Path | None,
-            detector: str | None, no_overlay: bool) -> None:
+            detector: str | None, regression_path: Path | None, no_overlay: bool) -> None:
     """Calibrate and measure every vehicle of VIDEO in one pass through the GStreamer elements.
 
     Writes to --out: calibration.json, system.json (BrnoCompSpeed results), vehicles.jsonl, vehicles.csv,
@@ -263,6 +266,10 @@ def command(video: Path, out_dir: Path, calibration_path: Path | None, gt_path: 
         from ..brnocompspeed import load_gt_data
 
         load_gt_data(gt_path)  # fail before the long run, not after
+    if regression_path is not None:
+        from ..scale.regression import load_regression
+
+        load_regression(regression_path)  # unreadable or not a regression: a one-line error now
     if detector:  # a bad model is a one-line error now, not a failed pipeline later
         from ..detection.factory import create_detector
 
@@ -270,7 +277,7 @@ def command(video: Path, out_dir: Path, calibration_path: Path | None, gt_path: 
     paths = RunPaths(out_dir)
     bbscale = (elements_dir() / "python" / "bbscale.py").exists()
     description = pipeline_description(video, paths, calibration_path, detector, overlay=not no_overlay,
-                                       bbscale=bbscale)
+                                       bbscale=bbscale, scale_regression=regression_path)
     console.print(f"[bold]Pipeline[/] {description}", highlight=False, soft_wrap=True)
     summary = measure_video(video, out_dir, description, console,
                             keep=(calibration_path,) if calibration_path is not None else ())
