@@ -6,6 +6,10 @@ Modes (``--modes``):
 * ``auto`` — fully automatic, nothing from the ground truth: ``trafficcal run VIDEO --no-overlay``, i.e.
   ``vpdetect ! vehicledetect ! tracker ! bbscale ! speedometer``.  A scene whose vanishing points or scale did not
   converge is reported as such; its vehicles are unmeasured and count as missed in the pooled recall.
+* ``auto-reg`` — fully automatic with the paper's scale-correcting regression (BBScaleReg): for each scene,
+  λ_reg = αλ* + β fitted (``trafficcal fit-scale``'s fit) on the *other* scenes of its group (synth / replays):
+  their ``auto`` runs' λ* against their scene camera's λ (leave-one-out; the paper trains it on other videos),
+  then ``trafficcal run --scale-regression``.  Needs ``auto`` in the same run.
 * ``manual`` — the same chain with the paper's ManualCalib + ManualScale calibration (``trafficcal
   calibrate-manual`` from the ground-truth markings, given as ``--calibration``): separates the tracking/speed
   error from the calibration error.  On replays this is the rendering camera itself.
@@ -173,7 +177,38 @@ def frame_count(video: Path) -> int:
         cap.release()
 
 
-def run_scene(scene: Scene, mode: str, work: Path, fresh: bool = False, detector: str = "") -> Row:
+MODES = ("auto", "auto-reg", "manual")
+
+
+def loo_regressions(rows: list[Row], scenes: list[Scene], work: Path) -> dict[str, Path]:
+    """Per scene, the regression λ_reg = αλ* + β fitted on the other scenes of its group whose ``auto`` run found
+    a scale (their λ* against the scene camera's λ), written to ``work/<scene>/auto-reg/regression.json``."""
+    from gst_trafficcal.calibration import load_calibration
+    from gst_trafficcal.scale.regression import fit_regression, save_regression
+
+    pairs = {}
+    for r in rows:
+        cal_file = work / r.scene / "auto" / "calibration.json"
+        if r.mode == "auto" and r.has_scale and cal_file.is_file():
+            sc = next(s for s in scenes if s.name == r.scene)
+            raw = load_calibration(cal_file).camera.scale
+            true = load_calibration(sc.folder / "calibration.json").camera.scale
+            pairs[r.scene] = (r.kind, raw, true)
+    out = {}
+    for sc in scenes:
+        others = [(n, raw, true) for n, (kind, raw, true) in pairs.items() if kind == sc.kind and n != sc.name]
+        if not others:
+            continue
+        reg = fit_regression([o[1] for o in others], [o[2] for o in others], [o[0] for o in others])
+        path = work / sc.name / "auto-reg" / "regression.json"
+        path.parent.mkdir(parents=True, exist_ok=True)
+        save_regression(reg, path)
+        out[sc.name] = path
+    return out
+
+
+def run_scene(scene: Scene, mode: str, work: Path, fresh: bool = False, detector: str = "",
+              regression: Path | None = None) -> Row:
     """``trafficcal run`` on one scene in one mode (unless an earlier run's outputs are there and not ``fresh``:
     its ``run.json`` keeps the timing), scored against the scene's gt_data.pkl; ``detector``: ``--detector`` of
     ``trafficcal run`` (e.g. vehicleseg; empty: the default background detector)."""
@@ -201,6 +236,8 @@ def run_scene(scene: Scene, mode: str, work: Path, fresh: bool = False, detector
                 row.failure = f"calibrate-manual: {proc.stderr.strip().splitlines()[-1:]}"
                 return row
             cmd += ["--calibration", cal_path]
+        if regression is not None:
+            cmd += ["--scale-regression", regression]
         rc, err, wall, cpu = timed(cmd, env=dict(os.environ, COLUMNS="1000"))  # warnings on one line each
         failure = "" if not rc else (" ".join(ln for ln in err.splitlines() if ln.startswith("trafficcal:"))[-400:]
                                      or err[-400:])
@@ -362,7 +399,7 @@ def unmeasured_table(rows: list[Row]) -> str:
     """Per group (synth/replay, mode): the vehicles reported without a speed, by reason."""
     lines = ["| scenes | mode | vehicles | measured | unmeasured, by reason |", "|---|---|---|---|---|"]
     for kind in ("synth", "replay"):
-        for mode in ("auto", "manual"):
+        for mode in MODES:
             sel = [r for r in rows if r.kind == kind and r.mode == mode]
             if not sel:
                 continue
@@ -382,7 +419,7 @@ def summary_table(rows: list[Row]) -> tuple[str, dict]:
              "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
     out = {}
     for kind in ("synth", "replay"):
-        for mode in ("auto", "manual"):
+        for mode in MODES:
             sel = [r for r in rows if r.kind == kind and r.mode == mode]
             if not sel:
                 continue
@@ -488,17 +525,30 @@ def main() -> None:
     scenes += [Scene(f"{d.parent.name}/{d.name}", "synth", d) for d in a.scene]
     names = list(REPLAY_STARTS) if a.replay == "all" else [n for n in a.replay.split(",") if n]
     scenes += [s for s in (replay_scene(n, a.replays, a.work) for n in names) if s is not None]
-    jobs = [(scene, mode) for scene in scenes for mode in a.modes.split(",") if mode]
+    modes = [m for m in a.modes.split(",") if m]
+    bad = [m for m in modes if m not in MODES]
+    if bad or ("auto-reg" in modes and "auto" not in modes):
+        raise SystemExit(f"--modes: {', '.join(MODES)} (auto-reg needs auto), got {a.modes!r}")
     rows = []
-    with ProcessPoolExecutor(a.jobs) as pool:
-        for row in pool.map(run_scene, *zip(*jobs), [a.work] * len(jobs), [a.fresh] * len(jobs),
-                            [a.detector] * len(jobs)):
-            rows.append(row)
-            print(f"{row.scene} {row.mode}: {row.vehicles} vehicles, {row.measured} measured, mean error "
-                  f"{_f(row.stat('mean'))} km/h, recall {_f(row.recall, '.3f')}, calibration {row.state}"
-                  f"{', ' + row.failure if row.failure else ''}", flush=True)
-            if a.json:  # partial results survive an interrupted run
-                a.json.write_text(json.dumps({"rows": [asdict(r) for r in rows]}, indent=2, default=str) + "\n")
+
+    def run_all(jobs, regressions=None):
+        with ProcessPoolExecutor(a.jobs) as pool:
+            regs = [None if regressions is None else regressions.get(scene.name) for scene, _ in jobs]
+            for row in pool.map(run_scene, *zip(*jobs), [a.work] * len(jobs), [a.fresh] * len(jobs),
+                                [a.detector] * len(jobs), regs):
+                rows.append(row)
+                print(f"{row.scene} {row.mode}: {row.vehicles} vehicles, {row.measured} measured, mean error "
+                      f"{_f(row.stat('mean'))} km/h, recall {_f(row.recall, '.3f')}, calibration {row.state}"
+                      f"{', ' + row.failure if row.failure else ''}", flush=True)
+                if a.json:  # partial results survive an interrupted run
+                    a.json.write_text(json.dumps({"rows": [asdict(r) for r in rows]}, indent=2, default=str) + "\n")
+
+    run_all([(scene, mode) for scene in scenes for mode in modes if mode != "auto-reg"])
+    if "auto-reg" in modes:  # leave-one-out regressions from the automatic runs, then the runs with them
+        regressions = loo_regressions(rows, scenes, a.work)
+        jobs = [(scene, "auto-reg") for scene in scenes if scene.name in regressions]
+        if jobs:
+            run_all(jobs, regressions)
     per_scene = scene_table(rows)
     table, pooled_figs = summary_table(rows)
     reasons = unmeasured_table(rows)
