@@ -49,10 +49,11 @@ def export(checkpoint: Path, out: Path, meta: dict[str, str] | None = None) -> N
     onnx.save(m, str(out))
 
 
-def card(out: Path, data: Path, logs: list[Path], commands: list[str]) -> dict:
-    """The model card's measured facts: file, code version, data recipe (from the data folder's scene records) and
+def card(out: Path, data: Path | list[Path], logs: list[Path], commands: list[str]) -> dict:
+    """The model card's measured facts: file, code version, data recipe (from the data folders' scene records) and
     the training logs' last validation figures."""
-    scenes = [json.loads(p.read_text()) for p in sorted(data.glob("scene_*.json"))]
+    folders = [data] if isinstance(data, Path) else data
+    scenes = [json.loads(p.read_text()) for f in folders for p in sorted(f.glob("scene_*.json"))]
     seeds = [s["seed"] for s in scenes]
     count = collections.Counter
     commit = subprocess.run(["git", "rev-parse", "HEAD"], capture_output=True, text=True,
@@ -78,6 +79,7 @@ def card(out: Path, data: Path, logs: list[Path], commands: list[str]) -> dict:
                  "lighting": dict(count(s["scenario"]["lighting"]["preset"] for s in scenes)),
                  "resolutions": dict(count("x".join(map(str, s["scenario"]["camera"]["resolution"])) for s in scenes)),
                  "jpeg": sum(1 for s in scenes if s["jpeg_quality"]),
+                 "profiles": dict(count(s.get("profile", "base") for s in scenes)),
                  "validation": "scenes whose index ends in 9",
                  "never used": "benchmark seeds 1, 2, 7; BrnoCompSpeed replays (screen.png backgrounds)"},
         "training": stages,
@@ -90,14 +92,14 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--out", type=Path, required=True)
     ap.add_argument("--meta", action="append", default=[], help="KEY=VALUE metadata to add (repeatable)")
     ap.add_argument("--card", type=Path, default=None, help="also write the model card (JSON) here")
-    ap.add_argument("--data", type=Path, default=None, help="the training data folder (for the card)")
+    ap.add_argument("--data", type=Path, nargs="+", default=None, help="the training data folders (for the card)")
     ap.add_argument("--log", type=Path, action="append", default=[], help="training log.jsonl (for the card)")
     ap.add_argument("--command", action="append", default=[], help="a command that made the model (for the card)")
     args = ap.parse_args(argv)
     export(args.checkpoint, args.out, dict(kv.split("=", 1) for kv in args.meta))
     print(f"{args.out}: {args.out.stat().st_size} bytes")
     if args.card is not None:
-        info = card(args.out, args.data or Path("."), args.log, args.command)
+        info = card(args.out, args.data or [Path(".")], args.log, args.command)
         if args.card.exists():  # keep what was measured with the model (held-out figures) when re-exporting
             old = json.loads(args.card.read_text())
             if old.get("sha256") == info["sha256"]:
