@@ -19,6 +19,26 @@ from .labels import LabelMap
 from .records import Detections
 
 
+def open_session(path: Path, threads: int):
+    """An onnxruntime CPU session for ``path`` with ``threads`` intra-op threads (0: onnxruntime's choice), one
+    inter-op thread and no spinning; InputError naming the file when onnxruntime cannot load it."""
+    import onnxruntime as ort  # heavy: imported only when a model is actually used
+
+    opts = ort.SessionOptions()
+    opts.intra_op_num_threads = max(0, int(threads))
+    opts.inter_op_num_threads = 1
+    opts.execution_mode = ort.ExecutionMode.ORT_SEQUENTIAL
+    opts.log_severity_level = 3
+    # idle worker threads sleep instead of spinning: measured on the loaded 2-core machine, NanoDet with
+    # 2 threads ran at 13 fps spinning and 35 fps not (1 thread: 26 fps); a pipeline shares its cores
+    opts.add_session_config_entry("session.intra_op.allow_spinning", "0")
+    try:
+        return ort.InferenceSession(str(path), sess_options=opts, providers=["CPUExecutionProvider"])
+    except Exception as exc:  # onnxruntime raises its own Fail/InvalidProtobuf/... types
+        first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+        raise InputError(f"{path}: not a usable ONNX model ({first[:200]})") from None
+
+
 @dataclass(frozen=True)
 class Letterbox:
     """Network-input pixel = image pixel * scale + pad; kept to map boxes back to the image."""
@@ -109,8 +129,6 @@ class OnnxDetector:
         preprocess: dict | None = None,
         tiles: tuple[int, int] = (1, 1),
     ) -> None:
-        import onnxruntime as ort  # heavy: imported only when a model is actually used
-
         self.path = Path(path)
         if model_format != "auto" and model_format not in FORMATS:
             raise InputError(f"unknown model format {model_format!r} (use auto or one of {', '.join(FORMATS)})")
@@ -123,19 +141,7 @@ class OnnxDetector:
         if len(tiles) != 2 or min(tiles) < 1 or max(tiles) > 8:
             raise InputError(f"tiles must be columns x rows between 1 and 8, got {tiles}")
         self.tiles = (int(tiles[0]), int(tiles[1]))
-        opts = ort.SessionOptions()
-        opts.intra_op_num_threads = max(0, int(threads))
-        opts.inter_op_num_threads = 1
-        opts.execution_mode = ort.ExecutionMode.ORT_SEQUENTIAL
-        opts.log_severity_level = 3
-        # idle worker threads sleep instead of spinning: measured on the loaded 2-core machine, NanoDet with
-        # 2 threads ran at 13 fps spinning and 35 fps not (1 thread: 26 fps); a pipeline shares its cores
-        opts.add_session_config_entry("session.intra_op.allow_spinning", "0")
-        try:
-            self.session = ort.InferenceSession(str(self.path), sess_options=opts, providers=["CPUExecutionProvider"])
-        except Exception as exc:  # onnxruntime raises its own Fail/InvalidProtobuf/... types
-            first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
-            raise InputError(f"{self.path}: not a usable ONNX model ({first[:200]})") from None
+        self.session = open_session(self.path, threads)
         inputs = self.session.get_inputs()
         if len(inputs) != 1 or len(inputs[0].shape) != 4:
             raise InputError(f"{self.path}: expected one 4-D image input, found {[i.shape for i in inputs]}")

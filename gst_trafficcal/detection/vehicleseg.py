@@ -30,6 +30,7 @@ from scipy import ndimage
 
 from ..errors import InputError
 from .labels import COCO_VEHICLES
+from .onnx_detector import open_session
 from .records import Detections
 from .seginput import RunningBackground, WorkGeometry, network_input, to_work
 
@@ -84,22 +85,10 @@ class VehicleSegDetector:
     def __init__(self, path: str | Path | None = None, threads: int = 1, work_width: int | None = None,
                  threshold: float = 0.3, centre_threshold: float = 0.3, min_area: float = 0.0015,
                  tau: float | None = None, mask_threshold: float = 0.5) -> None:
-        import onnxruntime as ort
-
         self.path = Path(path) if path is not None else WEIGHTS
         if not self.path.is_file():
             raise InputError(f"vehicleseg model file not found: {self.path}")
-        opts = ort.SessionOptions()
-        opts.intra_op_num_threads = max(0, int(threads))
-        opts.inter_op_num_threads = 1
-        opts.execution_mode = ort.ExecutionMode.ORT_SEQUENTIAL
-        opts.log_severity_level = 3
-        opts.add_session_config_entry("session.intra_op.allow_spinning", "0")
-        try:
-            self.session = ort.InferenceSession(str(self.path), sess_options=opts, providers=["CPUExecutionProvider"])
-        except Exception as exc:
-            first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
-            raise InputError(f"{self.path}: not a usable ONNX model ({first[:200]})") from None
+        self.session = open_session(self.path, threads)
         meta = self.session.get_modelmeta().custom_metadata_map
         inputs, outputs = self.session.get_inputs(), [o.name for o in self.session.get_outputs()]
         if len(inputs) != 1 or len(inputs[0].shape) != 4 or inputs[0].shape[1] != 6 or \
