@@ -38,6 +38,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import shlex
 import subprocess
 import sys
 import time
@@ -486,8 +487,6 @@ def _git_head() -> str:
 
 
 def _split(desc: str) -> list[str]:
-    import shlex
-
     return shlex.split(desc)
 
 
@@ -554,7 +553,7 @@ def main() -> None:
     reasons = unmeasured_table(rows)
     print(per_scene + "\n\n" + table + "\n\n" + reasons)
     if a.write:
-        cmd = " ".join(["benchmarks/end_to_end.py", *sys.argv[1:]])
+        cmd = shlex.join(["benchmarks/end_to_end.py", *sys.argv[1:]])
         a.write.parent.mkdir(parents=True, exist_ok=True)
         a.write.write_text(
             "# End to end: `trafficcal run` on synthetic scenes and BrnoCompSpeed replays\n\n"
@@ -575,7 +574,7 @@ def main() -> None:
             + reasons + "\n")
     if a.json:
         a.json.parent.mkdir(parents=True, exist_ok=True)
-        a.json.write_text(json.dumps({"command": " ".join(sys.argv), "rows": [asdict(r) for r in rows],
+        a.json.write_text(json.dumps({"command": shlex.join(sys.argv), "rows": [asdict(r) for r in rows],
                                       "git": _git_head(), "pooled": pooled_figs, "paper": PAPER}, indent=2, default=str) + "\n")
 
 

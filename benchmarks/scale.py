@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import shlex
 import subprocess
 import sys
 from concurrent.futures import ProcessPoolExecutor
@@ -268,7 +269,7 @@ def main() -> None:
                      + " | | " + " | ".join(summary(pick(k)) for k in keys[4:]) + " |")
     table = "\n".join(lines)
     print(table)
-    cmd = " ".join(["benchmarks/scale.py", *sys.argv[1:]])
+    cmd = shlex.join(["benchmarks/scale.py", *sys.argv[1:]])
     if a.write is None:
         return
     a.write.parent.mkdir(parents=True, exist_ok=True)
