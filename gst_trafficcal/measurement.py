@@ -265,7 +265,7 @@ class SpeedMeter:
             late = [obs[k] for k in idx]
             fit_boxes(camera, late)
             holder = Track(id=rec.id, state=TrackState.FINISHED, observations=late)
-            holder.shape = track_shape(holder)
+            holder.shape = track_shape(holder, TrackerConfig.shape_fits)
             apply_shape(camera, holder, late)
         if last is not None:
             obs = obs[-last:]

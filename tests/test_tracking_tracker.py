@@ -216,3 +216,31 @@ def test_track_dimensions_steady_the_reference_point_on_noisy_hulls(scene):
     assert len(anchored) > 1000
     assert np.median(anchored) < 0.8 * np.median(raw), (np.median(anchored), np.median(raw))
     assert np.percentile(anchored, 90) < 0.8 * np.percentile(raw, 90)
+
+
+def test_body_shape_is_kept_after_the_first_fits(scene):
+    """Noisy silhouettes make the best-fitting body shape flip along a track; every flip would move the
+    reference points published from then on.  The tracker chooses over the first ``shape_fits`` fits and keeps
+    it: no track changes its shape later (with the choice left open, many do)."""
+    cam = scene.camera
+
+    def late_switches(shape_fits: int) -> int:
+        tracker = Tracker(TrackerConfig(body_shapes="cars", shape_fits=shape_fits), camera=cam,
+                          image_size=scene.image_size)
+        rng = np.random.default_rng(3)
+        history: dict[int, int] = {}
+        late = 0
+        for f in scene.frames:
+            det, hulls, _ = detect(f, rng, scene.image_size)
+            hulls = [h + rng.uniform(-2.0, 2.0, h.shape) for h in hulls]
+            for tr in tracker.update(f.t, det, hulls).tracks:
+                fits = sum(o.shape_fit is not None for o in tr.observations)
+                if tr.id in history and history[tr.id] != tr.shape and fits > 10:
+                    late += 1
+                history[tr.id] = tr.shape
+        return late
+
+    assert late_switches(10**6) > 5
+    assert late_switches(10) == 0
+    with pytest.raises(InputError, match="shape_fits"):
+        TrackerConfig(shape_fits=0)

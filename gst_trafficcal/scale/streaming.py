@@ -283,13 +283,15 @@ class ScaleEstimator:
         from dataclasses import replace
 
         from ..tracking.box3d import boxes_from_fits, fit_shapes
+        from ..tracking.tracker import TrackerConfig
         from .alignment import heading_from_track
 
         early = sorted(buf.early, key=lambda e: e.t)
         silhouette = any(e.silhouette for e in early)
         fits = fit_shapes(self.camera, [np.asarray(e.hull, np.float64).reshape(-1, 2) for e in early],
                           None if silhouette else ())
-        k = int(np.argmin(np.sum(np.minimum(fits.fit, 1.0), axis=1))) if silhouette else 0
+        first = fits.fit[:, :TrackerConfig.shape_fits]  # the tracker chooses over a track's first fits
+        k = int(np.argmin(np.sum(np.minimum(first, 1.0), axis=1))) if silhouette else 0
         boxes = boxes_from_fits(self.camera, fits, np.full(len(early), k))
         out = []
         for j, e in enumerate(early):
