@@ -7,7 +7,7 @@ Modes (``--modes``):
   ``vpdetect ! vehicledetect ! tracker ! bbscale ! speedometer``.  A scene whose vanishing points or scale did not
   converge is reported as such; its vehicles are unmeasured and count as missed in the pooled recall.
 * ``auto-reg`` — fully automatic with the paper's scale-correcting regression (BBScaleReg): for each scene,
-  λ_reg = αλ* + β fitted (``trafficcal fit-scale``'s fit) on the *other* scenes of its group (synth / replays):
+  λ_reg = αλ* (+ β with ``--regression-form affine``) fitted (``trafficcal fit-scale``'s fit) on the *other* scenes of its group (synth / replays):
   their ``auto`` runs' λ* against their scene camera's λ (leave-one-out; the paper trains it on other videos),
   then ``trafficcal run --scale-regression``.  Needs ``auto`` in the same run.
 * ``manual`` — the same chain with the paper's ManualCalib + ManualScale calibration (``trafficcal
@@ -181,7 +181,7 @@ def frame_count(video: Path) -> int:
 MODES = ("auto", "auto-reg", "manual")
 
 
-def loo_regressions(rows: list[Row], scenes: list[Scene], work: Path) -> dict[str, Path]:
+def loo_regressions(rows: list[Row], scenes: list[Scene], work: Path, form: str = "ratio") -> dict[str, Path]:
     """Per scene, the regression λ_reg = αλ* + β fitted on the other scenes of its group whose ``auto`` run found
     a scale (their λ* against the scene camera's λ), written to ``work/<scene>/auto-reg/regression.json``."""
     from gst_trafficcal.calibration import load_calibration
@@ -200,7 +200,7 @@ def loo_regressions(rows: list[Row], scenes: list[Scene], work: Path) -> dict[st
         others = [(n, raw, true) for n, (kind, raw, true) in pairs.items() if kind == sc.kind and n != sc.name]
         if not others:
             continue
-        reg = fit_regression([o[1] for o in others], [o[2] for o in others], [o[0] for o in others])
+        reg = fit_regression([o[1] for o in others], [o[2] for o in others], [o[0] for o in others], form=form)
         path = work / sc.name / "auto-reg" / "regression.json"
         path.parent.mkdir(parents=True, exist_ok=True)
         save_regression(reg, path)
@@ -510,6 +510,8 @@ def main() -> None:
     ap.add_argument("--json", type=Path, default=None, help="write every row and the pooled figures here")
     ap.add_argument("--write", type=Path, default=None, help="also write the tables as markdown here, e.g. "
                     "docs/results/end_to_end.md")
+    ap.add_argument("--regression-form", choices=("ratio", "affine"), default="ratio",
+                    help="auto-reg's regression form (trafficcal fit-scale --form)")
     ap.add_argument("--detector", default="", help="trafficcal run --detector (e.g. vehicleseg; use its own --work)")
     ap.add_argument("--throughput", type=Path, default=None, metavar="VIDEO",
                     help="only measure decode-only vs chain fps on this video")
@@ -544,7 +546,7 @@ def main() -> None:
 
     run_all([(scene, mode) for scene in scenes for mode in modes if mode != "auto-reg"])
     if "auto-reg" in modes:  # leave-one-out regressions from the automatic runs, then the runs with them
-        regressions = loo_regressions(rows, scenes, a.work)
+        regressions = loo_regressions(rows, scenes, a.work, a.regression_form)
         jobs = [(scene, "auto-reg") for scene in scenes if scene.name in regressions]
         if jobs:
             run_all(jobs, regressions)

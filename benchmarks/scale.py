@@ -2,8 +2,8 @@
 
 Each preset is rendered once (``trafficcal synth``, cached in --work), then the whole chain runs on its video
 (background detector, tracker, BBScale; :func:`gst_trafficcal.scale.video.scale_from_video`) with the scene's
-true vanishing points.  BBScale+reg: the regression λ_reg = αλ* + β fitted on all *other* scenes (leave-one-out
-cross-validation).  BMVC14: median 3D-box dimensions of the same tracks against a mean car.  ManualScale: the
+true vanishing points.  BBScale+reg: the regression λ_reg = αλ* (+ β with ``--regression-form affine``) fitted
+on all *other* converged scenes (leave-one-out cross-validation).  BMVC14: median 3D-box dimensions of the same tracks against a mean car.  ManualScale: the
 scene's measured distances towards VP1 (gt_data.pkl) with the true VPs.  Prints a markdown table and writes
 docs/results/scale.md (with ``--write``).
 
@@ -174,7 +174,8 @@ def measure(folder: Path, min_vehicles: int, cache_dir: Path, background: str = 
     return row
 
 
-def loo_regression(rows: list[dict]) -> list[float | None]:
+def loo_regression(rows: list[dict], form: str = "ratio") -> list[float | None]:
+    """Per scene, λ_reg from the regression (``trafficcal fit-scale --form``) fitted on the other converged scenes."""
     from gst_trafficcal.errors import InputError
     from gst_trafficcal.scale.regression import fit_regression
 
@@ -186,7 +187,7 @@ def loo_regression(rows: list[dict]) -> list[float | None]:
             out.append(None)
             continue
         try:
-            reg = fit_regression([r["bbscale"] for r in others], [r["true"] for r in others])
+            reg = fit_regression([r["bbscale"] for r in others], [r["true"] for r in others], form=form)
         except InputError:
             out.append(None)
             continue
@@ -221,6 +222,8 @@ def main() -> None:
     ap.add_argument("--background", choices=("mog2", "average"), default="mog2", help="background detector method")
     ap.add_argument("--detector", default="", help="vehicledetect's model instead of the background detector, e.g. "
                     "vehicleseg (boxes + hulls)")
+    ap.add_argument("--regression-form", choices=("ratio", "affine"), default="ratio",
+                    help="form of the leave-one-out BBScale+reg (trafficcal fit-scale --form)")
     ap.add_argument("--write", type=Path, default=None,
                     help="also write the table as markdown here, e.g. docs/results/scale.md")
     a = ap.parse_args()
@@ -243,7 +246,7 @@ def main() -> None:
         durations = [a.duration] * n_synth + [None] * (len(folders) - n_synth)
         rows = list(pool.map(measure, folders, [a.min_vehicles] * len(folders), [cache] * len(folders),
                              [a.background] * len(folders), durations, [a.detector] * len(folders)))
-    reg = loo_regression(rows)
+    reg = loo_regression(rows, a.regression_form)
     lines = ["| scene | true λ (m) | BBScale % | BBScale+reg (LOO) % | BMVC14 % | ManualScale % | matched / agreeing "
              "| BBScale, hull box % | BBScale, exact box % |",
              "|---|---|---|---|---|---|---|---|---|"]
@@ -281,7 +284,7 @@ def main() -> None:
         f"chain: vehicledetect ({f'model={a.detector}' if a.detector else 'background detector'}), the tracker, "
         "BBScale with every passenger-car type of the "
         "catalogue, no classifier, the scene's true vanishing points). Relative error λ/λ_true − 1 in %; "
-        "BBScale+reg is leave-one-out (the regression fitted on the other scenes). λ* is reported even when "
+        f"BBScale+reg is leave-one-out (the regression, form {a.regression_form}, fitted on the other converged scenes). λ* is reported even when "
         "the stage did not converge (fewer than --min-vehicles agreeing vehicles; marked). A dash: no estimate. "
         f"Traffic: {a.traffic} ({'half of the passenger cars named catalogue types, benchmarks/scale.py CATALOGUE_TRAFFIC' if a.traffic == 'catalogue' else 'the presets own: generic cars of random dimensions, none of a catalogue type'}); "
         + (f"detector: vehicledetect model={a.detector}. " if a.detector else

@@ -52,8 +52,11 @@ def true_scale(folder: Path, calibration) -> tuple[float, str]:
 @click.option("--iou-threshold", default=0.85, show_default=True, help="Minimum IoU of a match.")
 @click.option("--min-vehicles", default=3, show_default=True, help="Agreeing vehicles needed per scene.")
 @click.option("--max-duration", default=None, type=float, help="Seconds of each video to use [default: all].")
+@click.option("--form", type=click.Choice(["ratio", "affine"]), default="ratio", show_default=True,
+              help="ratio: λ_reg = α·λ* (β = 0; predicted held-out scenes better on every set measured); "
+                   "affine: least-squares α and β, the paper's form (needs scenes of clearly different λ).")
 def command(train: tuple[Path, ...], out_path: Path, models: str, iou_threshold: float, min_vehicles: int,
-            max_duration: float | None) -> None:
+            max_duration: float | None, form: str) -> None:
     from rich.console import Console
     from rich.table import Table
 
@@ -91,7 +94,7 @@ def command(train: tuple[Path, ...], out_path: Path, models: str, iou_threshold:
         err = "" if lam is None else f"{100 * (lam / lam_true - 1):+.2f}"
         table.add_row(f.name, source, f"{lam_true:.3f}", "" if lam is None else f"{lam:.3f}", err, r.status)
     console.print(table)
-    reg = fit_regression(raw, true, names)
+    reg = fit_regression(raw, true, names, form=form)
     save_regression(reg, out_path)
     click.echo(f"λ_reg = {reg.alpha:.5f} · λ* {reg.beta:+.5f}  ({len(reg.scenes)} of {len(folders)} scenes) "
                f"-> {out_path}")
