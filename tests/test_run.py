@@ -194,3 +194,15 @@ def test_scale_regression_reaches_bbscale(clip, tmp_path):
     assert proc.returncode == 0, proc.stdout[-2000:] + proc.stderr[-2000:]
     printed = " ".join(proc.stdout.split())
     assert "bbscale regression-file=" in printed and str(reg) in printed.split("bbscale regression-file=")[1][:400]
+
+
+def test_body_shapes_reach_the_tracker(clip, tmp_path):
+    """--body-shapes is the tracker's body-shapes property in the pipeline the run plays (and prints); a value
+    that is none of auto, cars, box is refused before anything runs."""
+    proc = trafficcal("run", clip / "video.mp4", "--out", tmp_path / "out", "--no-overlay", "--body-shapes", "box",
+                      "--calibration", clip / "calibration.json")
+    assert proc.returncode == 0, proc.stdout[-2000:] + proc.stderr[-2000:]
+    assert "tracker body-shapes=box" in " ".join(proc.stdout.split())
+    assert read_events(tmp_path / "out" / "vehicles.jsonl")
+    bad = trafficcal("run", clip / "video.mp4", "--out", tmp_path / "bad", "--body-shapes", "round")
+    assert bad.returncode == 2 and "'round' is not one of" in bad.stderr and not (tmp_path / "bad").exists()

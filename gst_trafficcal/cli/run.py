@@ -54,7 +54,7 @@ QUEUE = "queue max-size-buffers=4 max-size-bytes=0 max-size-time=0"
 def pipeline_description(video: Path, paths: RunPaths, calibration: Path | None = None,
                          detector: Path | str | None = None,
                          overlay: bool = True, bbscale: bool = False, queues: bool = True,
-                         scale_regression: Path | None = None) -> str:
+                         scale_regression: Path | None = None, body_shapes: str = "auto") -> str:
     """The gst-launch description ``trafficcal run`` plays (also printed, so it can be re-run by hand).
 
     With ``queues`` two ``queue`` elements split the chain into three streaming threads (decoding; vpdetect and
@@ -64,7 +64,8 @@ def pipeline_description(video: Path, paths: RunPaths, calibration: Path | None 
     vp = f"vpdetect mode=fixed calibration-file={quote(calibration)}" if calibration else "vpdetect"
     det = f"vehicledetect model={quote(detector)}" if detector else "vehicledetect"
     chain = [f"filesrc location={quote(video)}", "decodebin", "videoconvert", "video/x-raw,format=I420",
-             *([QUEUE] if queues else []), vp, det, *([QUEUE] if queues else []), "tracker"]
+             *([QUEUE] if queues else []), vp, det, *([QUEUE] if queues else []),
+             "tracker" if body_shapes == "auto" else f"tracker body-shapes={body_shapes}"]
     if bbscale:
         chain.append(f"bbscale regression-file={quote(scale_regression)}" if scale_regression else "bbscale")
     chain.append(f"speedometer events-file={quote(paths.events)} csv-file={quote(paths.csv)} "
@@ -238,9 +239,13 @@ def print_vehicles(console, events: list) -> None:
                    "segmenter: boxes and outlines) (default: the built-in background-subtraction detector).")
 @click.option("--scale-regression", "regression_path", type=click.Path(path_type=Path), default=None,
               help="Scale-correction regression (trafficcal fit-scale) for bbscale's λ: the paper's BBScaleReg.")
+@click.option("--body-shapes", type=click.Choice(["auto", "cars", "box"]), default="auto", show_default=True,
+              help="The tracker's 3D box: auto = car body shapes for a segmenter's outlines (vehicleseg), the plain "
+                   "box for the background detector's hulls; box = always the plain box (steadier on outlines that "
+                   "keep a soft shadow halo); cars = always the body shapes. See docs/tracking.md.")
 @click.option("--no-overlay", is_flag=True, help="Do not encode overlay.mp4 (faster).")
 def command(video: Path, out_dir: Path, calibration_path: Path | None, gt_path: Path | None,
-            detector: str | None, regression_path: Path | None, no_overlay: bool) -> None:
+            detector: str | None, regression_path: Path | None, body_shapes: str, no_overlay: bool) -> None:
     """Calibrate and measure every vehicle of VIDEO in one pass through the GStreamer elements.
 
     Writes to --out: calibration.json, system.json (BrnoCompSpeed results), vehicles.jsonl, vehicles.csv,
@@ -277,7 +282,7 @@ def command(video: Path, out_dir: Path, calibration_path: Path | None, gt_path: 
     paths = RunPaths(out_dir)
     bbscale = (elements_dir() / "python" / "bbscale.py").exists()
     description = pipeline_description(video, paths, calibration_path, detector, overlay=not no_overlay,
-                                       bbscale=bbscale, scale_regression=regression_path)
+                                       bbscale=bbscale, scale_regression=regression_path, body_shapes=body_shapes)
     console.print(f"[bold]Pipeline[/] {description}", highlight=False, soft_wrap=True)
     summary = measure_video(video, out_dir, description, console,
                             keep=(calibration_path,) if calibration_path is not None else ())
