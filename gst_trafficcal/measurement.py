@@ -41,7 +41,7 @@ from .lanes import LaneModel, lateral_offset
 from .outputs import AWAY_FROM_VP1, TOWARDS_VP1, VehicleEvent
 from .speed import DEFAULT_TAU, SpeedChecks, VehicleSpeed, _median_velocity, metres_per_pixel, vehicle_speed
 from .tracking.box3d import corners_fit_hulls, pixels_to_road
-from .tracking.tracker import Observation, Track, TrackerConfig, TrackState, apply_shape, fit_boxes, track_shape
+from .tracking.tracker import Observation, Track, TrackerConfig, TrackState, rebuild_boxes
 from .tracking.tracker import _set_references, _update_direction  # the tracker's own finishing step
 
 DEFAULT_MIN_TRACK_LENGTH = 10
@@ -262,11 +262,8 @@ class SpeedMeter:
         obs = rec.observations
         if rec.unboxed:  # seen without a 3D box (no vanishing points at the time): build it from the hull now
             idx, rec.unboxed = rec.unboxed, []
-            late = [obs[k] for k in idx]
-            fit_boxes(camera, late)
-            holder = Track(id=rec.id, state=TrackState.FINISHED, observations=late)
-            holder.shape = track_shape(holder, TrackerConfig.shape_fits)
-            apply_shape(camera, holder, late)
+            late = Track(id=rec.id, state=TrackState.FINISHED, observations=[obs[k] for k in idx])
+            rebuild_boxes(camera, late, TrackerConfig.shape_fits)
         if last is not None:
             obs = obs[-last:]
         track = Track(id=rec.id, state=TrackState.FINISHED, observations=obs)

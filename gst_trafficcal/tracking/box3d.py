@@ -296,6 +296,13 @@ def fit_shapes(camera: Camera, hulls: Sequence[np.ndarray] | np.ndarray,
     return ShapeFits(np.stack(params), np.stack(fit), ("box", *(s.name for s in cars)), pts, valid)
 
 
+def track_choice(fit: np.ndarray) -> int:
+    """The one body shape for all of a track's silhouettes: the least summed misfit over their fits ``fit``
+    (N, S), each capped at 1 radian so that one bad outline cannot decide (0 = the box, also for no fits)."""
+    fit = np.asarray(fit, np.float64)
+    return int(np.argmin(np.sum(np.minimum(fit, 1.0), axis=0))) if fit.size else 0
+
+
 def boxes_from_fits(camera: Camera, fits: ShapeFits, choice: np.ndarray | None = None) -> Boxes3D:
     """The boxes of the chosen shape per hull (``choice`` (N,) shape indices; default: each hull's best)."""
     n = fits.pts.shape[0]

@@ -62,8 +62,9 @@ def shape_from_points(name: str, unit_points: np.ndarray, mirror: bool = True) -
 @lru_cache(maxsize=1)
 def box_shape() -> BodyShape:
     """The plain box (Dubská's construction): its corners."""
-    corners = np.array([[i & 1, (i >> 1) & 1, (i >> 2) & 1] for i in range(8)], np.float64)
-    return shape_from_points("box", corners, mirror=False)
+    from .box3d import CORNER_BITS  # box3d imports this module: imported when first needed
+
+    return shape_from_points("box", CORNER_BITS.astype(np.float64), mirror=False)
 
 
 def unit_coordinates(vertices: np.ndarray) -> np.ndarray:

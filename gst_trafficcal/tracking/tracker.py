@@ -31,7 +31,7 @@ from scipy.optimize import linear_sum_assignment
 from ..detection.records import Detections, box_iou
 from ..errors import InputError
 from ..geometry import Camera
-from .box3d import _boxes, _pad_hulls, fit_shapes, pixels_to_road, world_rays, world_to_pixels
+from .box3d import _boxes, _pad_hulls, fit_shapes, pixels_to_road, track_choice, world_rays, world_to_pixels
 from .kalman import BoxKF, ConstantVelocityKF
 
 
@@ -107,9 +107,7 @@ class Track:
     def recompute(self, camera: Camera, shape_fits: int | None = None) -> None:
         """(Re)build the 3D boxes and reference points of every observation with ``camera`` (the body shape
         chosen over the first ``shape_fits`` silhouette fits, as the tracker does live)."""
-        fit_boxes(camera, self.observations)
-        self.shape = track_shape(self, shape_fits)
-        apply_shape(camera, self, self.observations)
+        rebuild_boxes(camera, self, shape_fits)
         _update_direction(self)
         _set_references(camera, self, self.observations)
         self.road_kf = None
@@ -393,7 +391,8 @@ class Tracker:
         cam = self.camera
         fit_boxes(cam, observations)
         for tr, obs in zip(tracks, observations):
-            shape = tr.shape if shape_decided(tr, self.config.shape_fits) else track_shape(tr)
+            new_fit = obs.shape_fit is not None and len(obs.shape_fit) > 1  # else the fits are as before
+            shape = track_shape(tr, self.config.shape_fits) if new_fit else tr.shape
             if shape != tr.shape:  # the track's body shape changed: every box of the track holds the new one
                 tr.shape = shape
                 apply_shape(cam, tr, tr.observations)
@@ -434,6 +433,14 @@ def fit_boxes(camera: Camera, observations: list[Observation]) -> None:
             o.shape_params, o.shape_fit, o.shape_ok = fits.params[:, j], fits.fit[:, j], bool(fits.valid[j])
 
 
+def rebuild_boxes(camera: Camera, track: Track, shape_fits: int | None = None) -> None:
+    """Fit and set the 3D boxes of all the track's observations, with the body shape chosen over its first
+    ``shape_fits`` silhouette fits (as the tracker chooses live; None: over all)."""
+    fit_boxes(camera, track.observations)
+    track.shape = track_shape(track, shape_fits)
+    apply_shape(camera, track, track.observations)
+
+
 def body_shape_name(track: Track) -> str:
     """Name of the body shape the track's 3D boxes hold ("box" = Dubská's plain box; see box3d.fit_shapes)."""
     if track.shape == 0:
@@ -444,24 +451,16 @@ def body_shape_name(track: Track) -> str:
     return cars[track.shape - 1] if track.shape - 1 < len(cars) else "box"
 
 
-def shape_decided(track: Track, fits: int) -> bool:
-    """Whether the track's body shape is fixed: it has more than ``fits`` silhouette fits (the newest one, of
-    this frame, not counted)."""
-    n = 0
-    for o in track.observations[:-1]:
-        n += o.shape_fit is not None and len(o.shape_fit) > 1
-        if n >= fits:
-            return True
-    return False
-
-
 def track_shape(track: Track, first: int | None = None) -> int:
     """The body shape that explains the tangents of the track's silhouettes best (summed misfit; 0 = box), over
     its ``first`` fits (all: None)."""
-    fits = [o.shape_fit for o in track.observations if o.shape_fit is not None and len(o.shape_fit) > 1][:first]
-    if not fits:
-        return 0
-    return int(np.argmin(np.sum(np.minimum(np.array(fits), 1.0), axis=0)))
+    fits = []
+    for o in track.observations:
+        if first is not None and len(fits) >= first:  # the choice is made: later fits cannot change it
+            break
+        if o.shape_fit is not None and len(o.shape_fit) > 1:
+            fits.append(o.shape_fit)
+    return track_choice(np.array(fits))
 
 
 def apply_shape(camera: Camera, track: Track, observations: list[Observation]) -> None:
