@@ -47,29 +47,19 @@ class BBScale(TrafficcalTransform):
 
     def do_start(self):
         from gst_trafficcal.errors import TrafficcalError
-        from gst_trafficcal.scale.stage import ScaleStage
-        from gst_trafficcal.scale.streaming import ScaleEstimator, load_align_models
+        from gst_trafficcal.scale.stage import build_stage
 
         try:
             if self.renderer not in ("projection", "gl"):
                 raise TrafficcalError(f"renderer must be 'projection' or 'gl', got {self.renderer!r}")
             if self.box not in ("hull", "detector"):
                 raise TrafficcalError(f"box must be 'hull' or 'detector', got {self.box!r}")
-            regression = None
-            if self.regression_file:
-                from gst_trafficcal.scale.regression import load_regression
-                regression = load_regression(self.regression_file)
-            renderer = None
-            if self.renderer == "gl":
-                from gst_trafficcal.scale.silhouette import SilhouetteRenderer
-                renderer = SilhouetteRenderer()
             self._classifier = None
             if self.classifier:
                 from gst_trafficcal.scale.classifier import TypeClassifier
                 self._classifier = TypeClassifier(self.classifier)
-            self._stage = ScaleStage(ScaleEstimator(load_align_models(self.models), iou_threshold=self.iou_threshold,
-                                                    min_vehicles=self.min_vehicles, regression=regression,
-                                                    renderer=renderer))
+            self._stage = build_stage(self.models, self.min_vehicles, self.regression_file, self.iou_threshold,
+                                      self.renderer)
         except TrafficcalError as exc:
             self.post_error(f"bbscale: {exc}")
             return False

@@ -225,13 +225,9 @@ class Speedometer(TrafficcalTransform):
     def _new_scale_stage(self):
         """bbscale's stage with our scale-* properties (built at start, so bad models or a bad regression file
         are an error there)."""
-        from gst_trafficcal.scale.regression import load_regression
-        from gst_trafficcal.scale.stage import ScaleStage
-        from gst_trafficcal.scale.streaming import ScaleEstimator, load_align_models
+        from gst_trafficcal.scale.stage import build_stage
 
-        regression = load_regression(self.scale_regression_file) if self.scale_regression_file else None
-        return ScaleStage(ScaleEstimator(load_align_models(self.scale_models), min_vehicles=self.scale_min_vehicles,
-                                         regression=regression))
+        return build_stage(self.scale_models, self.scale_min_vehicles, self.scale_regression_file)
 
     def _scale_stage(self):
         """Our own scale stage when nothing else can give the scale: no bbscale upstream, no ``scale``, no

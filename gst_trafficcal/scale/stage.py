@@ -19,7 +19,8 @@ from typing import Any, Iterable, Mapping
 import numpy as np
 
 from ..calibration import Calibration
-from .streaming import ScaleEstimator, ScaleResult, Sighting, base_centre
+from .estimate import DEFAULT_IOU_THRESHOLD
+from .streaming import ScaleEstimator, ScaleResult, Sighting, base_centre, load_align_models
 
 #: relative change of λ after which the calibration is published again
 REPUBLISH = 0.005
@@ -123,6 +124,25 @@ class ScaleStage:
         conf["scale"] = float(r.confidence)
         source = cal.source if cal.source.endswith(SOURCE_SUFFIX) else f"{cal.source}+{SOURCE_SUFFIX}"
         return cal.with_scale(float(r.scale), confidence=conf, source=source)
+
+
+def build_stage(models: str = "", min_vehicles: int = 5, regression_file: str = "",
+                iou_threshold: float = DEFAULT_IOU_THRESHOLD, renderer: str = "projection") -> ScaleStage:
+    """The stage from element settings (bbscale's, and speedometer's scale-* properties): ``models`` as bbscale's
+    property (empty: every catalogue passenger-car type), a regression JSON path (empty: none), ``renderer``
+    projection or gl (the OpenGL context is made last, once everything else has loaded).  Unknown types, a broken
+    mesh or an unreadable regression file raise the library's one-line errors naming them."""
+    from .regression import load_regression
+
+    regression = load_regression(regression_file) if regression_file else None
+    align_models = load_align_models(models)
+    gl = None
+    if renderer == "gl":
+        from .silhouette import SilhouetteRenderer
+
+        gl = SilhouetteRenderer()
+    return ScaleStage(ScaleEstimator(align_models, iou_threshold=iou_threshold, min_vehicles=min_vehicles,
+                                     regression=regression, renderer=gl))
 
 
 def same_vanishing_points(a: Calibration | None, b: Calibration | None) -> bool:

@@ -189,16 +189,17 @@ class ScaleEstimator:
         self.min_peak = float(min_peak)
         self.loose = tuple(int(np.sign(v)) for v in loose) if loose is not None else None
         self.camera: Camera | None = None
+        self._tracks: dict[int, _TrackBuffer] = {}
+        self._waiting: list[tuple[int, _TrackBuffer]] = []  # tracks that ended before any vanishing points
         self._reset()
 
     # ------------------------------------------------------------------ state
     def _reset(self) -> None:
-        if not hasattr(self, "_waiting"):
-            self._waiting: list[tuple[int, _TrackBuffer]] = []  # tracks that ended before any vanishing points
-        for tid, buf in getattr(self, "_tracks", {}).items():  # their hull sightings hold under any VPs
+        """Drop the evidence of the previous vanishing points; open tracks keep only their hull sightings (they
+        hold under any VPs)."""
+        for buf in self._tracks.values():
             buf.sightings = []
-        self._tracks: dict[int, _TrackBuffer] = {tid: b for tid, b in getattr(self, "_tracks", {}).items()
-                                                 if b.early}
+        self._tracks = {tid: b for tid, b in self._tracks.items() if b.early}
         self._matches: list[_TrackMatch] = []
         self._n_aligned = 0
         self._n_geometry_failures = 0
@@ -282,7 +283,7 @@ class ScaleEstimator:
         one body shape per track) and the track's heading (the tracker's, or from the boxes' motion)."""
         from dataclasses import replace
 
-        from ..tracking.box3d import boxes_from_fits, fit_shapes
+        from ..tracking.box3d import boxes_from_fits, fit_shapes, track_choice
         from ..tracking.tracker import TrackerConfig
         from .alignment import heading_from_track
 
@@ -290,8 +291,7 @@ class ScaleEstimator:
         silhouette = any(e.silhouette for e in early)
         fits = fit_shapes(self.camera, [np.asarray(e.hull, np.float64).reshape(-1, 2) for e in early],
                           None if silhouette else ())
-        first = fits.fit[:, :TrackerConfig.shape_fits]  # the tracker chooses over a track's first fits
-        k = int(np.argmin(np.sum(np.minimum(first, 1.0), axis=1))) if silhouette else 0
+        k = track_choice(fits.fit[:, :TrackerConfig.shape_fits].T) if silhouette else 0  # as the tracker chooses
         boxes = boxes_from_fits(self.camera, fits, np.full(len(early), k))
         out = []
         for j, e in enumerate(early):
