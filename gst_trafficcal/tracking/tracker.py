@@ -178,6 +178,7 @@ class Tracker:
         self.finished: list[Track] = []
         self._ids = itertools.count(1)
         self.t: float | None = None
+        self._silhouettes = False  # this frame's hulls get the car body shapes (set by update)
         if camera is not None:
             self.set_camera(camera)
 
@@ -340,7 +341,7 @@ class Tracker:
             trunc = bool(np.any((both[:, :2] <= b) | (both[:, 2:] >= np.array([w - 1 - b, h - 1 - b]))))
         return Observation(t=t, box=np.asarray(box, np.float64).copy(), det_box=det.boxes[i].astype(np.float64),
                            score=float(det.scores[i]), label=str(det.labels[i]), hull=hull, truncated=trunc,
-                           occluded=bool(occluded), silhouette=bool(getattr(self, "_silhouettes", False)))
+                           occluded=bool(occluded), silhouette=self._silhouettes)
 
     def _occluded(self, boxes: np.ndarray) -> np.ndarray:
         """Detections partly covered by a nearer detection (the paper's heuristic)."""
