@@ -59,10 +59,11 @@ def fit_regression(raw: Sequence[float], true: Sequence[float], names: Sequence[
     ``form="ratio"`` (default): β = 0, α = mean(true / raw) — one parameter.  ``"affine"``: least-squares α, β,
     the paper's form; with a single scene (or scenes of equal λ*) it falls back to the ratio.  Why the ratio is
     the default: the training scenes' λ span a narrow range (BrnoCompSpeed 7.7–11 m) and BBScale's error is a
-    relative one, so the slope and offset of an affine fit are poorly determined; left out in turn, the ratio
-    predicted the held-out scene better on all four sets we had (the per-scene λ* of benchmarks/scale.py and of
-    end_to_end.py's auto runs, MOG2 and vehicleseg, 12 replays; median held-out error affine → ratio 2.0 → 1.8,
-    2.8 → 2.3, 3.3 → 3.1, 6.9 → 3.7 %).  InputError for no usable pairs or an unknown form."""
+    relative one, so the slope and offset of an affine fit are poorly determined.  Left out in turn
+    (``--regression-form affine|ratio`` of benchmarks/scale.py and end_to_end.py), the ratio did better on every
+    set measured: scale error median affine → ratio, replays MOG2 2.21 → 1.96 %, vehicleseg 2.28 → 2.10 %,
+    synth MOG2 3.22 → 2.03 %; fully automatic speeds on the replays, mean, MOG2 2.85 → 2.63 km/h, vehicleseg
+    6.13 → 3.64 km/h (docs/bbscale_streaming.md).  InputError for no usable pairs or an unknown form."""
     if form not in FORMS:
         raise InputError(f"scale regression form must be one of {', '.join(FORMS)}, got {form!r}")
     r = np.asarray(raw, np.float64).ravel()
