@@ -185,22 +185,20 @@ def loo_regressions(rows: list[Row], scenes: list[Scene], work: Path, form: str 
     """Per scene, the regression λ_reg = αλ* + β fitted on the other scenes of its group whose ``auto`` run found
     a scale (their λ* against the scene camera's λ), written to ``work/<scene>/auto-reg/regression.json``."""
     from gst_trafficcal.calibration import load_calibration
-    from gst_trafficcal.scale.regression import fit_regression, save_regression
+    from gst_trafficcal.scale.regression import leave_one_out, save_regression
 
     pairs = {}
     for r in rows:
         cal_file = work / r.scene / "auto" / "calibration.json"
         if r.mode == "auto" and r.has_scale and cal_file.is_file():
-            sc = next(s for s in scenes if s.name == r.scene)
-            raw = load_calibration(cal_file).camera.scale
-            true = load_calibration(sc.folder / "calibration.json").camera.scale
-            pairs[r.scene] = (r.kind, raw, true)
+            pairs[r.scene] = load_calibration(cal_file).camera.scale
+    true = [load_calibration(sc.folder / "calibration.json").camera.scale for sc in scenes]
+    regs = leave_one_out([pairs.get(sc.name) for sc in scenes], true, [sc.name for sc in scenes],
+                         groups=[sc.kind for sc in scenes], form=form)
     out = {}
-    for sc in scenes:
-        others = [(n, raw, true) for n, (kind, raw, true) in pairs.items() if kind == sc.kind and n != sc.name]
-        if not others:
+    for sc, reg in zip(scenes, regs):
+        if reg is None:
             continue
-        reg = fit_regression([o[1] for o in others], [o[2] for o in others], [o[0] for o in others], form=form)
         path = work / sc.name / "auto-reg" / "regression.json"
         path.parent.mkdir(parents=True, exist_ok=True)
         save_regression(reg, path)

@@ -176,23 +176,13 @@ def measure(folder: Path, min_vehicles: int, cache_dir: Path, background: str = 
 
 def loo_regression(rows: list[dict], form: str = "ratio") -> list[float | None]:
     """Per scene, λ_reg from the regression (``trafficcal fit-scale --form``) fitted on the other converged scenes."""
-    from gst_trafficcal.errors import InputError
-    from gst_trafficcal.scale.regression import fit_regression
+    from gst_trafficcal.scale.regression import leave_one_out
 
-    out = []
-    for i, row in enumerate(rows):
-        # trained as trafficcal fit-scale does: only scenes where the stage converged
-        others = [r for j, r in enumerate(rows) if j != i and r["bbscale"] is not None and r["converged"]]
-        if row["bbscale"] is None or len(others) < 2:
-            out.append(None)
-            continue
-        try:
-            reg = fit_regression([r["bbscale"] for r in others], [r["true"] for r in others], form=form)
-        except InputError:
-            out.append(None)
-            continue
-        out.append(reg.apply(row["bbscale"]))
-    return out
+    # trained as trafficcal fit-scale does: only scenes where the stage converged
+    regs = leave_one_out([r["bbscale"] for r in rows], [r["true"] for r in rows], [r["scene"] for r in rows],
+                         train=[r["converged"] for r in rows], form=form, min_others=2)
+    return [None if reg is None or row["bbscale"] is None else reg.apply(row["bbscale"])
+            for reg, row in zip(regs, rows)]
 
 
 def fmt(v, true) -> str:

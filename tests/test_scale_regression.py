@@ -8,7 +8,8 @@ import numpy as np
 import pytest
 
 from gst_trafficcal.errors import InputError
-from gst_trafficcal.scale.regression import ScaleRegression, fit_regression, load_regression, save_regression
+from gst_trafficcal.scale.regression import (ScaleRegression, fit_regression, leave_one_out, load_regression,
+                                             save_regression)
 
 
 def test_fit_recovers_a_linear_bias():
@@ -30,8 +31,8 @@ def test_default_ratio_form_predicts_held_out_scenes_better_with_few_close_scale
     assert reg.beta == 0.0 and reg.alpha == pytest.approx(np.mean(true / raw))
 
     def held_out(form):
-        return np.median([abs(fit_regression(np.delete(raw, i), np.delete(true, i), form=form).apply(raw[i])
-                              / true[i] - 1) for i in range(len(raw))])
+        return np.median([abs(reg.apply(raw[i]) / true[i] - 1)
+                          for i, reg in enumerate(leave_one_out(raw, true, form=form))])
 
     assert held_out("ratio") < held_out("affine")
     with pytest.raises(InputError, match="form must be one of ratio, affine"):
@@ -45,6 +46,19 @@ def test_single_scene_fits_a_ratio_and_bad_pairs_are_skipped():
         fit_regression([np.nan], [7.0])
     with pytest.raises(InputError, match="2 estimated scales but 1 true"):
         fit_regression([1.0, 2.0], [1.0])
+
+
+def test_leave_one_out_trains_on_the_other_scenes_of_the_group_only():
+    raw = [10.0, 10.0, 20.0, None, 30.0]
+    true = [11.0, 12.0, 21.0, 9.0, 33.0]
+    groups = ["synth", "synth", "synth", "synth", "replay"]
+    regs = leave_one_out(raw, true, [f"s{i}" for i in range(5)], groups=groups, train=[True, True, False, True, True])
+    # s0 learns from s1 only (s2 may not train, s3 has no λ*, s4 is another group), and vice versa
+    assert regs[0].alpha == pytest.approx(1.2) and [s["name"] for s in regs[0].scenes] == ["s1"]
+    assert regs[1].alpha == pytest.approx(1.1)
+    assert regs[2].alpha == pytest.approx(np.mean([1.1, 1.2])) and regs[3].alpha == pytest.approx(regs[2].alpha)
+    assert regs[4] is None  # nothing else in its group
+    assert leave_one_out(raw, true, groups=groups, train=[True, True, False, True, True], min_others=2)[0] is None
 
 
 def test_save_and_load_round_trip(tmp_path):

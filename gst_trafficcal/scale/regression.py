@@ -86,6 +86,31 @@ def fit_regression(raw: Sequence[float], true: Sequence[float], names: Sequence[
     return ScaleRegression(float(alpha), float(beta), scenes)
 
 
+def leave_one_out(raw: Sequence[float | None], true: Sequence[float], names: Sequence[str] | None = None,
+                  groups: Sequence[object] | None = None, train: Sequence[bool] | None = None, form: str = "ratio",
+                  min_others: int = 1) -> list[ScaleRegression | None]:
+    """Per scene i, the regression fitted on the *other* scenes of its group (``groups``, e.g. synth vs replays;
+    one group when None) that may train (``train``, e.g. only those where the stage converged; all with a λ*
+    when None) — cross-validation of :func:`fit_regression`.  None where fewer than ``min_others`` scenes are
+    left to train on."""
+    n = len(raw)
+    groups = list(groups) if groups is not None else [0] * n
+    train = list(train) if train is not None else [True] * n
+    names = list(names) if names is not None else [f"scene{i}" for i in range(n)]
+    out: list[ScaleRegression | None] = []
+    for i in range(n):
+        js = [j for j in range(n) if j != i and groups[j] == groups[i] and train[j] and raw[j] is not None]
+        if len(js) < min_others:
+            out.append(None)
+            continue
+        try:
+            out.append(fit_regression([raw[j] for j in js], [true[j] for j in js], [names[j] for j in js],
+                                      form=form))
+        except InputError:
+            out.append(None)
+    return out
+
+
 def save_regression(reg: ScaleRegression, path: str | Path) -> None:
     atomic_write_text(Path(path), json.dumps(reg.to_dict(), indent=2) + "\n", "scale regression file")
 
