@@ -227,3 +227,14 @@ def test_speedometer_scale_stage_bad_regression_file_is_an_error_at_start(clip, 
     with pytest.raises(PipelineError, match="reg.json"):
         run_pipeline(f"filesrc location={clip / 'video.mp4'} ! decodebin ! videoconvert ! vehicledetect ! "
                      f"speedometer scale-regression-file={bad} ! appsink name=sink", timeout=120)
+
+
+def test_speedometer_builds_no_scale_stage_of_its_own_behind_bbscale(clip, tmp_path):
+    """With bbscale upstream the scale-* properties are not used (gst-inspect says so): speedometer does not build
+    its stage, so not even a bad regression file stops it, and its message says the scale comes from upstream."""
+    bad = tmp_path / "reg.json"
+    bad.write_text("{not json")
+    res = run_pipeline(f"filesrc location={clip / 'video.mp4'} ! decodebin ! videoconvert ! vehicledetect ! tracker ! "
+                       f"bbscale ! speedometer scale-regression-file={bad} ! appsink name=sink", timeout=120)
+    msgs = [m.fields for m in res.messages if m.name == "trafficcal-speedometer"]
+    assert msgs and msgs[0]["scale"] == "upstream"

@@ -109,7 +109,8 @@ class Speedometer(TrafficcalTransform):
                 from gst_trafficcal.outputs import FrameJsonlWriter
 
                 self._frames = FrameJsonlWriter(self.frames_file, skip_empty=True)
-            self._own_stage = self._new_scale_stage()
+            if not self._scale_given():  # built now, so bad scale-* properties are an error at start
+                self._own_stage = self._new_scale_stage()
         except Exception as exc:  # bad properties / unreadable calibration / unwritable file: readable error
             self.post_error(f"speedometer: {exc}")
             return False
@@ -192,7 +193,11 @@ class Speedometer(TrafficcalTransform):
             max_lost = (float(upstream.get_property("max-lost")) if upstream is not None
                         else self._tracking.config.max_lost)
             self._meter.end_after = max(self.vehicle_timeout, max_lost + END_AFTER_MARGIN)
-            self._stage = self._scale_stage()
+            try:
+                self._stage = self._scale_stage()
+            except Exception as exc:  # bad scale-* properties, seen only now
+                self.post_error(f"speedometer: {exc}")
+                return Gst.FlowReturn.ERROR
             self.post_element_message("trafficcal-speedometer",
                                       {"tracking": "upstream" if self._tracking is False else "internal",
                                        "scale": "internal" if self._stage is not None else "upstream"})
@@ -229,13 +234,20 @@ class Speedometer(TrafficcalTransform):
 
         return build_stage(self.scale_models, self.scale_min_vehicles, self.scale_regression_file)
 
+    def _scale_given(self) -> bool:
+        """Something else gives the scale: bbscale upstream, the ``scale`` property or a calibration file with a
+        scale."""
+        return _upstream_element(self, "bbscale") is not None or self.scale > 0 or \
+            (self._file_cal is not None and self._file_cal.camera is not None
+             and self._file_cal.camera.scale is not None)
+
     def _scale_stage(self):
-        """Our own scale stage when nothing else can give the scale: no bbscale upstream, no ``scale``, no
-        calibration file with a scale."""
-        if _upstream_element(self, "bbscale") is not None or self.scale > 0 or \
-                (self._file_cal is not None and self._file_cal.camera is not None
-                 and self._file_cal.camera.scale is not None):
+        """Our own scale stage when nothing else can give the scale (built at start, or here when bbscale seemed
+        upstream at start but is not linked now)."""
+        if self._scale_given():
             return None
+        if self._own_stage is None:
+            self._own_stage = self._new_scale_stage()
         return self._own_stage
 
     def _scale_frame(self, buffer, t):
