@@ -1,0 +1,216 @@
+"""Where BBScale's error comes from: the chain's sightings of each scene, dumped once, replayed into variants.
+
+``dump`` runs the scale chain of :func:`gst_trafficcal.scale.video.scale_from_video` (detector, tracker, the
+scene's true vanishing points) over rendered scenes (synth presets or BrnoCompSpeed replays, folders with
+``frames.jsonl``) and stores every sighting the ``bbscale`` stage would see — detector box, hull, 3D-box corners,
+heading, body shape — next to the renderer's truth for the same vehicle (exact 2D box, exact 3D box, catalogue
+model, real length).  ``replay`` feeds those sightings into :class:`~gst_trafficcal.scale.streaming.ScaleEstimator`
+variants without re-running detection and tracking (seconds per scene instead of minutes), e.g. with the exact
+box or the exact base swapped in, to separate the error of the boxes, of the base points and of the types:
+
+    .venv/bin/python benchmarks/scale_sightings.py dump /tmp/replays_cat/session* --out /tmp/sightings [--detector vehicleseg]
+    .venv/bin/python benchmarks/scale_sightings.py replay /tmp/sightings/*.pkl --variant chain,exact_box,exact_base,exact
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import pickle
+import sys
+from dataclasses import dataclass, replace
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+
+@dataclass
+class Record:
+    """One sighting as the scale stage saw it, with the renderer's truth of the vehicle it is (when matched)."""
+
+    frame: int
+    sighting: object  # gst_trafficcal.scale.streaming.Sighting (box = detector box)
+    hull_box: tuple | None
+    true_id: int | None = None
+    true_box: tuple | None = None
+    true_corners: np.ndarray | None = None  # 8x2 px, order box3d.CORNER_BITS
+    true_model: str | None = None
+    true_size: tuple | None = None  # length, width, height (m)
+    true_visible: float = 0.0
+
+
+def _truth(folder: Path) -> dict[int, list[dict]]:
+    out: dict[int, list[dict]] = {}
+    with open(folder / "frames.jsonl", encoding="utf-8") as fh:
+        for line in fh:
+            d = json.loads(line)
+            out.setdefault(int(d["frame"]), []).append(d)
+    return out
+
+
+def _corner_order(c: np.ndarray) -> np.ndarray:
+    """The renderer's box corners (frames.jsonl ``box3d``: bottom then top, each front-left, front-right,
+    rear-right, rear-left) in the tracker's order (box3d.CORNER_BITS: bit 0 along the vehicle, bit 1 across,
+    bit 2 up)."""
+    return np.asarray(c, np.float64).reshape(8, 2)[[2, 1, 3, 0, 6, 5, 7, 4]]
+
+
+def dump(folder: Path, out: Path, detector: str, duration: float | None) -> Path:
+    from gst_trafficcal.calibration import load_calibration
+    from gst_trafficcal.scale.alignment import box_iou
+    from gst_trafficcal.scale.streaming import load_align_models
+    from gst_trafficcal.scale.video import frame_sightings, scale_from_video
+
+    dest = out / f"{folder.name}{'_' + detector if detector else ''}.pkl"
+    if dest.is_file():
+        return dest
+    cal = load_calibration(folder / "calibration.json")
+    cam = cal.camera.with_scale(None)
+    truth = _truth(folder)
+    records: list[Record] = []
+
+    def on_frame(n, t, result, detections):
+        hull = {s.track_id: s.box for s in frame_sightings(result, detections, cam, "hull")}
+        recs = truth.get(n, [])
+        boxes = np.array([r["box"] for r in recs], np.float64).reshape(-1, 4)
+        for s in frame_sightings(result, detections, cam, "detector"):
+            rec = Record(n, s, hull.get(s.track_id))
+            if len(boxes):
+                iou = box_iou(boxes, s.box)
+                k = int(np.argmax(iou))
+                if iou[k] > 0.3:
+                    r = recs[k]
+                    rec = replace(rec, true_id=int(r["id"]), true_box=tuple(r["box"]),
+                                  true_corners=_corner_order(r["box3d"]), true_model=str(r["model"]),
+                                  true_size=tuple(r["size"]), true_visible=float(r["visible"]))
+            records.append(rec)
+
+    res = scale_from_video(folder / "video.mp4", cal.with_scale(None), models=load_align_models(None),
+                           on_frame=on_frame, detector=detector, max_duration=duration)
+    out.mkdir(parents=True, exist_ok=True)
+    with open(dest, "wb") as fh:
+        pickle.dump({"scene": folder.name, "true": float(cal.camera.scale), "camera": cam, "detector": detector,
+                     "chain": res.result.raw_scale, "records": [vars(r) for r in records]}, fh)
+    return dest
+
+
+# ---------------------------------------------------------------------------------------------------- variants
+def _exact_base(rec: Record):
+    from gst_trafficcal.scale.streaming import base_centre
+
+    return base_centre(rec.true_corners) if rec.true_corners is not None else None
+
+
+def variant_sightings(records: list[Record], variant: str) -> list[tuple[int, float, object]]:
+    """(frame, t, sighting) with what ``variant`` swaps in: chain (as seen), exact_box (renderer's 2D box),
+    exact_base (renderer's 3D-box base centre), exact (both), hull (the tracker's hull box)."""
+    out = []
+    for r in records:
+        s = r.sighting
+        if variant in ("exact_box", "exact"):
+            if r.true_box is None:
+                continue
+            s = replace(s, box=tuple(float(v) for v in r.true_box))
+        if variant in ("exact_base", "exact"):
+            if r.true_corners is None or s.base is None:
+                continue
+            s = replace(s, base=_exact_base(r), corners=r.true_corners)
+        if variant == "hull" and r.hull_box is not None:
+            s = replace(s, box=tuple(float(v) for v in r.hull_box))
+        out.append((r.frame, float(s.t), s))
+    return out
+
+
+def load(path: Path) -> dict:
+    """A dump with its records as :class:`Record` (stored as plain dicts, so any script can read them)."""
+    with open(path, "rb") as fh:
+        data = pickle.load(fh)
+    data["records"] = [r if isinstance(r, Record) else Record(**r) for r in data["records"]]
+    return data
+
+
+def replay(data: dict, variant: str, **options) -> dict:
+    from gst_trafficcal.scale.streaming import ScaleEstimator, load_align_models
+
+    est = ScaleEstimator(load_align_models(None), **options)
+    est.set_camera(data["camera"])
+    frames: dict[int, list] = {}
+    times: dict[int, float] = {}
+    for n, t, s in variant_sightings(data["records"], variant):
+        frames.setdefault(n, []).append(s)
+        times[n] = t
+    for n in sorted(frames):
+        est.update(times[n], frames[n])
+    est.finish()
+    r = est.result()
+    return {"scene": data["scene"], "variant": variant, "true": data["true"], "raw": r.raw_scale,
+            "converged": r.converged, "matched": r.n_matched, "agreeing": r.n_agreeing,
+            "error": None if r.raw_scale is None else 100 * (r.raw_scale / data["true"] - 1),
+            "matches": est._matches}
+
+
+def vehicle_table(data: dict, variants: list[str], min_vehicles: int = 5) -> str:
+    """Per variant, each matched vehicle's own λ error, the catalogue type it was matched with and what it is."""
+    from collections import Counter
+
+    truth: dict[int, Counter] = {}
+    for r in data["records"]:
+        truth.setdefault(r.sighting.track_id, Counter())[r.true_model] += 1
+    lines = []
+    for v in variants:
+        res = replay(data, v, min_vehicles=min_vehicles)
+        lines.append(f"  {data['scene']} {v}: λ* {res['error']:+.2f} %" if res["error"] is not None else
+                     f"  {data['scene']} {v}: no λ*")
+        for m in res["matches"]:
+            true = truth.get(m.track_id, Counter()).most_common(1)
+            lines.append(f"    track {m.track_id:4d}  own {100 * (m.own / data['true'] - 1):+7.2f} %  "
+                         f"{m.model:28s} is {true[0][0] if true else '?'}")
+    return "\n".join(lines)
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    sub = ap.add_subparsers(dest="cmd", required=True)
+    d = sub.add_parser("dump", help="run the chain once per scene folder and store its sightings")
+    d.add_argument("folders", nargs="+", type=Path)
+    d.add_argument("--out", type=Path, default=Path("/tmp/sightings"))
+    d.add_argument("--detector", default="", help="vehicledetect model (empty: the background detector)")
+    d.add_argument("--duration", type=float, default=None, help="analyse only the first seconds")
+    r = sub.add_parser("replay", help="replay stored sightings into ScaleEstimator variants")
+    r.add_argument("files", nargs="+", type=Path)
+    r.add_argument("--variant", default="chain,exact_box,exact_base,exact")
+    r.add_argument("--min-vehicles", type=int, default=5)
+    r.add_argument("--vehicles", action="store_true",
+                   help="also list each matched vehicle: its own λ error, the type chosen and the true model")
+    a = ap.parse_args()
+    if a.cmd == "dump":
+        for f in a.folders:
+            print(dump(f, a.out, a.detector, a.duration), flush=True)
+        return
+    variants = a.variant.split(",")
+    table: dict[str, list[float | None]] = {v: [] for v in variants}
+    print("| scene | " + " | ".join(variants) + " |")
+    print("|---|" + "---|" * len(variants))
+    for f in a.files:
+        data = load(f)
+        cells = []
+        for v in variants:
+            res = replay(data, v, min_vehicles=a.min_vehicles)
+            table[v].append(res["error"])
+            cells.append("–" if res["error"] is None else
+                         f"{res['error']:+.2f}{'' if res['converged'] else '*'} ({res['matched']}/{res['agreeing']})")
+        print(f"| {data['scene']} | " + " | ".join(cells) + " |", flush=True)
+        if a.vehicles:
+            print(vehicle_table(data, variants), flush=True)
+    summ = []
+    for v in variants:
+        e = np.abs([x for x in table[v] if x is not None])
+        summ.append("–" if not len(e) else f"{np.median(e):.2f} / {np.mean(e):.2f}")
+    print("| median / mean abs % | " + " | ".join(summ) + " |")
+
+
+if __name__ == "__main__":
+    main()
