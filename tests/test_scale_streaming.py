@@ -146,6 +146,23 @@ def test_bad_model_names_and_parameters(models):
         ScaleEstimator(models, iou_threshold=1.5)
     with pytest.raises(InputError, match="min-vehicles"):
         ScaleEstimator(models, min_vehicles=0)
+    with pytest.raises(InputError, match="sighting selection must be one of largest, spread"):
+        ScaleEstimator(models, select="smallest")
+
+
+def test_sightings_chosen_largest_or_spread_over_the_size_range(models):
+    """A track approaching the camera: its box grows frame by frame.  "largest" aligns the nearest sightings,
+    "spread" sightings from the whole range of sizes (the largest, the smallest and between), each at least
+    min_gap apart."""
+    track = [Sighting(1, 0.25 * k, (0, 0, 40 + 4 * k, 30 + 3 * k), (20, 30), 1.0) for k in range(40)]
+    largest = ScaleEstimator(models, per_track=4)._choose(track)
+    spread = ScaleEstimator(models, per_track=4, select="spread")._choose(track)
+    assert [s.t for s in largest] == pytest.approx([9.75, 9.5, 9.25, 9.0])
+    assert sorted(s.t for s in spread) == pytest.approx([0.0, 3.25, 6.5, 9.75])
+    # picks closer than min_gap give way to other sightings, largest first
+    tight = ScaleEstimator(models, per_track=4, select="spread", min_gap=3.5)._choose(track)
+    times = sorted(s.t for s in tight)
+    assert 9.75 in times and len(times) <= 4 and min(np.diff(times)) >= 3.5
 
 
 # ---------------------------------------------------------------------------------------------- classifier

@@ -45,6 +45,9 @@ from .estimate import DEFAULT_IOU_THRESHOLD, kde_mode
 #: motorcycles are only aligned when named in ``models``
 DEFAULT_STYLES = ("sedan", "estate", "hatchback", "suv")
 
+#: how a track's sightings are chosen for alignment (:meth:`ScaleEstimator._choose`)
+SELECTIONS = ("largest", "spread")
+
 #: labels never aligned with car models (detectors' non-vehicle or two-wheeler classes)
 SKIPPED_LABELS = frozenset({"person", "bicycle", "motorcycle", "motorbike", "pedestrian"})
 
@@ -169,7 +172,7 @@ class ScaleEstimator:
                  track_timeout: float = 1.0, min_box: float = 24.0, shortlist: int = 3, agreement: float = 0.08,
                  refine_base: bool = True, bandwidth: float = 0.02,
                  shape_range: tuple[float, float] | None = (0.8, 3.5), shape_tolerance: float | None = None,
-                 min_peak: float = 0.0, loose=None):
+                 min_peak: float = 0.0, loose=None, select: str = "largest"):
         if not 0.0 < iou_threshold < 1.0:
             raise InputError(f"iou-threshold must be between 0 and 1, got {iou_threshold:g}")
         if min_vehicles < 1:
@@ -188,6 +191,9 @@ class ScaleEstimator:
         self.shape_range, self.shape_tolerance = shape_range, shape_tolerance
         self.min_peak = float(min_peak)
         self.loose = tuple(int(np.sign(v)) for v in loose) if loose is not None else None
+        if select not in SELECTIONS:
+            raise InputError(f"sighting selection must be one of {', '.join(SELECTIONS)}, got {select!r}")
+        self.select = select
         self.camera: Camera | None = None
         self._tracks: dict[int, _TrackBuffer] = {}
         self._waiting: list[tuple[int, _TrackBuffer]] = []  # tracks that ended before any vanishing points
@@ -308,8 +314,13 @@ class ScaleEstimator:
 
     # ------------------------------------------------------------------ alignment
     def _choose(self, sightings: list[Sighting]) -> list[Sighting]:
-        """The ``per_track`` largest sightings at least ``min_gap`` seconds apart."""
+        """``per_track`` sightings at least ``min_gap`` seconds apart: the largest (``select`` "largest"), or
+        spread evenly over the track's range of box sizes ("spread")."""
         order = sorted(sightings, key=lambda s: -(s.box[2] - s.box[0]) * (s.box[3] - s.box[1]))
+        if self.select == "spread" and len(order) > self.per_track:
+            picks = np.linspace(0, len(order) - 1, self.per_track).round().astype(int)
+            rest = np.setdiff1d(np.arange(len(order)), picks)  # fall back on the others, largest first
+            order = [order[i] for i in np.concatenate([picks, rest])]
         chosen: list[Sighting] = []
         for s in order:
             if all(abs(s.t - c.t) >= self.min_gap for c in chosen):
