@@ -10,6 +10,8 @@
 * The paper's heuristic: a detection partly covered by a nearer one is not measured, so only fully visible
   vehicles give 3D boxes and reference points.  It still keeps its track alive (association and the 2D Kalman
   filter), so a vehicle that passes behind another one keeps its id; it never starts a track.
+* A track with no measured box in a frame coasts; with a calibration it coasts on the road (the last 3D box
+  moved at the vehicle's road velocity, since image motion accelerates under perspective).
 * 3D boxes (:mod:`.box3d`): from clean vehicle silhouettes (a segmentation model's hulls) the box holds the
   car body shape that explains the track's tangents best, one shape per track so the reference point does not
   jump between bodies; from background-model hulls (which keep part of the cast shadow) the plain box
@@ -31,7 +33,8 @@ from scipy.optimize import linear_sum_assignment
 from ..detection.records import Detections, box_iou
 from ..errors import InputError
 from ..geometry import Camera
-from .box3d import _boxes, _pad_hulls, fit_shapes, pixels_to_road, track_choice, world_rays, world_to_pixels
+from .box3d import (CORNER_BITS, _boxes, _pad_hulls, fit_shapes, pixels_to_road, track_choice, world_rays,
+                    world_to_pixels)
 from .kalman import BoxKF, ConstantVelocityKF
 
 
@@ -75,6 +78,7 @@ class Track:
     direction: int = 0  # +1 moving towards VP1, -1 away from it, 0 unknown (no calibration yet)
     hits: int = 0
     last_t: float = 0.0
+    kf_t: float = 0.0  # time of the last detection that updated the 2D filter
     kf: BoxKF | None = field(default=None, repr=False)
     road_kf: ConstantVelocityKF | None = field(default=None, repr=False)
     road_kf_t: float = field(default=0.0, repr=False)
@@ -140,6 +144,12 @@ class TrackerConfig:
     # (re-choosing it along the track moved them by up to the shapes' difference at every switch: measured on
     # the vehicleseg replays, 22 of 55 tracks switched 142 times, and their speed samples disagreed)
     shape_fits: int = 10
+    # with a calibration, a track without a detection this frame (lost) is predicted on the
+    # road (its last 3D box moved at its road velocity) instead of at constant image velocity (_coast_on_road)
+    coast_on_road: bool = True
+    # ... once its measured 3D boxes of the last second are at least 5 and span at least this (seconds: a track that
+    # began as a blob of two vehicles driving apart had 5 boxes over 0.16 s and coasted along one of them)
+    coast_min_span: float = 0.25
 
     def __post_init__(self) -> None:
         if self.n_init < 1:
@@ -221,8 +231,11 @@ class Tracker:
 
         occluded = self._occluded(det_boxes) if cfg.drop_occluded else np.zeros(n, bool)
 
+        prev_t = t - dt
         for tr in self.tracks:
             tr.kf.predict(dt)
+            if tr.kf_t < prev_t and self.camera is not None and cfg.coast_on_road:  # coasting: follow it on the road
+                _coast_on_road(self.camera, tr, t, min_span=cfg.coast_min_span)
         pred = np.array([tr.kf.box for tr in self.tracks]).reshape(-1, 4)
         pairs = self._associate(pred, det_boxes)
 
@@ -234,6 +247,7 @@ class Tracker:
             tr = self.tracks[ti]
             obs = self._observation(t, detections, i, meas[i], hulls[i], occluded[i])
             tr.kf.update(det_boxes[i])
+            tr.kf_t = t
             tr.observations.append(obs)
             tr.hits += 1
             tr.last_t = t
@@ -267,7 +281,8 @@ class Tracker:
                 continue
             if len(taken) and box_iou(det_boxes[i:i + 1], taken).max() > cfg.duplicate_iou:
                 continue
-            tr = Track(id=next(self._ids), state=TrackState.TENTATIVE, hits=1, last_t=t, kf=BoxKF(det_boxes[i]))
+            tr = Track(id=next(self._ids), state=TrackState.TENTATIVE, hits=1, last_t=t, kf_t=t,
+                       kf=BoxKF(det_boxes[i]))
             if cfg.n_init <= 1:
                 tr.state, tr.ever_confirmed = TrackState.CONFIRMED, True
             obs = self._observation(t, detections, i, meas[i], hulls[i], False)
@@ -415,6 +430,61 @@ class Tracker:
             else:
                 _set_references(cam, tr, [obs])
             _filter_road(tr, obs)
+
+
+def _coast_on_road(camera: Camera, track: Track, t: float, min_points: int = 5, span: float = 1.0,
+                   min_span: float = 0.25) -> None:
+    """Set the 2D filter of a track that has no detection this frame (lost) to
+    where its vehicle is on the road: the last 3D box moved at the vehicle's road velocity and projected.
+
+    Image motion accelerates under perspective (a vehicle nearing the camera doubled its image speed within a
+    second on ``left_side``), so the constant image velocity of the 2D filter falls behind a vehicle hidden for half a
+    second; on the road plane constant velocity is physically right.  The velocity is the least-squares slope of
+    the 3D box centres measured in the last ``span`` seconds before the last one (the road filter of the reference
+    point has seen points from before the track's direction was known, and the box's near face moves a little
+    faster than the vehicle as the fitted box lengthens on approach; the centre least).  Needs at least
+    ``min_points`` of them over at least ``min_span`` seconds; the 2D filter is left as it is otherwise."""
+    recent = []  # measured observations within ``span`` of the last one, newest first
+    for m in reversed(track.observations):
+        if m.box3d is None:
+            continue
+        if recent and m.t < recent[0].t - span:
+            break
+        recent.append(m)
+    if len(recent) < min_points:
+        return
+    o = recent[0]
+    if o.t - recent[-1].t < min_span:
+        return
+    ts = np.array([m.t for m in recent]) - o.t
+    ref = np.array([[(m.box3d[0] + m.box3d[1]) / 2, (m.box3d[2] + m.box3d[3]) / 2] for m in recent], np.float64)
+    tc = ts - ts.mean()
+    denom = float(np.sum(tc * tc))
+    if denom <= 0:
+        return
+    v = (tc @ (ref - ref.mean(axis=0))) / denom
+    if not np.all(np.isfinite(v)):
+        return
+    x0, x1, y0, y1, h = o.box3d
+    corners = np.stack([np.where(CORNER_BITS[:, 0] == 1, x1, x0), np.where(CORNER_BITS[:, 1] == 1, y1, y0),
+                        CORNER_BITS[:, 2] * h], axis=1)
+    step = 0.04
+    shifts = np.array([0.0, t - o.t, t - o.t + step])[:, None, None] * np.array([v[0], v[1], 0.0])
+    with np.errstate(divide="ignore", invalid="ignore"):
+        px = world_to_pixels(camera, corners[None] + shifts)  # (3, 8, 2): then, now, a moment later
+    if not np.all(np.isfinite(px)):
+        return
+    lo, hi = px.min(axis=1), px.max(axis=1)
+    size = hi - lo
+    if np.any(size <= 1.0):
+        return
+    # the detector's box relative to the projected 3D box when it was measured, carried to the moved one
+    d = o.det_box
+    rel_lo, rel_hi = (d[:2] - lo[0]) / size[0], (d[2:] - lo[0]) / size[0]
+    boxes = np.concatenate([lo[1:] + rel_lo * size[1:], lo[1:] + rel_hi * size[1:]], axis=1)  # (2, 4)
+    z = np.stack([(boxes[:, 0] + boxes[:, 2]) / 2, (boxes[:, 1] + boxes[:, 3]) / 2,
+                  boxes[:, 2] - boxes[:, 0], boxes[:, 3] - boxes[:, 1]], axis=1)
+    track.kf.kf.x = np.concatenate([z[0], (z[1] - z[0]) / step])
 
 
 def fit_boxes(camera: Camera, observations: list[Observation]) -> None:
