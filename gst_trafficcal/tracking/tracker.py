@@ -10,8 +10,10 @@
 * The paper's heuristic: a detection partly covered by a nearer one is not measured, so only fully visible
   vehicles give 3D boxes and reference points.  It still keeps its track alive (association and the 2D Kalman
   filter), so a vehicle that passes behind another one keeps its id; it never starts a track.
-* A track with no measured box in a frame coasts; with a calibration it coasts on the road (the last 3D box
-  moved at the vehicle's road velocity, since image motion accelerates under perspective).
+* Static occluders (:mod:`.occluders`): the tracker learns where a pole or post in front of the road hides
+  vehicles; a vehicle cut by one is tracked but not measured, its track coasts through it (with a calibration on
+  the road: the last 3D box moved at the vehicle's road velocity, since image motion accelerates under
+  perspective), and its fragments start no tracks of their own.
 * 3D boxes (:mod:`.box3d`): from clean vehicle silhouettes (a segmentation model's hulls) the box holds the
   car body shape that explains the track's tangents best, one shape per track so the reference point does not
   jump between bodies; from background-model hulls (which keep part of the cast shadow) the plain box
@@ -36,6 +38,7 @@ from ..geometry import Camera
 from .box3d import (CORNER_BITS, _boxes, _pad_hulls, fit_shapes, pixels_to_road, track_choice, world_rays,
                     world_to_pixels)
 from .kalman import BoxKF, ConstantVelocityKF
+from .occluders import OccluderMap, complete_boxes
 
 
 class TrackState(str, Enum):
@@ -78,7 +81,7 @@ class Track:
     direction: int = 0  # +1 moving towards VP1, -1 away from it, 0 unknown (no calibration yet)
     hits: int = 0
     last_t: float = 0.0
-    kf_t: float = 0.0  # time of the last detection that updated the 2D filter
+    kf_t: float = 0.0  # time of the last detection that updated the 2D filter (not one cut by a static occluder)
     kf: BoxKF | None = field(default=None, repr=False)
     road_kf: ConstantVelocityKF | None = field(default=None, repr=False)
     road_kf_t: float = field(default=0.0, repr=False)
@@ -144,7 +147,12 @@ class TrackerConfig:
     # (re-choosing it along the track moved them by up to the shapes' difference at every switch: measured on
     # the vehicleseg replays, 22 of 55 tracks switched 142 times, and their speed samples disagreed)
     shape_fits: int = 10
-    # with a calibration, a track without a detection this frame (lost) is predicted on the
+    # static occluders (a lamp pole, a sign post in front of the road) learned from where vehicles are seen
+    # (occluders.OccluderMap): a vehicle touching one is not measured, its cut box edges are completed with the
+    # track's predicted size, and its fragments start no tracks, so a vehicle keeps one track behind a pole
+    occluders: bool = True
+    fragment_margin: float = 0.2  # a cut detection must lie mostly inside a track's predicted box grown by this
+    # with a calibration, a track without a measured box this frame (lost, or cut by an occluder) is predicted on the
     # road (its last 3D box moved at its road velocity) instead of at constant image velocity (_coast_on_road)
     coast_on_road: bool = True
     # ... once its measured 3D boxes of the last second are at least 5 and span at least this (seconds: a track that
@@ -189,6 +197,7 @@ class Tracker:
         self._ids = itertools.count(1)
         self.t: float | None = None
         self._silhouettes = False  # this frame's hulls get the car body shapes (set by update)
+        self.occluders: OccluderMap | None = OccluderMap() if self.config.occluders else None
         if camera is not None:
             self.set_camera(camera)
 
@@ -199,6 +208,8 @@ class Tracker:
         same = (camera is not None and self.camera is not None and np.allclose(camera.vp1, self.camera.vp1)
                 and np.allclose(camera.vp2, self.camera.vp2) and np.allclose(camera.pp, self.camera.pp))
         self.camera = camera
+        if self.occluders is not None:
+            self.occluders.vp1 = None if camera is None else np.asarray(camera.vp1, np.float64)
         if same or camera is None:
             return
         for tr in self.tracks + self.finished:
@@ -230,6 +241,9 @@ class Tracker:
                 hulls[i] = None
 
         occluded = self._occluded(det_boxes) if cfg.drop_occluded else np.zeros(n, bool)
+        # edges of the visible outline that touch a static occluder: the vehicle may go on behind it
+        occ_map = self.occluders if self.image_size is not None else None
+        cut = occ_map.cut_sides(meas) if occ_map is not None else np.zeros((n, 4), bool)
 
         prev_t = t - dt
         for tr in self.tracks:
@@ -237,7 +251,8 @@ class Tracker:
             if tr.kf_t < prev_t and self.camera is not None and cfg.coast_on_road:  # coasting: follow it on the road
                 _coast_on_road(self.camera, tr, t, min_span=cfg.coast_min_span)
         pred = np.array([tr.kf.box for tr in self.tracks]).reshape(-1, 4)
-        pairs = self._associate(pred, det_boxes)
+        completed = complete_boxes(det_boxes, cut, pred)  # (T, N, 4): det_boxes where nothing is cut
+        pairs = self._associate(pred, completed, det_boxes, cut.any(axis=1))
 
         track_ids = np.zeros(n, np.int64)
         matched_tracks: set[int] = set()
@@ -245,9 +260,10 @@ class Tracker:
         matched_det = set()
         for ti, i in pairs:
             tr = self.tracks[ti]
-            obs = self._observation(t, detections, i, meas[i], hulls[i], occluded[i])
-            tr.kf.update(det_boxes[i])
-            tr.kf_t = t
+            obs = self._observation(t, detections, i, meas[i], hulls[i], occluded[i], cut[i].any())
+            if not cut[i].any():  # a vehicle cut by a static occluder coasts on its prediction
+                tr.kf.update(det_boxes[i])
+                tr.kf_t = t
             tr.observations.append(obs)
             tr.hits += 1
             tr.last_t = t
@@ -274,18 +290,22 @@ class Tracker:
             survivors.append(tr)
         self.tracks = survivors
 
-        # unmatched detections start tentative tracks (unless they duplicate a matched vehicle)
+        # unmatched detections start tentative tracks (unless they duplicate a matched vehicle, or are a fragment
+        # of one: cut by a static occluder and inside the box it was matched with, completed across the occluder)
         taken = det_boxes[sorted(matched_det)] if matched_det else np.zeros((0, 4))
+        hosts = completed[tuple(np.array(pairs).T)] if pairs else np.zeros((0, 4))
         for i in range(n):
             if i in matched_det or occluded[i]:
                 continue
             if len(taken) and box_iou(det_boxes[i:i + 1], taken).max() > cfg.duplicate_iou:
                 continue
+            if cut[i].any() and len(hosts) and _inside(det_boxes[i], hosts).max() >= 0.5:
+                continue
             tr = Track(id=next(self._ids), state=TrackState.TENTATIVE, hits=1, last_t=t, kf_t=t,
                        kf=BoxKF(det_boxes[i]))
             if cfg.n_init <= 1:
                 tr.state, tr.ever_confirmed = TrackState.CONFIRMED, True
-            obs = self._observation(t, detections, i, meas[i], hulls[i], False)
+            obs = self._observation(t, detections, i, meas[i], hulls[i], False, cut[i].any())
             tr.observations.append(obs)
             self.tracks.append(tr)
             new_obs.append((tr, obs, i))
@@ -293,6 +313,12 @@ class Tracker:
 
         if self.camera is not None and new_obs:
             self._attach_3d([o for _, o, _ in new_obs], [tr for tr, _, _ in new_obs])
+        if occ_map is not None:  # learn where vehicles are seen, and which way they move there
+            vel = np.full((n, 2), np.nan)
+            for tr, o, i in new_obs:  # boxes cut by the image border or covered move oddly: no vote
+                if tr.state is TrackState.CONFIRMED and not (o.truncated or o.occluded):
+                    vel[i] = tr.kf.velocity
+            occ_map.add(self.image_size, [h if h is not None else _rect(b) for h, b in zip(hulls, det_boxes)], vel)
 
         out_tracks = []
         for tr, obs, i in new_obs:
@@ -345,9 +371,10 @@ class Tracker:
             _set_references(self.camera, tr, tr.observations)
         self.finished.append(tr)
 
-    def _observation(self, t: float, det: Detections, i: int, box: np.ndarray, hull, occluded: bool) -> Observation:
-        trunc = False
-        if self.image_size is not None:
+    def _observation(self, t: float, det: Detections, i: int, box: np.ndarray, hull, occluded: bool,
+                     cut: bool = False) -> Observation:
+        trunc = bool(cut)  # cut by a static occluder: not fully visible either
+        if self.image_size is not None and not trunc:
             w, h = self.image_size
             b = self.config.border
             # the hull's box or the detector's: a hull whose lower part the background model missed (a dark
@@ -384,20 +411,36 @@ class Tracker:
                 return -d
         return bottom[:, 1]
 
-    def _associate(self, pred: np.ndarray, meas: np.ndarray) -> list[tuple[int, int]]:
-        if len(pred) == 0 or len(meas) == 0:
+    def _associate(self, pred: np.ndarray, meas: np.ndarray, det: np.ndarray | None = None,
+                   cut: np.ndarray | None = None) -> list[tuple[int, int]]:
+        """Hungarian assignment of the T predicted boxes to the detections: ``meas`` (T, N, 4), each detection's
+        box as seen from each track (completed across static occluders with that track's size).  A detection
+        ``cut`` by an occluder is a part of the vehicle: its own box ``det`` must lie mostly inside the track's
+        predicted box (grown by ``fragment_margin``), else a fragment could be completed to any track's size."""
+        if len(pred) == 0 or meas.shape[1] == 0:
             return []
         cfg = self.config
-        iou = box_iou(pred, meas)
+        lt = np.maximum(pred[:, None, :2], meas[..., :2])
+        rb = np.minimum(pred[:, None, 2:], meas[..., 2:])
+        inter = np.prod((rb - lt).clip(min=0), axis=2)
+        area_p = np.prod(pred[:, 2:] - pred[:, :2], axis=1).clip(min=1.0)[:, None]
+        area_m = np.prod(meas[..., 2:] - meas[..., :2], axis=2).clip(min=1.0)
+        iou = inter / np.maximum(area_p + area_m - inter, 1e-9)
         pc = (pred[:, :2] + pred[:, 2:]) / 2
-        mc = (meas[:, :2] + meas[:, 2:]) / 2
+        mc = (meas[..., :2] + meas[..., 2:]) / 2
         diag = np.hypot(pred[:, 2] - pred[:, 0], pred[:, 3] - pred[:, 1])
-        dist = np.linalg.norm(pc[:, None] - mc[None], axis=2) / np.maximum(diag[:, None], 1.0)
-        area_p = np.prod(pred[:, 2:] - pred[:, :2], axis=1).clip(min=1.0)
-        area_m = np.prod(meas[:, 2:] - meas[:, :2], axis=1).clip(min=1.0)
-        log_ratio = np.abs(np.log(area_p[:, None] / area_m[None, :]))
+        dist = np.linalg.norm(pc[:, None] - mc, axis=2) / np.maximum(diag[:, None], 1.0)
+        log_ratio = np.abs(np.log(area_p / area_m))
         cost = 1.0 - iou + 0.5 * dist + 0.5 * log_ratio
         feasible = ((iou >= cfg.iou_gate) | (dist <= cfg.dist_gate)) & (log_ratio <= np.log(cfg.size_gate))
+        if cut is not None and cut.any():
+            grow = cfg.fragment_margin * (pred[:, 2:] - pred[:, :2])
+            host = np.concatenate([pred[:, :2] - grow, pred[:, 2:] + grow], axis=1)
+            d = det[cut]
+            lt = np.maximum(host[:, None, :2], d[None, :, :2])
+            rb = np.minimum(host[:, None, 2:], d[None, :, 2:])
+            inside = np.prod((rb - lt).clip(min=0), axis=2) / np.prod(d[:, 2:] - d[:, :2], axis=1).clip(min=1.0)
+            feasible[:, cut] &= inside >= 0.5
         big = 1e6
         cost = np.where(feasible, cost, big)
         rows, cols = linear_sum_assignment(cost)
@@ -434,7 +477,7 @@ class Tracker:
 
 def _coast_on_road(camera: Camera, track: Track, t: float, min_points: int = 5, span: float = 1.0,
                    min_span: float = 0.25) -> None:
-    """Set the 2D filter of a track that has no detection this frame (lost) to
+    """Set the 2D filter of a track that has no measured box this frame (lost, or cut by a static occluder) to
     where its vehicle is on the road: the last 3D box moved at the vehicle's road velocity and projected.
 
     Image motion accelerates under perspective (a vehicle nearing the camera doubled its image speed within a
@@ -485,6 +528,19 @@ def _coast_on_road(camera: Camera, track: Track, t: float, min_points: int = 5, 
     z = np.stack([(boxes[:, 0] + boxes[:, 2]) / 2, (boxes[:, 1] + boxes[:, 3]) / 2,
                   boxes[:, 2] - boxes[:, 0], boxes[:, 3] - boxes[:, 1]], axis=1)
     track.kf.kf.x = np.concatenate([z[0], (z[1] - z[0]) / step])
+
+
+def _rect(box: np.ndarray) -> np.ndarray:
+    x0, y0, x1, y1 = np.asarray(box, np.float64)
+    return np.array([[x0, y0], [x1, y0], [x1, y1], [x0, y1]])
+
+
+def _inside(box: np.ndarray, hosts: np.ndarray) -> np.ndarray:
+    """Fraction of ``box``'s area inside each of ``hosts`` (M, 4)."""
+    lt = np.maximum(box[:2], hosts[:, :2])
+    rb = np.minimum(box[2:], hosts[:, 2:])
+    inter = np.prod((rb - lt).clip(min=0), axis=1)
+    return inter / max(float(np.prod(box[2:] - box[:2])), 1e-9)
 
 
 def fit_boxes(camera: Camera, observations: list[Observation]) -> None:

@@ -5,8 +5,9 @@ Fields (all present unless noted):
 * ``t`` (double): time of the frame in seconds (buffer PTS);
 * ``state`` (string): ``confirmed`` (tentative tracks get no structure);
 * ``direction`` (int): +1 moving towards VP1, −1 away from it, 0 not known yet;
-* ``occluded`` / ``truncated`` (boolean): partly covered by a nearer vehicle / touching the image border — the
-  vehicle is tracked but not measured (no 3D box);
+* ``occluded`` / ``truncated`` (boolean): partly covered by a nearer vehicle / touching the image border or a
+  static occluder the tracker learned (a lamp pole in front of the road) — the vehicle is tracked but not
+  measured (no 3D box);
 * ``hull_box`` (4 doubles): x0, y0, x1, y1 of the convex hull that was tracked, pixels;
 * ``has_3d`` (boolean): whether the following are present;
 * ``box3d`` (8 pairs of doubles): image corners of the 3D box, index = ix + 2·iy + 4·iz with ix/iy the
