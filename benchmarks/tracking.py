@@ -47,6 +47,7 @@ from gst_trafficcal.detection.records import Detections, box_iou  # noqa: E402
 from gst_trafficcal.evaluation import lanes_of_points, points_between_lines  # noqa: E402
 from gst_trafficcal.tracking.background import BackgroundModel, chroma_from_bgr  # noqa: E402
 from gst_trafficcal.tracking.pipeline import TrackingPipeline  # noqa: E402
+from gst_trafficcal.tracking.tracker import TrackerConfig  # noqa: E402
 
 SHARED = ROOT.parent / "shared"
 NANODET = SHARED / "models" / "detectors" / "nanodet_hpc203.onnx"
@@ -185,9 +186,10 @@ def make_detector(name: str):
 
 
 def evaluate_scene(preset: str, scene: Path, detector_name: str, background: dict | None = None,
-                   colour: bool = False, peeled: bool = False) -> SceneScore:
+                   colour: bool = False, peeled: bool = False, tracker: dict | None = None) -> SceneScore:
     """Score one rendered scene; ``background`` overrides BackgroundModel fields, ``colour`` passes the frames'
-    U and V planes to it (as the element does with I420/NV12 input) instead of the grey frame alone."""
+    U and V planes to it (as the element does with I420/NV12 input) instead of the grey frame alone; ``tracker``
+    overrides TrackerConfig fields."""
     import motmetrics as mm
 
     cal = load_calibration(scene / "calibration.json")
@@ -197,11 +199,12 @@ def evaluate_scene(preset: str, scene: Path, detector_name: str, background: dic
     lines = gt.measurement_lines
     truth = load_truth(scene)
     detector = make_detector(detector_name)
+    config = TrackerConfig(**(tracker or {}))
     if peeled:  # tracker peel=true: hulls from the background detector's peeled foreground
         from gst_trafficcal.tracking.peeled import PeeledBackground
-        pipe = TrackingPipeline(background=PeeledBackground())
+        pipe = TrackingPipeline(config=config, background=PeeledBackground())
     else:
-        pipe = TrackingPipeline(background=BackgroundModel(**(background or {})))
+        pipe = TrackingPipeline(config=config, background=BackgroundModel(**(background or {})))
     pipe.set_camera(cam)
     cap = cv2.VideoCapture(str(scene / "video.mp4"))
     if not cap.isOpened():
@@ -433,6 +436,8 @@ def main() -> None:
                     help="BackgroundModel.shadow_std (spread of the frame/background ratio a cast shadow may have)")
     ap.add_argument("--bg", action="append", default=[], metavar="FIELD=VALUE",
                     help="override a BackgroundModel field (repeatable), e.g. --bg chroma_tolerance=6")
+    ap.add_argument("--tracker", action="append", default=[], metavar="FIELD=VALUE",
+                    help="override a TrackerConfig field (repeatable), e.g. --tracker occluders=false")
     ap.add_argument("--colour", action="store_true",
                     help="also pass the U, V planes to the background model (tracker colour=true); default: "
                          "the Y plane only, as the tracker element by default")
@@ -451,11 +456,16 @@ def main() -> None:
         bg_opts[k] = tuple(float(x) for x in v.split(",")) if isinstance(default, tuple) else type(default)(float(v))
     if args.shadow_std is not None:
         bg_opts["shadow_std"] = args.shadow_std
+    tr_opts = {}
+    for k, v in (o.split("=", 1) for o in args.tracker):
+        default = getattr(TrackerConfig(), k)
+        tr_opts[k] = v.lower() in ("1", "true", "yes") if isinstance(default, bool) else type(default)(v)
     scores = []
     jobs = [(p, None) for p in presets] + [(Path(d).name, Path(d)) for d in args.scenes.split(",") if d]
     for preset, given in jobs:
         scene = given or render(preset, args.duration, args.seed, args.work, args.vehicles)
-        s = evaluate_scene(preset, scene, args.detector, bg_opts, colour=args.colour, peeled=args.peeled)
+        s = evaluate_scene(preset, scene, args.detector, bg_opts, colour=args.colour, peeled=args.peeled,
+                           tracker=tr_opts)
         scores.append(s)
         print(json.dumps(asdict(s)), flush=True)
     cols = ["preset", "ap50", "ap50_zone", "mota", "idf1", "id_switches", "mostly_tracked", "recall", "fp_per_min", "speed_mae_kmh", "ref_err_px_median",
