@@ -108,7 +108,8 @@ def generate(scen: Scenario, out_dir: str | Path, progress: Callable[[int, int],
     save_ground_truth(gt, out / GT_DATA)
 
     renderer = Renderer(cam, light, ground, objects, lamps, scen.road.pole_spacing if replay is None else 0.0,
-                        backdrop=backdrop, seed=int(rng.integers(2**31)), road=_road_pattern(scen))
+                        backdrop=backdrop, seed=int(rng.integers(2**31)), road=_road_pattern(scen),
+                        surface_texture=scen.road.surface_texture, joints=scen.road.joints)
     imaging = Imaging(scen.imaging, scen.lighting, (W, H), night=scen.lighting.preset == "night",
                       rng=np.random.default_rng(rng.integers(2**63)))
     shake = Shake(cam.K, scen.imaging.shake, scen.imaging.shake_hz, np.random.default_rng(rng.integers(2**63)))

@@ -45,6 +45,7 @@ uniform vec3 cam_pos; uniform float haze; uniform float lamps_on; uniform float 
 uniform float lamp_spacing; uniform float lamp_x0; uniform float lamp_y;
 uniform float lane_w; uniform float median_half; uniform float carriage_w;
 uniform float curve_start; uniform float curve_inv_r;
+uniform float surface_tex; uniform float joints;
 float bend(float x) { float d = max(x - curve_start, 0.0); return d * d * 0.5 * curve_inv_r; }
 in vec3 v_pos; in vec3 v_n; in vec3 v_col; flat in float v_mat; flat in float v_id;
 layout(location = 0) out vec4 f_col;
@@ -80,7 +81,7 @@ void main() {
     vec2 p = v_pos.xy;
 #ifndef VEHICLES_ONLY
     // the static scene's materials (the vehicles' program leaves them out: llvmpipe runs every branch)
-    if (mat == 1) {            // asphalt: grain, patches, longitudinal wear
+    if (mat == 1 && surface_tex == 1.0 && joints == 0.0) {   // asphalt: grain, patches, longitudinal wear
         float g = nz(p * 0.9, 0) * 0.6 + nz(p * 0.23, 0) * 0.4;
         float patch = nz(p * 0.013, 1);
         float wear = nz(vec2(p.x * 0.004, p.y * 0.35), 2);
@@ -96,6 +97,34 @@ void main() {
             float oil = exp(-pow(d / 0.35, 2.0));
             float streak = 0.6 + 0.8 * nz(vec2(p.x * 0.01, p.y * 0.8), 2);
             base *= 1.0 + 0.10 * wheel * streak - 0.16 * oil * streak;
+        }
+        spec = 0.05;
+    } else if (mat == 1) {     // road.surface_texture / road.joints set: the same pattern, scaled; concrete slabs
+        // (kept apart from the branch above so that the default surface renders exactly as before)
+        float g = nz(p * 0.9, 0) * 0.6 + nz(p * 0.23, 0) * 0.4;
+        float patch = nz(p * 0.013, 1);
+        float wear = nz(vec2(p.x * 0.004, p.y * 0.35), 2);
+        float m = (0.70 + 0.45 * g) * (0.80 + 0.40 * patch) * (0.90 + 0.20 * wear);
+        m += 0.1 * smoothstep(0.7, 0.9, nz(p * 0.05, 3));
+        float a = abs(p.y - bend(p.x)) - median_half;
+        if (a > 0.0 && a < carriage_w) {
+            float d = abs(fract(a / lane_w) - 0.5) * lane_w;
+            float wheel = exp(-pow((d - 0.85) / 0.28, 2.0));
+            float oil = exp(-pow(d / 0.35, 2.0));
+            float streak = 0.6 + 0.8 * nz(vec2(p.x * 0.01, p.y * 0.8), 2);
+            m *= 1.0 + 0.10 * wheel * streak - 0.16 * oil * streak;
+        }
+        base *= max(1.0 + surface_tex * (m - 1.0), 0.05);
+        if (joints > 0.0) {
+            // slabs: a slightly different tone per slab and lane, dark sealed joints between them (box-filtered
+            // over the pixel's footprint along the road, so distant joints fade instead of aliasing)
+            float xb = p.x / joints;
+            float lane = a > 0.0 ? floor(a / lane_w) : -1.0;
+            base *= 0.95 + 0.10 * nz(vec2(floor(xb) * 0.173 + lane * 0.311, 0.5 + lane * 0.137), 1);
+            float jd = abs(fract(xb + 0.5) - 0.5) * joints;        // metres from the nearest joint
+            float fw = max(fwidth(p.x), 1e-4);
+            float cover = clamp((min(jd + 0.5 * fw, 0.012) - max(jd - 0.5 * fw, -0.012)) / fw, 0.0, 1.0);
+            base *= 1.0 - 0.55 * cover;
         }
         spec = 0.05;
     } else if (mat == 2) {     // grass and fields
@@ -573,7 +602,8 @@ class Renderer:
 
     def __init__(self, cam: SynthCamera, light: Light, ground: np.ndarray, objects: np.ndarray,
                  lamps: list[tuple[float, float]], lamp_spacing: float, backdrop: np.ndarray | None = None,
-                 seed: int = 0, road: tuple[float, ...] = (3.5, 0.0, 0.0)):
+                 seed: int = 0, road: tuple[float, ...] = (3.5, 0.0, 0.0), surface_texture: float = 1.0,
+                 joints: float = 0.0):
         import moderngl
 
         self.cam, self.light = cam, light
@@ -601,7 +631,7 @@ class Renderer:
         for p in (*self.mat_progs.values(), self.veh_prog, self.shadow, self.glow, self.id_prog):
             p["mvp"].write(mvp.T.tobytes())
         self._set_uniforms(lamps, lamp_spacing)
-        self.set_road(*road)
+        self.set_road(*road, surface_texture=surface_texture, joints=joints)
         # targets: cached static scene (colour + depth, single- and multisampled), the multisampled frame where
         # everything is drawn, the frame (its resolved colour) and the vehicle-id target (ids + depth at pixel
         # centres; its source is the static depth with zero ids)
@@ -633,13 +663,15 @@ class Renderer:
         self._render_static(ground, objects, backdrop)
 
     def set_road(self, lane_width: float, median_half: float, carriageway_width: float, curve_start: float = 0.0,
-                 curve_radius: float = 0.0) -> None:
-        """Lane geometry for the wheel-path and oil-strip pattern of the asphalt and the lamp rows (before the
-        static pass)."""
+                 curve_radius: float = 0.0, surface_texture: float = 1.0, joints: float = 0.0) -> None:
+        """Lane geometry for the wheel-path and oil-strip pattern of the asphalt and the lamp rows, the road
+        surface's texture contrast and slab joints (``RoadSpec.surface_texture``, ``joints``; before the static
+        pass)."""
         self._set_scene_uniforms(dict(curve_start=float(curve_start),
                                       curve_inv_r=1.0 / curve_radius if curve_radius else 0.0,
                                       lane_w=float(lane_width), median_half=float(median_half),
-                                      carriage_w=float(carriageway_width)))
+                                      carriage_w=float(carriageway_width), surface_tex=float(surface_texture),
+                                      joints=float(joints)))
 
     def _set_scene_uniforms(self, values: dict) -> None:
         """Set uniforms of the scene programs (per material and for vehicles; each where it uses them)."""

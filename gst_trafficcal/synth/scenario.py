@@ -27,6 +27,7 @@ from ..errors import InputError
 PRESET_DIR = Path(__file__).resolve().parent / "presets"
 BODY_STYLES_DEFAULT = ("sedan", "estate", "hatchback", "suv", "van", "bus", "truck", "motorcycle")
 LIGHTING_PRESETS = ("day", "overcast", "dusk", "night")
+ROAD_SURFACE_DEFAULT = (0.30, 0.30, 0.31)  # dark asphalt (RGB albedo)
 
 
 @dataclass
@@ -79,6 +80,12 @@ class RoadSpec:
     curve_start: float = 120.0  # where the bend starts (metres ahead of the camera); lines stay before it
     length: float = 600.0  # modelled road length ahead of the camera (metres)
     behind: float = 60.0  # modelled road length behind the camera (metres)
+    # road-surface appearance (lanes and paved shoulders): albedo RGB 0..1 before lighting (the default is dark
+    # asphalt; worn asphalt ~0.45-0.55, concrete ~0.6-0.8), contrast of its texture (grain, patches, wheel paths,
+    # oil strips: 1 = asphalt's, 0 = flat) and transverse joints of a concrete pavement every ``joints`` metres
+    surface: list[float] = field(default_factory=lambda: list(ROAD_SURFACE_DEFAULT))
+    surface_texture: float = 1.0
+    joints: float = 0.0  # 0 = none (asphalt); concrete slabs are typically 4-6 m long
 
     def validate(self, where: str) -> None:
         _check_range(where, "road.lanes", self.lanes, 1, 4)
@@ -96,6 +103,14 @@ class RoadSpec:
         if self.curve_radius != 0:
             _check_range(where, "road.curve_radius (absolute value)", abs(self.curve_radius), 150.0, 100000.0)
         _check_range(where, "road.curve_start", self.curve_start, 20.0, 3000.0)
+        if len(self.surface) != 3:
+            raise InputError(f"{where}: field 'road.surface' must be an RGB colour [r, g, b] (0.02..0.95 each), "
+                             f"got {self.surface!r}")
+        for i, v in enumerate(self.surface):
+            _check_range(where, f"road.surface[{i}]", v, 0.02, 0.95)
+        _check_range(where, "road.surface_texture", self.surface_texture, 0.0, 2.0)
+        if self.joints != 0:
+            _check_range(where, "road.joints (0 = none)", self.joints, 2.0, 50.0)
 
     @property
     def carriageway_width(self) -> float:

@@ -202,7 +202,7 @@ def build_scene(road: RoadSpec, rng: np.random.Generator, lit_lamps: bool) -> tu
     # gravel strip + shoulders + asphalt
     ground.ground_rect(x0, x1, -hw - road.shoulder - 0.8, hw + road.shoulder + 0.8, (0.42, 0.40, 0.37),
                        MAT_CONCRETE)
-    ground.ground_rect(x0, x1, -hw - road.shoulder, hw + road.shoulder, (0.30, 0.30, 0.31), MAT_ASPHALT)
+    ground.ground_rect(x0, x1, -hw - road.shoulder, hw + road.shoulder, tuple(road.surface), MAT_ASPHALT)
     if road.directions == 2 and road.median > 2.5:  # grass median
         m = road.median / 2 - 0.7
         ground.ground_rect(x0, x1, -m, m, (0.30, 0.38, 0.20), MAT_GRASS)
