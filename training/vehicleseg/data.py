@@ -3,7 +3,7 @@
 Every scene is a random variation of the renderer's presets (camera height, side, pan, tilt, roll and focal length;
 lanes and directions; traffic density up to jams with occlusions; day, overcast, dusk, night, low contrast; noise,
 blur, motion blur, shake, JPEG compression; catalogue models, generic cars of every body style and, when
-../shared has them, Kenney's low-poly meshes).  Seeds start at 1000: the benchmarks use seeds 1, 2 and the demo 7,
+../shared has them, Kenney's low-poly meshes; road surfaces from dark asphalt to light concrete).  Seeds start at 1000: the benchmarks use seeds 1, 2 and the demo 7,
 and no BrnoCompSpeed background (replay mode) is ever rendered here.
 
 Each frame of a scene goes through the run-time path (:mod:`gst_trafficcal.detection.seginput`: reduction to the
@@ -55,9 +55,31 @@ class SceneRecipe:
     work_width: int
     every: int  # keep every n-th frame after ``start`` seconds
     start: float
+    surface: str = "asphalt"  # road-surface kind (:func:`road_surface`)
+    road_grey: float | None = None  # measured after rendering (:func:`road_grey`)
 
 
 PROFILES = ("base", "outline")
+SURFACES = ("mixed", "asphalt")
+
+
+def road_surface(road, rng: np.random.Generator) -> str:
+    """Draw the road surface (``RoadSpec.surface``, ``surface_texture``, ``joints``) from dark asphalt to light
+    concrete: the first model saw only the renderer's dark asphalt (~65 grey levels) and made the boxes of cars on
+    BrnoCompSpeed's light roads (140-190 grey levels) too tall; about a third of the scenes keep the dark asphalt
+    unchanged.  Returns the kind drawn."""
+    kind = str(rng.choice(["asphalt", "worn", "concrete"], p=[0.35, 0.30, 0.35]))
+    if kind == "asphalt":
+        return kind
+    tint = rng.normal(0.0, 0.012, 3)
+    if kind == "worn":  # light, worn asphalt: lighter aggregate, less contrast
+        albedo, road.surface_texture = rng.uniform(0.40, 0.62), float(rng.uniform(0.4, 1.2))
+    else:  # concrete slabs, warm grey, faint texture, joints in most
+        albedo, road.surface_texture = rng.uniform(0.55, 0.82), float(rng.uniform(0.15, 0.8))
+        tint += np.array([0.01, 0.0, -0.03])
+        road.joints = float(rng.uniform(3.5, 6.5)) if rng.random() < 0.7 else 0.0
+    road.surface = [round(float(np.clip(albedo + t, 0.05, 0.95)), 4) for t in tint]
+    return kind
 OUTLINE_RESOLUTIONS = ((960, 540), (1280, 720), (1920, 1080))
 
 
@@ -75,10 +97,12 @@ def outline_lighting(scen, rng: np.random.Generator) -> None:
     tr.flow = float(min(2500.0, tr.flow * rng.uniform(1.0, 1.6)))
 
 
-def random_recipe(index: int, duration: float = 14.0, work_width: int = 480, profile: str = "base") -> SceneRecipe:
+def random_recipe(index: int, duration: float = 14.0, work_width: int = 480, profile: str = "base",
+                  surfaces: str = "mixed") -> SceneRecipe:
     """A random scene for training index ``index`` (seed ``SEED_BASE + index``), reproducible; ``profile``
     ``outline`` redraws light and picture size (:func:`outline_lighting`) from a separate random stream, so the
-    base recipes stay as they were."""
+    base recipes stay as they were; ``surfaces`` ``mixed`` draws the road surface (:func:`road_surface`) from
+    another one (``asphalt``: the renderer's dark asphalt, the first model's data)."""
     seed = SEED_BASE + index
     rng = np.random.default_rng([seed, 7])
     base = str(rng.choice(BASES))
@@ -131,6 +155,12 @@ def random_recipe(index: int, duration: float = 14.0, work_width: int = 480, pro
         outline_lighting(scen, np.random.default_rng([seed, 17]))
     elif profile != "base":
         raise ValueError(f"unknown data profile {profile!r} (one of {', '.join(PROFILES)})")
+    if surfaces == "mixed":
+        surface = road_surface(scen.road, np.random.default_rng([seed, 19]))
+    elif surfaces == "asphalt":
+        surface = "asphalt"
+    else:
+        raise ValueError(f"unknown surfaces {surfaces!r} (one of {', '.join(SURFACES)})")
     scen.duration = float(duration)
     scen.seed = seed
     scen.name = f"vseg_{index}"
@@ -138,7 +168,7 @@ def random_recipe(index: int, duration: float = 14.0, work_width: int = 480, pro
     quality = int(rng.choice([0, int(rng.integers(25, 90))], p=[0.4, 0.6]))
     return SceneRecipe(index=index, seed=seed, base=base, scenario=scen.to_dict(), jpeg_quality=quality,
                        kenney_share=float(rng.uniform(0.1, 0.35)) if KENNEY.is_dir() else 0.0,
-                       work_width=work_width, every=3, start=2.0)
+                       work_width=work_width, every=3, start=2.0, surface=surface)
 
 
 def kenney_factory(share: float, seed: int):
@@ -169,6 +199,7 @@ class SampleWriter:
         self.rng = np.random.default_rng([recipe.seed, 13])
         self.count = 0
         self.frames = 0
+        self.first: tuple[np.ndarray, np.ndarray] | None = None  # first kept frame (BGR as delivered) and its ids
 
     def append(self, item) -> None:
         t, rgb, ids, _recs, _items, shake = item
@@ -187,6 +218,8 @@ class SampleWriter:
         if shake is not None:  # the id mask is drawn unshaken; the delivered frame is warped
             h, w = ids.shape
             ids = cv2.warpPerspective(ids, shake, (w, h), flags=cv2.INTER_NEAREST, borderValue=0)
+        if self.first is None and not early:
+            self.first = (bgr, ids)
         size = self.geometry.size
         fg = cv2.resize((ids > 0).astype(np.float32), size, interpolation=cv2.INTER_AREA)
         inst = cv2.resize(ids, size, interpolation=cv2.INTER_NEAREST)
@@ -195,8 +228,35 @@ class SampleWriter:
         self.count += 1
 
 
+def road_grey(scen, bgr: np.ndarray, ids: np.ndarray) -> float | None:
+    """Median grey level of the road in a delivered frame: lane centres +- 1 m, 12-50 m ahead of the camera, where
+    no vehicle is (None when too little of it is in view)."""
+    from gst_trafficcal.synth.camera import build_camera
+    from gst_trafficcal.synth.scene import RoadLayout
+
+    cam, lay = build_camera(scen.camera), RoadLayout(scen.road)
+    pts = []
+    for d in range(scen.road.directions):
+        for lane in range(scen.road.lanes):
+            c = lay.lane_centre(d, lane)
+            xs, ys = np.meshgrid(np.linspace(12.0, 50.0, 40), np.linspace(c - 1.0, c + 1.0, 5))
+            pts.append(np.stack([xs.ravel(), ys.ravel(), np.zeros(xs.size)], 1))
+    X = np.concatenate(pts)
+    X = X[cam.depth(X) > 1.0]
+    uv = np.round(cam.project(X)).astype(int)
+    h, w = ids.shape
+    ok = (uv[:, 0] >= 0) & (uv[:, 0] < w) & (uv[:, 1] >= 0) & (uv[:, 1] < h)
+    uv = uv[ok]
+    uv = uv[ids[uv[:, 1], uv[:, 0]] == 0]
+    if len(uv) < 20:
+        return None
+    grey = cv2.cvtColor(bgr, cv2.COLOR_BGR2GRAY)
+    return float(np.median(grey[uv[:, 1], uv[:, 0]]))
+
+
 def render_scene(recipe: SceneRecipe, out: Path) -> int:
-    """Render one recipe, writing its samples into ``out``; the number of samples."""
+    """Render one recipe, writing its samples into ``out``; the number of samples (and the road's grey level in
+    the first kept frame, :func:`road_grey`, as ``recipe.road_grey`` in the scene record)."""
     from gst_trafficcal.synth.generate import generate
     from gst_trafficcal.synth.scenario import scenario_from_dict
 
@@ -208,6 +268,7 @@ def render_scene(recipe: SceneRecipe, out: Path) -> int:
         generate(scen, tmp, write_video=False, keep_masks=writer, model_factory=factory)
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
+    recipe.road_grey = road_grey(scen, *writer.first) if writer.first is not None else None
     return writer.count
 
 
@@ -219,6 +280,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--work-width", type=int, default=480)
     ap.add_argument("--profile", choices=PROFILES, default="base",
                     help="outline: low sun, overcast, dusk, up to 1080p, busier (see outline_lighting)")
+    ap.add_argument("--surfaces", choices=SURFACES, default="mixed",
+                    help="mixed: dark asphalt to light concrete (road_surface); asphalt: the first model's data")
     args = ap.parse_args(argv)
     a, b = (int(v) for v in args.scenes.split(":"))
     args.out.mkdir(parents=True, exist_ok=True)
@@ -228,7 +291,8 @@ def main(argv: list[str] | None = None) -> int:
             continue
         t0 = time.perf_counter()
         for attempt in range(5):  # a random camera may not see the road: draw the next variation
-            recipe = random_recipe(index + 100000 * attempt, args.duration, args.work_width, args.profile)
+            recipe = random_recipe(index + 100000 * attempt, args.duration, args.work_width, args.profile,
+                                   args.surfaces)
             try:
                 n = render_scene(recipe, args.out)
                 break
@@ -237,9 +301,10 @@ def main(argv: list[str] | None = None) -> int:
         else:
             continue
         info = dataclasses.asdict(recipe) | {"samples": n, "seconds": round(time.perf_counter() - t0, 1),
-                                             "profile": args.profile}
+                                             "profile": args.profile, "surfaces": args.surfaces}
         marker.write_text(json.dumps(info, indent=1) + "\n", encoding="utf-8")
-        print(f"scene {index} ({recipe.base}, {recipe.scenario['lighting']['preset']}, "
+        print(f"scene {index} ({recipe.base}, {recipe.scenario['lighting']['preset']}, {recipe.surface} road "
+              f"{recipe.road_grey if recipe.road_grey is None else round(recipe.road_grey)}, "
               f"{recipe.scenario['traffic']['flow']:.0f} veh/h/lane): {n} samples in {info['seconds']} s", flush=True)
     return 0
 

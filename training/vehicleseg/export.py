@@ -80,6 +80,8 @@ def card(out: Path, data: Path | list[Path], logs: list[Path], commands: list[st
                  "resolutions": dict(count("x".join(map(str, s["scenario"]["camera"]["resolution"])) for s in scenes)),
                  "jpeg": sum(1 for s in scenes if s["jpeg_quality"]),
                  "profiles": dict(count(s.get("profile", "base") for s in scenes)),
+                 "surfaces": dict(count(s.get("surface", "asphalt") for s in scenes)),
+                 "road_grey_110_190": sum(1 for s in scenes if 110 <= (s.get("road_grey") or 0) <= 190),
                  "validation": "scenes whose index ends in 9",
                  "never used": "benchmark seeds 1, 2, 7; BrnoCompSpeed replays (screen.png backgrounds)"},
         "training": stages,
