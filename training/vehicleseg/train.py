@@ -77,8 +77,19 @@ def total(parts: dict[str, torch.Tensor]) -> torch.Tensor:
     return parts["bce"] + parts["dice"] + parts["centre"] + 0.2 * parts["offset"]
 
 
+def train_mode(model: torch.nn.Module, freeze_bn: bool = False) -> None:
+    """Training mode; ``freeze_bn`` keeps the BatchNorms on their running statistics (eval mode), as for
+    fine-tuning with small batches a model whose statistics are settled (e.g. imported by ``from_onnx``)."""
+    model.train()
+    if freeze_bn:
+        for m in model.modules():
+            if isinstance(m, torch.nn.BatchNorm2d):
+                m.eval()
+
+
 @torch.no_grad()
-def validate(model: torch.nn.Module, files: list[Path], crop: tuple[int, int], **weights: float) -> dict[str, float]:
+def validate(model: torch.nn.Module, files: list[Path], crop: tuple[int, int], freeze_bn: bool = False,
+             **weights: float) -> dict[str, float]:
     """Loss parts and mask IoU (threshold 0.5) over the validation files, one fixed crop each."""
     model.eval()
     rng = np.random.default_rng(0)
@@ -93,7 +104,7 @@ def validate(model: torch.nn.Module, files: list[Path], crop: tuple[int, int], *
         valid = b["fg_w"] > 0
         inter += float((pred & true & valid).sum())
         union += float(((pred | true) & valid).sum())
-    model.train()
+    train_mode(model, freeze_bn)
     out = {k: v / max(len(files), 1) for k, v in acc.items()}
     out["mask_iou"] = inter / max(union, 1.0)
     return out
@@ -116,6 +127,8 @@ def main(argv: list[str] | None = None) -> int:
                     help="mask-loss weight of faint changes next to vehicles (0: off, the first model's loss)")
     ap.add_argument("--boundary-weight", type=float, default=BOUNDARY_WEIGHT,
                     help="mask-loss weight of outline pixels (1: off, the first model's loss)")
+    ap.add_argument("--freeze-bn", action="store_true",
+                    help="keep the BatchNorms' running statistics (fine-tuning an imported export, train_mode)")
     args = ap.parse_args(argv)
     weights = {"shadow_weight": args.shadow_weight, "boundary_weight": args.boundary_weight}
     torch.set_num_threads(args.threads)
@@ -133,6 +146,7 @@ def main(argv: list[str] | None = None) -> int:
         model.load_state_dict(state["model"])
         opt.load_state_dict(state["opt"])
         start = int(state["step"])
+    train_mode(model, args.freeze_bn)
     log = open(args.out / "log.jsonl", "a", encoding="utf-8")
     train_files, val_files = split_files(args.data)
     t0, c0 = time.perf_counter(), time.process_time()
@@ -157,7 +171,8 @@ def main(argv: list[str] | None = None) -> int:
             rec = {"step": step + 1, "lr": lr, "train": {k: round(v, 4) for k, v in running.items()},
                    "files": len(train_files), "wall": round(time.perf_counter() - t0), "cpu": round(time.process_time() - c0)}
             if (step + 1) % 250 == 0 or step + 1 == args.steps:
-                rec["val"] = {k: round(v, 4) for k, v in validate(model, val_files[::4], crop, **weights).items()}
+                val = validate(model, val_files[::4], crop, args.freeze_bn, **weights)
+                rec["val"] = {k: round(v, 4) for k, v in val.items()}
                 torch.save({"model": model.state_dict(), "opt": opt.state_dict(), "step": step + 1},
                            args.out / "checkpoint.pt")
             log.write(json.dumps(rec) + "\n")
