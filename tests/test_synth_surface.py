@@ -35,6 +35,21 @@ def test_surface_fields_load_and_inherit(tmp_path):
     assert scenario_from_dict({"road": {"surface": [0.5, 0.5, 0.5], "joints": 6}}).road.joints == 6.0
 
 
+def test_the_light_road_benchmark_scenes_load_with_their_surfaces():
+    """benchmarks/scenes/: the BrnoCompSpeed-like camera over dark asphalt, light asphalt, concrete and worn asphalt."""
+    from pathlib import Path
+
+    scenes = Path(__file__).resolve().parents[1] / "benchmarks" / "scenes"
+    loaded = {f.stem: load_scenario(f) for f in sorted(scenes.glob("brno_*.yaml"))}
+    assert len(loaded) == 4
+    for name, scen in loaded.items():
+        assert scen.camera.resolution == [1920, 1080] and scen.camera.height == 9, name
+        assert scen.traffic.models, name  # catalogue traffic, as the replays
+    assert loaded["brno_dark_overcast_s1"].road.surface == list(ROAD_SURFACE_DEFAULT)
+    assert min(loaded["brno_light_overcast_s1"].road.surface) >= 2 * min(ROAD_SURFACE_DEFAULT)
+    assert loaded["brno_concrete_overcast_s2"].road.joints == 5.0
+
+
 def test_bad_surface_values_are_clear_errors():
     with pytest.raises(InputError, match=r"unknown field 'road.surfase' \(did you mean 'surface'\?\)"):
         scenario_from_dict({"road": {"surfase": [0.6, 0.6, 0.6]}})
