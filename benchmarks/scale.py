@@ -194,6 +194,16 @@ def summary(errors: list[float]) -> str:
     return "–" if not len(e) else f"{np.median(e):.2f} / {np.mean(e):.2f} / {e.max():.2f} (n={len(e)})"
 
 
+def detector_key(detector: str) -> str:
+    """The per-scene results cache's name for a detector: its name and the first digits of its weights' sha256, so
+    results of an earlier version of a model (a re-trained vehicleseg) are never taken for this one's."""
+    from gst_trafficcal.detection import vehicleseg
+    from gst_trafficcal.detection.models import resolve_model, sha256_of
+
+    path = vehicleseg.WEIGHTS if detector == vehicleseg.NAME else resolve_model(detector)
+    return f"{Path(detector).stem}-{sha256_of(path)[:8]}"
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--work", type=Path, default=Path("/tmp/scale_bench"))
@@ -231,7 +241,8 @@ def main() -> None:
                                     [a.seed] * len(presets), [a.traffic] * len(presets)))
         n_synth = len(folders)
         folders += [render_replay(r, a.replay_work, a.traffic) for r in replays]
-        cache = a.work / (f"results_{a.detector}_{a.traffic}" if a.detector else f"results_{a.background}_{a.traffic}")
+        cache = a.work / (f"results_{detector_key(a.detector)}_{a.traffic}" if a.detector
+                          else f"results_{a.background}_{a.traffic}")
         cache.mkdir(exist_ok=True)
         durations = [a.duration] * n_synth + [None] * (len(folders) - n_synth)
         rows = list(pool.map(measure, folders, [a.min_vehicles] * len(folders), [cache] * len(folders),
