@@ -299,7 +299,7 @@ class Tracker:
                 continue
             if len(taken) and box_iou(det_boxes[i:i + 1], taken).max() > cfg.duplicate_iou:
                 continue
-            if cut[i].any() and len(hosts) and _inside(det_boxes[i], hosts).max() >= 0.5:
+            if cut[i].any() and len(hosts) and _inside(det_boxes[i:i + 1], hosts).max() >= 0.5:
                 continue
             tr = Track(id=next(self._ids), state=TrackState.TENTATIVE, hits=1, last_t=t, kf_t=t,
                        kf=BoxKF(det_boxes[i]))
@@ -436,11 +436,7 @@ class Tracker:
         if cut is not None and cut.any():
             grow = cfg.fragment_margin * (pred[:, 2:] - pred[:, :2])
             host = np.concatenate([pred[:, :2] - grow, pred[:, 2:] + grow], axis=1)
-            d = det[cut]
-            lt = np.maximum(host[:, None, :2], d[None, :, :2])
-            rb = np.minimum(host[:, None, 2:], d[None, :, 2:])
-            inside = np.prod((rb - lt).clip(min=0), axis=2) / np.prod(d[:, 2:] - d[:, :2], axis=1).clip(min=1.0)
-            feasible[:, cut] &= inside >= 0.5
+            feasible[:, cut] &= _inside(det[cut], host) >= 0.5
         big = 1e6
         cost = np.where(feasible, cost, big)
         rows, cols = linear_sum_assignment(cost)
@@ -535,12 +531,13 @@ def _rect(box: np.ndarray) -> np.ndarray:
     return np.array([[x0, y0], [x1, y0], [x1, y1], [x0, y1]])
 
 
-def _inside(box: np.ndarray, hosts: np.ndarray) -> np.ndarray:
-    """Fraction of ``box``'s area inside each of ``hosts`` (M, 4)."""
-    lt = np.maximum(box[:2], hosts[:, :2])
-    rb = np.minimum(box[2:], hosts[:, 2:])
-    inter = np.prod((rb - lt).clip(min=0), axis=1)
-    return inter / max(float(np.prod(box[2:] - box[:2])), 1e-9)
+def _inside(boxes: np.ndarray, hosts: np.ndarray) -> np.ndarray:
+    """(M, N): the fraction of each of ``boxes``' (N, 4) area inside each of ``hosts`` (M, 4) — whether a fragment
+    cut by a static occluder belongs to a vehicle's box."""
+    lt = np.maximum(hosts[:, None, :2], boxes[None, :, :2])
+    rb = np.minimum(hosts[:, None, 2:], boxes[None, :, 2:])
+    inter = np.prod((rb - lt).clip(min=0), axis=2)
+    return inter / np.prod(boxes[:, 2:] - boxes[:, :2], axis=1).clip(min=1.0)
 
 
 def fit_boxes(camera: Camera, observations: list[Observation]) -> None:
