@@ -407,6 +407,26 @@ def pipeline_fps(size: tuple[int, int], n_vehicles: int = 10, seconds: float = 1
     return len(frames) / wall, len(frames) / busy, float(np.mean([len(f.ids) for f in frames]))
 
 
+def field_overrides(defaults, pairs: list[str]) -> dict:
+    """``FIELD=VALUE`` strings (``--bg``, ``--tracker``) as keyword arguments for ``defaults``' class, each value
+    converted to its field's type: booleans from 1/true/yes, tuples from comma-separated numbers."""
+    out = {}
+    for pair in pairs:
+        k, _, v = pair.partition("=")
+        if not hasattr(defaults, k):
+            raise SystemExit(f"{type(defaults).__name__} has no field {k!r} ({pair!r})")
+        default = getattr(defaults, k)
+        if isinstance(default, bool):
+            out[k] = v.lower() in ("1", "true", "yes")
+        elif isinstance(default, tuple):
+            out[k] = tuple(float(x) for x in v.split(","))
+        elif isinstance(default, (int, float)):
+            out[k] = type(default)(float(v))
+        else:
+            out[k] = v
+    return out
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--presets", default=",".join(DEFAULT_PRESETS[:4]),
@@ -450,16 +470,10 @@ def main() -> None:
     DEBUG, MIN_SIZE = args.verbose, args.min_size
     presets = DEFAULT_PRESETS if args.all else tuple(p for p in args.presets.split(",") if p)
     args.work.mkdir(parents=True, exist_ok=True)
-    bg_opts = {}
-    for k, v in (o.split("=", 1) for o in args.bg):
-        default = getattr(BackgroundModel(), k)
-        bg_opts[k] = tuple(float(x) for x in v.split(",")) if isinstance(default, tuple) else type(default)(float(v))
+    bg_opts = field_overrides(BackgroundModel(), args.bg)
     if args.shadow_std is not None:
         bg_opts["shadow_std"] = args.shadow_std
-    tr_opts = {}
-    for k, v in (o.split("=", 1) for o in args.tracker):
-        default = getattr(TrackerConfig(), k)
-        tr_opts[k] = v.lower() in ("1", "true", "yes") if isinstance(default, bool) else type(default)(v)
+    tr_opts = field_overrides(TrackerConfig(), args.tracker)
     scores = []
     jobs = [(p, None) for p in presets] + [(Path(d).name, Path(d)) for d in args.scenes.split(",") if d]
     for preset, given in jobs:
