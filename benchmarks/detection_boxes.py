@@ -19,7 +19,6 @@ counted: no background model can see them.
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 import time
 from pathlib import Path
@@ -33,14 +32,11 @@ sys.path.insert(0, str(ROOT))
 from gst_trafficcal.detection.background import BackgroundDetector  # noqa: E402
 from gst_trafficcal.detection.factory import detect  # noqa: E402
 from gst_trafficcal.detection.records import box_iou  # noqa: E402
+from gst_trafficcal.synth.groundtruth import records_by_frame  # noqa: E402
 
 
 def score_scene(scene: Path, detector, frames: int, first: int) -> dict:
-    truth: dict[int, list[dict]] = {}
-    with open(scene / "frames.jsonl", encoding="utf-8") as f:
-        for line in f:
-            r = json.loads(line)
-            truth.setdefault(r["frame"], []).append(r)
+    truth = records_by_frame(scene / "frames.jsonl")
     cap = cv2.VideoCapture(str(scene / "video.mp4"))
     n_gt = n_tp = n_det = n_good = 0
     ious, dx, dy = [], [], []

@@ -111,12 +111,10 @@ class SideEstimators:
         self.exact = ScaleEstimator(models, min_vehicles=min_vehicles)
         for e in (self.hull, self.exact):
             e.set_camera(camera)
-        self.truth: dict[int, np.ndarray] = {}
-        with open(folder / "frames.jsonl", encoding="utf-8") as fh:
-            for line in fh:
-                d = json.loads(line)
-                self.truth.setdefault(int(d["frame"]), []).append(d["box"])
-        self.truth = {k: np.asarray(v, np.float64).reshape(-1, 4) for k, v in self.truth.items()}
+        from gst_trafficcal.synth.groundtruth import records_by_frame
+
+        self.truth = {n: np.asarray([r["box"] for r in recs], np.float64).reshape(-1, 4)
+                      for n, recs in records_by_frame(folder / "frames.jsonl").items()}
 
     def __call__(self, n: int, t: float, result, detections) -> None:
         from dataclasses import replace

@@ -15,7 +15,6 @@ box or the exact base swapped in, to separate the error of the boxes, of the bas
 from __future__ import annotations
 
 import argparse
-import json
 import pickle
 import sys
 from dataclasses import dataclass, replace
@@ -42,15 +41,6 @@ class Record:
     true_visible: float = 0.0
 
 
-def _truth(folder: Path) -> dict[int, list[dict]]:
-    out: dict[int, list[dict]] = {}
-    with open(folder / "frames.jsonl", encoding="utf-8") as fh:
-        for line in fh:
-            d = json.loads(line)
-            out.setdefault(int(d["frame"]), []).append(d)
-    return out
-
-
 def _corner_order(c: np.ndarray) -> np.ndarray:
     """The renderer's box corners (frames.jsonl ``box3d``: bottom then top, each front-left, front-right,
     rear-right, rear-left) in the tracker's order (box3d.CORNER_BITS: bit 0 along the vehicle, bit 1 across,
@@ -63,13 +53,14 @@ def dump(folder: Path, out: Path, detector: str, duration: float | None) -> Path
     from gst_trafficcal.scale.alignment import box_iou
     from gst_trafficcal.scale.streaming import load_align_models
     from gst_trafficcal.scale.video import frame_sightings, scale_from_video
+    from gst_trafficcal.synth.groundtruth import records_by_frame
 
     dest = out / f"{folder.name}{'_' + detector if detector else ''}.pkl"
     if dest.is_file():
         return dest
     cal = load_calibration(folder / "calibration.json")
     cam = cal.camera.with_scale(None)
-    truth = _truth(folder)
+    truth = records_by_frame(folder / "frames.jsonl")
     records: list[Record] = []
 
     def on_frame(n, t, result, detections):

@@ -279,6 +279,14 @@ def read_jsonl(path: Path) -> list[dict]:
         return [json.loads(line) for line in f if line.strip()]
 
 
+def records_by_frame(path: Path) -> dict[int, list[dict]]:
+    """A render's per-frame truth (``frames.jsonl``: one record per vehicle and frame), grouped by frame number."""
+    out: dict[int, list[dict]] = {}
+    for r in read_jsonl(path):
+        out.setdefault(int(r["frame"]), []).append(r)
+    return out
+
+
 def contact_sheet(frames: list[tuple[float, np.ndarray, list[dict]]], path: Path, cols: int = 3) -> None:
     """Tile a few frames (with ground-truth boxes and reference points drawn) into one PNG."""
     if not frames:
