@@ -3,8 +3,8 @@
 Every scene is a random variation of the renderer's presets (camera height, side, pan, tilt, roll and focal length;
 lanes and directions; traffic density up to jams with occlusions; day, overcast, dusk, night, low contrast; noise,
 blur, motion blur, shake, JPEG compression; catalogue models, generic cars of every body style and, when
-../shared has them, Kenney's low-poly meshes; road surfaces from dark asphalt to light concrete).  Seeds start at 1000: the benchmarks use seeds 1, 2 and the demo 7,
-and no BrnoCompSpeed background (replay mode) is ever rendered here.
+../shared has them, Kenney's low-poly meshes; road surfaces from dark asphalt to light concrete).  Seeds start at
+1000: the benchmarks use seeds 1, 2 and the demo 7, and no BrnoCompSpeed background (replay mode) is ever rendered here.
 
 Each frame of a scene goes through the run-time path (:mod:`gst_trafficcal.detection.seginput`: reduction to the
 work size, running-average background), so the stored background carries the same ghosts as at run time.  A
@@ -61,6 +61,7 @@ class SceneRecipe:
 
 PROFILES = ("base", "outline")
 SURFACES = ("mixed", "asphalt")
+OUTLINE_RESOLUTIONS = ((960, 540), (1280, 720), (1920, 1080))
 
 
 def road_surface(road, rng: np.random.Generator) -> str:
@@ -80,7 +81,6 @@ def road_surface(road, rng: np.random.Generator) -> str:
         road.joints = float(rng.uniform(3.5, 6.5)) if rng.random() < 0.7 else 0.0
     road.surface = [round(float(np.clip(albedo + t, 0.05, 0.95)), 4) for t in tint]
     return kind
-OUTLINE_RESOLUTIONS = ((960, 540), (1280, 720), (1920, 1080))
 
 
 def outline_lighting(scen, rng: np.random.Generator) -> None:
