@@ -10,6 +10,7 @@ box or the exact base swapped in, to separate the error of the boxes, of the bas
 
     .venv/bin/python benchmarks/scale_sightings.py dump /tmp/replays_cat/session* --out /tmp/sightings [--detector vehicleseg]
     .venv/bin/python benchmarks/scale_sightings.py replay /tmp/sightings/*.pkl --variant chain,exact_box,exact_base,exact
+    .venv/bin/python benchmarks/scale_sightings.py replay /tmp/sightings/*.pkl --variant chain --estimator iou_threshold=0.9
 """
 
 from __future__ import annotations
@@ -143,7 +144,7 @@ def replay(data: dict, variant: str, **options) -> dict:
             "matches": est._matches}
 
 
-def vehicle_table(data: dict, variants: list[str], min_vehicles: int = 5) -> str:
+def vehicle_table(data: dict, variants: list[str], min_vehicles: int = 5, **options) -> str:
     """Per variant, each matched vehicle's own λ error, the catalogue type it was matched with and what it is."""
     from collections import Counter
 
@@ -152,7 +153,7 @@ def vehicle_table(data: dict, variants: list[str], min_vehicles: int = 5) -> str
         truth.setdefault(r.sighting.track_id, Counter())[r.true_model] += 1
     lines = []
     for v in variants:
-        res = replay(data, v, min_vehicles=min_vehicles)
+        res = replay(data, v, min_vehicles=min_vehicles, **options)
         lines.append(f"  {data['scene']} {v}: λ* {res['error']:+.2f} %" if res["error"] is not None else
                      f"  {data['scene']} {v}: no λ*")
         for m in res["matches"]:
@@ -176,11 +177,18 @@ def main() -> None:
     r.add_argument("--min-vehicles", type=int, default=5)
     r.add_argument("--vehicles", action="store_true",
                    help="also list each matched vehicle: its own λ error, the type chosen and the true model")
+    r.add_argument("--estimator", action="append", default=[], metavar="FIELD=VALUE",
+                   help="a ScaleEstimator keyword for every variant (repeatable), e.g. --estimator iou_threshold=0.9 "
+                        "or --estimator select=spread --estimator per_track=6")
     a = ap.parse_args()
     if a.cmd == "dump":
         for f in a.folders:
             print(dump(f, a.out, a.detector, a.duration), flush=True)
         return
+    from gst_trafficcal.scale.streaming import ScaleEstimator
+    from options import field_overrides, parameter_defaults
+
+    options = field_overrides(parameter_defaults(ScaleEstimator), a.estimator, "ScaleEstimator")
     variants = a.variant.split(",")
     table: dict[str, list[float | None]] = {v: [] for v in variants}
     print("| scene | " + " | ".join(variants) + " |")
@@ -189,13 +197,13 @@ def main() -> None:
         data = load(f)
         cells = []
         for v in variants:
-            res = replay(data, v, min_vehicles=a.min_vehicles)
+            res = replay(data, v, min_vehicles=a.min_vehicles, **options)
             table[v].append(res["error"])
             cells.append("–" if res["error"] is None else
                          f"{res['error']:+.2f}{'' if res['converged'] else '*'} ({res['matched']}/{res['agreeing']})")
         print(f"| {data['scene']} | " + " | ".join(cells) + " |", flush=True)
         if a.vehicles:
-            print(vehicle_table(data, variants), flush=True)
+            print(vehicle_table(data, variants, a.min_vehicles, **options), flush=True)
     summ = []
     for v in variants:
         e = np.abs([x for x in table[v] if x is not None])

@@ -48,6 +48,7 @@ from gst_trafficcal.evaluation import lanes_of_points, points_between_lines  # n
 from gst_trafficcal.tracking.background import BackgroundModel, chroma_from_bgr  # noqa: E402
 from gst_trafficcal.tracking.pipeline import TrackingPipeline  # noqa: E402
 from gst_trafficcal.tracking.tracker import TrackerConfig  # noqa: E402
+from options import field_overrides  # noqa: E402  (benchmarks/options.py)
 
 SHARED = ROOT.parent / "shared"
 NANODET = SHARED / "models" / "detectors" / "nanodet_hpc203.onnx"
@@ -405,26 +406,6 @@ def pipeline_fps(size: tuple[int, int], n_vehicles: int = 10, seconds: float = 1
         wall += time.perf_counter() - t0
         busy += time.process_time() - c0
     return len(frames) / wall, len(frames) / busy, float(np.mean([len(f.ids) for f in frames]))
-
-
-def field_overrides(defaults, pairs: list[str]) -> dict:
-    """``FIELD=VALUE`` strings (``--bg``, ``--tracker``) as keyword arguments for ``defaults``' class, each value
-    converted to its field's type: booleans from 1/true/yes, tuples from comma-separated numbers."""
-    out = {}
-    for pair in pairs:
-        k, _, v = pair.partition("=")
-        if not hasattr(defaults, k):
-            raise SystemExit(f"{type(defaults).__name__} has no field {k!r} ({pair!r})")
-        default = getattr(defaults, k)
-        if isinstance(default, bool):
-            out[k] = v.lower() in ("1", "true", "yes")
-        elif isinstance(default, tuple):
-            out[k] = tuple(float(x) for x in v.split(","))
-        elif isinstance(default, (int, float)):
-            out[k] = type(default)(float(v))
-        else:
-            out[k] = v
-    return out
 
 
 def main() -> None:
