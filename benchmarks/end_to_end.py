@@ -210,7 +210,7 @@ def run_scene(scene: Scene, mode: str, work: Path, fresh: bool = False, detector
               regression: Path | None = None) -> Row:
     """``trafficcal run`` on one scene in one mode (unless an earlier run's outputs are there and not ``fresh``:
     its ``run.json`` keeps the timing), scored against the scene's gt_data.pkl; ``detector``: ``--detector`` of
-    ``trafficcal run`` (e.g. vehicleseg; empty: the default background detector)."""
+    ``trafficcal run`` (vehicleseg, background, an ONNX file; empty: run's default, vehicleseg)."""
     from gst_trafficcal.brnocompspeed import load_gt_data, load_results
     from gst_trafficcal.calibration import load_calibration
     from gst_trafficcal.errors import InputError
@@ -442,8 +442,8 @@ def summary_table(rows: list[Row]) -> tuple[str, dict]:
 
 def throughput(video: Path, work: Path, detector: str = "") -> dict:
     """Decode-only and product-chain fps on ``video``, each a gst-launch-1.0 process in this invocation
-    (``detector``: vehicledetect's model, e.g. vehicleseg)."""
-    from gst_trafficcal.cli.run import RunPaths, pipeline_description, quote
+    (``detector``: ``trafficcal run --detector``; empty: its default, vehicleseg)."""
+    from gst_trafficcal.cli.run import DEFAULT_DETECTOR, RunPaths, pipeline_description, quote
     from gst_trafficcal.gst.env import elements_dir, gst_environment
 
     env = dict(os.environ, **gst_environment())
@@ -452,12 +452,13 @@ def throughput(video: Path, work: Path, detector: str = "") -> dict:
     out.mkdir(parents=True, exist_ok=True)
     src = f"filesrc location={quote(video)} ! decodebin"
     bbscale = (elements_dir() / "python" / "bbscale.py").exists()
+    detector = detector or DEFAULT_DETECTOR
     pipelines = {
         "decode": f"{src} ! fakesink",
         "decode+videoconvert": f"{src} ! videoconvert ! video/x-raw,format=I420 ! fakesink",
-        "chain, one thread": pipeline_description(video, RunPaths(out), detector=detector or None, overlay=False,
+        "chain, one thread": pipeline_description(video, RunPaths(out), detector=detector, overlay=False,
                                                   bbscale=bbscale, queues=False),
-        "chain": pipeline_description(video, RunPaths(out), detector=detector or None, overlay=False,
+        "chain": pipeline_description(video, RunPaths(out), detector=detector, overlay=False,
                                       bbscale=bbscale),
     }
     res = {"video": str(video), "frames": frames, "pipelines": {}}
@@ -510,7 +511,9 @@ def main() -> None:
                     "docs/results/end_to_end.md")
     ap.add_argument("--regression-form", choices=("ratio", "affine"), default="ratio",
                     help="auto-reg's regression form (trafficcal fit-scale --form)")
-    ap.add_argument("--detector", default="", help="trafficcal run --detector (e.g. vehicleseg; use its own --work)")
+    ap.add_argument("--detector", default="", help="trafficcal run --detector: vehicleseg (run's default, also when "
+                    "empty), background (the built-in background subtraction, MOG2), an ONNX file; use a --work of "
+                    "its own per detector")
     ap.add_argument("--throughput", type=Path, default=None, metavar="VIDEO",
                     help="only measure decode-only vs chain fps on this video")
     a = ap.parse_args()

@@ -127,7 +127,8 @@ def test_fit_scale_cli_and_library_agree_with_the_element(clip, scaled, tmp_path
 
     env = dict(os.environ, COLUMNS="200")
     out = subprocess.run([str(ROOT / ".venv/bin/trafficcal"), "fit-scale", "--train", str(clip), "-o",
-                          str(tmp_path / "reg.json"), "--min-vehicles", "3"], capture_output=True, text=True,
+                          str(tmp_path / "reg.json"), "--min-vehicles", "3", "--detector", "background"],
+                         capture_output=True, text=True,
                          timeout=300, env=env)
     assert out.returncode == 0, out.stderr
     reg = load_regression(tmp_path / "reg.json")
@@ -192,7 +193,7 @@ def test_calibrate_adds_the_scale_after_the_vanishing_points(clip, tmp_path):
 def test_calibrate_help_lists_the_scale_options():
     help_ = subprocess.run([str(ROOT / ".venv/bin/trafficcal"), "calibrate", "--help"], capture_output=True,
                            text=True, timeout=60)
-    for opt in ("--scale", "--scale-models", "--iou-threshold", "--min-vehicles", "--regression-file"):
+    for opt in ("--scale", "--scale-models", "--iou-threshold", "--min-vehicles", "--regression-file", "--detector"):
         assert opt in help_.stdout
 
 

@@ -125,7 +125,8 @@ def test_measure_writes_vehicles_and_matches_trafficcal_run(clip, tmp_path):
 
     run_out = tmp_path / "run"
     run = subprocess.run([sys.executable, "-m", "gst_trafficcal", "run", clip / "video.mp4", "--out", run_out,
-                          "--calibration", clip / "calibration.json", "--no-overlay"], capture_output=True, text=True,
+                          "--calibration", clip / "calibration.json", "--no-overlay", "--detector", "background"],
+                         capture_output=True, text=True,
                          timeout=300)
     assert run.returncode == 0, run.stderr[-2000:]
     ran = read_events(run_out / "vehicles.jsonl").events

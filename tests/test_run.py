@@ -54,6 +54,7 @@ def with_truth(clip, tmp_path_factory):
 
 def test_run_writes_every_output(clip, with_truth):
     out, proc = with_truth
+    assert "! vehicledetect model=\"vehicleseg\" !" in proc.stdout  # the default detector: the shipped segmenter
     for name in ("calibration.json", "system.json", "vehicles.jsonl", "vehicles.csv", "overlay.mp4", "report.html",
                  "evaluation.json"):
         assert (out / name).is_file(), name

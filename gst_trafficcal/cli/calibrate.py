@@ -6,6 +6,8 @@ from pathlib import Path
 
 import click
 
+from .run import detector_option, model_of
+
 
 def parse_focal_range(text: str | None) -> tuple[float, float] | None:
     """"MIN,MAX" in pixels (None/empty: the calibrator's default)."""
@@ -52,10 +54,11 @@ def parse_focal_range(text: str | None) -> tuple[float, float] | None:
 @click.option("--min-vehicles", default=5, show_default=True, help="BBScale: agreeing vehicles needed.")
 @click.option("--regression-file", default=None, type=click.Path(path_type=Path),
               help="BBScale: scale-correction regression from trafficcal fit-scale.")
+@detector_option(" for BBScale")
 def command(video: Path, out_path: Path, png_path: Path | None, method: str, min_duration: float,
             max_duration: float, focal_range: str, horizon_max: float, whole: bool, progress: bool,
             with_scale: bool, scale_models: str, iou_threshold: float, min_vehicles: int,
-            regression_file: Path | None) -> None:
+            regression_file: Path | None, detector: str) -> None:
     import cv2
     from rich.console import Console
     from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
@@ -84,7 +87,7 @@ def command(video: Path, out_path: Path, png_path: Path | None, method: str, min
     cal = result.calibration
     out = Console()
     if with_scale and cal.camera is not None:
-        cal = _add_scale(video, cal, scale_models, iou_threshold, min_vehicles, regression_file, out)
+        cal = _add_scale(video, cal, scale_models, iou_threshold, min_vehicles, regression_file, out, detector)
     save_calibration(cal, out_path)
     fps = result.frames_read / max(result.seconds_processing, 1e-9)
     if cal.camera is None:
@@ -104,7 +107,8 @@ def command(video: Path, out_path: Path, png_path: Path | None, method: str, min
               f"vp2 {cal.confidence.get('vp2', 0):.2f} -> {out_path}, {png}", markup=False)
 
 
-def _add_scale(video: Path, cal, models: str, iou_threshold: float, min_vehicles: int, regression_file, out):
+def _add_scale(video: Path, cal, models: str, iou_threshold: float, min_vehicles: int, regression_file, out,
+               detector: str = ""):
     """The calibration with BBScale's λ from ``video`` (gst_trafficcal.scale.video), or with the reason."""
     from ..scale.regression import load_regression
     from ..scale.streaming import load_align_models
@@ -112,7 +116,7 @@ def _add_scale(video: Path, cal, models: str, iou_threshold: float, min_vehicles
 
     reg = load_regression(regression_file) if regression_file is not None else None
     res = scale_from_video(video, cal, models=load_align_models(models), iou_threshold=iou_threshold,
-                           min_vehicles=min_vehicles, regression=reg)
+                           min_vehicles=min_vehicles, regression=reg, detector=str(model_of(detector) or ""))
     r = res.result
     if r.converged:
         out.print(f"scale λ {r.scale:.3f} m (λ* {r.raw_scale:.3f}, confidence {r.confidence:.2f}, "

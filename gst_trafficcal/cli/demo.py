@@ -6,8 +6,9 @@
    markings), which ``bbscale`` (when installed) passes through unchanged, so the demo's speed errors are those
    of detection, tracking and measurement;
 3. measures every vehicle through the real GStreamer elements, in-process with the same runner and pipeline as
-   ``trafficcal run`` (``filesrc ! decodebin ! videoconvert ! vpdetect (the calibration above) ! vehicledetect !
-   tracker [! bbscale] ! speedometer ! trafficoverlay ! x264enc ! mp4mux``);
+   ``trafficcal run`` (``filesrc ! decodebin ! videoconvert ! vpdetect (the calibration above) ! vehicledetect
+   model=vehicleseg ! tracker [! bbscale] ! speedometer ! trafficoverlay ! x264enc ! mp4mux``; ``--detector`` as
+   ``trafficcal run``'s);
 4. scores calibration and speeds with the BrnoCompSpeed evaluator and writes ``report.html``.
 """
 
@@ -18,6 +19,8 @@ from pathlib import Path
 
 import click
 
+from .run import detector_option, model_of
+
 
 @click.command(name="demo")
 @click.option("--out", "out_dir", type=click.Path(file_okay=False, path_type=Path), default=Path("out/demo"),
@@ -26,7 +29,8 @@ import click
               help="Synthetic scene to render (see `trafficcal synth --list-presets`).")
 @click.option("--duration", type=float, default=60.0, show_default=True, help="Seconds of video to render.")
 @click.option("--seed", type=int, default=7, show_default=True, help="Random seed of the scene.")
-def command(out_dir: Path, preset: str, duration: float, seed: int) -> None:
+@detector_option("")
+def command(out_dir: Path, preset: str, duration: float, seed: int, detector: str) -> None:
     """Render a built-in synthetic traffic scene, calibrate, measure speeds, and compare with the truth.
 
     Leaves in --out: scene/ (video.mp4 and its exact ground truth), calibration.json, vehicles.jsonl,
@@ -50,6 +54,10 @@ def command(out_dir: Path, preset: str, duration: float, seed: int) -> None:
     from .run import RunPaths, measure_video, pipeline_description
 
     console = Console()
+    if model_of(detector):  # a bad model is a one-line error now, not after the render
+        from ..detection.factory import create_detector
+
+        create_detector(model_of(detector))
     out_dir.mkdir(parents=True, exist_ok=True)
     scene_dir = out_dir / "scene"
 
@@ -94,7 +102,7 @@ def command(out_dir: Path, preset: str, duration: float, seed: int) -> None:
     paths = RunPaths(out_dir)
     video = scene_dir / "video.mp4"
     bbscale = (elements_dir() / "python" / "bbscale.py").exists()
-    pipeline = pipeline_description(video, paths, calibration=cal_path, bbscale=bbscale)
+    pipeline = pipeline_description(video, paths, calibration=cal_path, detector=detector, bbscale=bbscale)
     console.print("[bold]Measuring[/] gst-launch-1.0 " + pipeline.replace(str(out_dir) + "/", ""), highlight=False,
                   soft_wrap=True)
     t0 = time.monotonic()

@@ -15,6 +15,8 @@ from pathlib import Path
 
 import click
 
+from .run import detector_option, model_of
+
 
 def true_scale(folder: Path, calibration) -> tuple[float, str]:
     """(true λ, where it comes from) for a training folder."""
@@ -52,11 +54,12 @@ def true_scale(folder: Path, calibration) -> tuple[float, str]:
 @click.option("--iou-threshold", default=0.85, show_default=True, help="Minimum IoU of a match.")
 @click.option("--min-vehicles", default=3, show_default=True, help="Agreeing vehicles needed per scene.")
 @click.option("--max-duration", default=None, type=float, help="Seconds of each video to use [default: all].")
+@detector_option(" for the scale chain (fit with the detector `trafficcal run` will use)")
 @click.option("--form", type=click.Choice(["ratio", "affine"]), default="ratio", show_default=True,
               help="ratio: λ_reg = α·λ* (β = 0; predicted held-out scenes better on every set measured); "
                    "affine: least-squares α and β, the paper's form (needs scenes of clearly different λ).")
 def command(train: tuple[Path, ...], out_path: Path, models: str, iou_threshold: float, min_vehicles: int,
-            max_duration: float | None, form: str) -> None:
+            max_duration: float | None, detector: str, form: str) -> None:
     from rich.console import Console
     from rich.table import Table
 
@@ -85,7 +88,8 @@ def command(train: tuple[Path, ...], out_path: Path, models: str, iou_threshold:
         cal = load_calibration(f / "calibration.json")
         lam_true, source = true_scale(f, cal)
         res = scale_from_video(f / "video.mp4", cal.with_scale(None), models=align_models,
-                               iou_threshold=iou_threshold, min_vehicles=min_vehicles, max_duration=max_duration)
+                               iou_threshold=iou_threshold, min_vehicles=min_vehicles, max_duration=max_duration,
+                               detector=str(model_of(detector) or ""))
         r = res.result
         lam = r.raw_scale if r.converged else None
         names.append(f.name)

@@ -49,6 +49,22 @@ class RunPaths:
 
 
 QUEUE = "queue max-size-buffers=4 max-size-bytes=0 max-size-time=0"
+DEFAULT_DETECTOR = "vehicleseg"  # trafficcal run / demo; the element's own default (no model) is the background one
+BACKGROUND = "background"  # --detector value for vehicledetect without a model
+
+
+def model_of(detector: Path | str | None) -> Path | str | None:
+    """vehicledetect's ``model`` for a ``--detector`` value: None for the built-in background detector."""
+    return None if detector in (None, "", BACKGROUND) else detector
+
+
+def detector_option(what: str):
+    """The ``--detector`` option of the commands that detect vehicles (``what``: how they use it)."""
+    return click.option("--detector", default=DEFAULT_DETECTOR, show_default=True,
+                        help=f"vehicledetect's model{what}: vehicleseg (the shipped learned vehicle segmenter: boxes "
+                             "and outlines; the most accurate automatic scale and recall, docs/vehicleseg.md), an "
+                             "ONNX detector file or installed model name, or background (vehicledetect's built-in "
+                             "background subtraction, no weights, the fastest).")
 
 
 def pipeline_description(video: Path, paths: RunPaths, calibration: Path | None = None,
@@ -62,7 +78,8 @@ def pipeline_description(video: Path, paths: RunPaths, calibration: Path | None 
     element still sees every buffer and the calibration events in stream order).
     """
     vp = f"vpdetect mode=fixed calibration-file={quote(calibration)}" if calibration else "vpdetect"
-    det = f"vehicledetect model={quote(detector)}" if detector else "vehicledetect"
+    model = model_of(detector)
+    det = f"vehicledetect model={quote(model)}" if model else "vehicledetect"
     chain = [f"filesrc location={quote(video)}", "decodebin", "videoconvert", "video/x-raw,format=I420",
              *([QUEUE] if queues else []), vp, det, *([QUEUE] if queues else []),
              "tracker" if body_shapes == "auto" else f"tracker body-shapes={body_shapes}"]
@@ -234,9 +251,7 @@ def print_vehicles(console, events: list) -> None:
                    "with a scale, speeds are measured.")
 @click.option("--gt", "gt_path", type=click.Path(path_type=Path), default=None,
               help="BrnoCompSpeed ground truth (gt_data.pkl): adds the error table and plot to the report.")
-@click.option("--detector", default=None,
-              help="vehicledetect's model: an ONNX detector file, or vehicleseg (the shipped learned vehicle "
-                   "segmenter: boxes and outlines) (default: the built-in background-subtraction detector).")
+@detector_option("")
 @click.option("--scale-regression", "regression_path", type=click.Path(path_type=Path), default=None,
               help="Scale-correction regression (trafficcal fit-scale) for bbscale's λ: the paper's BBScaleReg.")
 @click.option("--body-shapes", type=click.Choice(["auto", "cars", "box"]), default="auto", show_default=True,
@@ -275,10 +290,10 @@ def command(video: Path, out_dir: Path, calibration_path: Path | None, gt_path: 
         from ..scale.regression import load_regression
 
         load_regression(regression_path)  # unreadable or not a regression: a one-line error now
-    if detector:  # a bad model is a one-line error now, not a failed pipeline later
+    if model_of(detector):  # a bad model is a one-line error now, not a failed pipeline later
         from ..detection.factory import create_detector
 
-        create_detector(detector)
+        create_detector(model_of(detector))
     paths = RunPaths(out_dir)
     bbscale = (elements_dir() / "python" / "bbscale.py").exists()
     description = pipeline_description(video, paths, calibration_path, detector, overlay=not no_overlay,
