@@ -191,6 +191,7 @@ def main() -> None:
     options = field_overrides(parameter_defaults(ScaleEstimator), a.estimator, "ScaleEstimator")
     variants = a.variant.split(",")
     table: dict[str, list[float | None]] = {v: [] for v in variants}
+    rows: dict[str, list[dict]] = {v: [] for v in variants}  # for the leave-one-out regression
     print("| scene | " + " | ".join(variants) + " |")
     print("|---|" + "---|" * len(variants))
     for f in a.files:
@@ -199,16 +200,35 @@ def main() -> None:
         for v in variants:
             res = replay(data, v, min_vehicles=a.min_vehicles, **options)
             table[v].append(res["error"])
+            rows[v].append({"scene": res["scene"], "true": res["true"], "bbscale": res["raw"],
+                            "converged": res["converged"]})
             cells.append("–" if res["error"] is None else
                          f"{res['error']:+.2f}{'' if res['converged'] else '*'} ({res['matched']}/{res['agreeing']})")
         print(f"| {data['scene']} | " + " | ".join(cells) + " |", flush=True)
         if a.vehicles:
             print(vehicle_table(data, variants, a.min_vehicles, **options), flush=True)
-    summ = []
-    for v in variants:
-        e = np.abs([x for x in table[v] if x is not None])
-        summ.append("–" if not len(e) else f"{np.median(e):.2f} / {np.mean(e):.2f}")
-    print("| median / mean abs % | " + " | ".join(summ) + " |")
+    print("| median / mean abs % | " + " | ".join(_summary(table[v]) for v in variants) + " |")
+    # per set (replays: the BrnoCompSpeed recordings, scenes named session*; synth: the rest), λ* and λ_reg = α·λ*
+    # left one out within the set, as benchmarks/scale.py's BBScale and BBScale+reg (LOO) columns
+    from scale import loo_regression
+
+    for name, replays in (("synth", False), ("replays", True)):
+        if not any(r["scene"].startswith("session") == replays for r in rows[variants[0]]):
+            continue
+        raw, reg = [], []
+        for v in variants:
+            sel = [r for r in rows[v] if r["scene"].startswith("session") == replays]
+            raw.append(_summary([None if r["bbscale"] is None else 100 * (r["bbscale"] / r["true"] - 1)
+                                 for r in sel]))
+            reg.append(_summary([None if x is None else 100 * (x / r["true"] - 1)
+                                 for x, r in zip(loo_regression(sel), sel)]))
+        print(f"| {name}: median / mean abs % | " + " | ".join(raw) + " |")
+        print(f"| {name}, +reg (leave-one-out α·λ*) | " + " | ".join(reg) + " |")
+
+
+def _summary(errors: list[float | None]) -> str:
+    e = np.abs([x for x in errors if x is not None])
+    return "–" if not len(e) else f"{np.median(e):.2f} / {np.mean(e):.2f}"
 
 
 if __name__ == "__main__":
