@@ -12,6 +12,8 @@ sessions 0-3 replayed by ``trafficcal synth`` (docs/synth.md "Replay mode") with
 ManualCalib+ManualScale calibration (``trafficcal calibrate-manual``), overcast light, 1920x1080, 60 s (120 s
 for the sparse session 3) from the busiest window (:data:`REPLAY_STARTS`); the true λ is that rendering
 camera's.  Folders already in --replay-work are reused (the lead's /tmp/replays), missing ones rendered.
+Per-scene results are kept in --work under a name holding the detector's weights and the chain's code
+(:func:`detector_key`, :func:`code_key`): a second run of the same code only re-prints (e.g. to ``--write``).
 
     .venv/bin/python benchmarks/scale.py --work /tmp/scale_bench --duration 40 --jobs 2 \
         --replay-work /tmp/replays --replays all
@@ -202,6 +204,21 @@ def detector_key(detector: str) -> str:
     return f"{Path(detector).stem}-{sha256_of(path)[:8]}"
 
 
+CHAIN_PACKAGES = ("detection", "tracking", "scale", "vehicles")  # what a scene's row depends on besides the inputs
+
+
+def code_key(root: Path = ROOT / "gst_trafficcal", packages: tuple[str, ...] = CHAIN_PACKAGES) -> str:
+    """First digits of a sha256 over the chain's source files (``root/<package>/**/*.py``), so a results cache
+    written by other code (e.g. another λ* kernel) is never taken for this code's."""
+    import hashlib
+
+    h = hashlib.sha256()
+    for pkg in packages:
+        for f in sorted((root / pkg).rglob("*.py")):
+            h.update(str(f.relative_to(root)).encode() + b"\0" + f.read_bytes())
+    return h.hexdigest()[:8]
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--work", type=Path, default=Path("/tmp/scale_bench"))
@@ -239,8 +256,8 @@ def main() -> None:
                                     [a.seed] * len(presets), [a.traffic] * len(presets)))
         n_synth = len(folders)
         folders += [render_replay(r, a.replay_work, a.traffic) for r in replays]
-        cache = a.work / (f"results_{detector_key(a.detector)}_{a.traffic}" if a.detector
-                          else f"results_{a.background}_{a.traffic}")
+        cache = a.work / ((f"results_{detector_key(a.detector)}_{a.traffic}" if a.detector
+                           else f"results_{a.background}_{a.traffic}") + f"_code-{code_key()}")
         cache.mkdir(exist_ok=True)
         durations = [a.duration] * n_synth + [None] * (len(folders) - n_synth)
         rows = list(pool.map(measure, folders, [a.min_vehicles] * len(folders), [cache] * len(folders),

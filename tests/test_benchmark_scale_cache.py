@@ -1,5 +1,5 @@
-"""benchmarks/scale.py keeps per-scene results in --work; their cache is named for the detector's weights, so a
-re-trained model never reuses an earlier model's results."""
+"""benchmarks/scale.py keeps per-scene results in --work; their cache is named for the detector's weights and the
+chain's code, so a re-trained model or a changed estimator never reuses earlier results."""
 
 from __future__ import annotations
 
@@ -33,3 +33,22 @@ def test_cache_key_follows_the_weights(tmp_path):
     assert key(str(retrained)).startswith("retrained-") and key(str(retrained))[-8:] != key("vehicleseg")[-8:]
     with pytest.raises(InputError, match="model file not found"):
         key(str(tmp_path / "missing.onnx"))
+
+
+def test_cache_key_follows_the_chains_code(tmp_path):
+    """The cache is also named for the chain's source (detection, tracking, scale, vehicles): a change of the
+    estimator (e.g. its kernel) must not reuse results written by the old code."""
+    code_key = _scale_benchmark().code_key
+    for pkg in ("scale", "tracking"):
+        (tmp_path / pkg / "sub").mkdir(parents=True)
+        (tmp_path / pkg / "__init__.py").write_text("")
+        (tmp_path / pkg / "sub" / "estimate.py").write_text("BANDWIDTH = 0.02\n")
+    (tmp_path / "scale" / "notes.txt").write_text("not code")
+    before = code_key(tmp_path, ("scale", "tracking"))
+    assert code_key(tmp_path, ("scale", "tracking")) == before and len(before) == 8
+    (tmp_path / "scale" / "notes.txt").write_text("still not code")
+    assert code_key(tmp_path, ("scale", "tracking")) == before
+    (tmp_path / "scale" / "sub" / "estimate.py").write_text("BANDWIDTH = 0.05\n")
+    assert code_key(tmp_path, ("scale", "tracking")) != before
+    assert code_key(tmp_path, ("tracking",)) != code_key(tmp_path, ("scale", "tracking"))
+    assert len(code_key()) == 8  # the repository's own chain
