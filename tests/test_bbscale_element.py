@@ -79,7 +79,8 @@ def test_emits_the_true_scale(clip, scaled):
 
 
 def test_regression_file_is_applied(clip, scaled, tmp_path):
-    from gst_trafficcal.scale.regression import ScaleRegression, save_regression
+    from gst_trafficcal.scale.regression import ScaleRegression, load_regression, save_regression
+    from gst_trafficcal.scale.streaming import load_align_models
 
     save_regression(ScaleRegression(1.5, 0.25), tmp_path / "reg.json")
     run = run_pipeline(chain(clip, "vps.json", f"min-vehicles=3 regression-file={tmp_path / 'reg.json'}"),
@@ -172,18 +173,20 @@ def test_calibrate_adds_the_scale_after_the_vanishing_points(clip, tmp_path):
     from rich.console import Console
 
     from gst_trafficcal.cli.calibrate import _add_scale
-    from gst_trafficcal.scale.regression import ScaleRegression, save_regression
+    from gst_trafficcal.scale.regression import ScaleRegression, load_regression, save_regression
+    from gst_trafficcal.scale.streaming import load_align_models
 
     vps = load_calibration(clip / "vps.json")
     true = load_calibration(clip / "calibration.json").camera.scale
     quiet = Console(file=open(os.devnull, "w"))
-    cal = _add_scale(clip / "video.mp4", vps, "", 0.85, 3, None, quiet)
+    models = load_align_models("")
+    cal = _add_scale(clip / "video.mp4", vps, models, 0.85, 3, None, quiet)
     assert cal.state == "calibrated" and cal.source.endswith("bbscale") and 0 < cal.confidence["scale"] <= 1
     assert abs(cal.camera.scale / true - 1) < TOLERANCE and (cal.camera.vp1 == vps.camera.vp1).all()
     save_regression(ScaleRegression(2.0, 0.0), tmp_path / "reg.json")
-    doubled = _add_scale(clip / "video.mp4", vps, "", 0.85, 3, tmp_path / "reg.json", quiet)
+    doubled = _add_scale(clip / "video.mp4", vps, models, 0.85, 3, load_regression(tmp_path / "reg.json"), quiet)
     assert doubled.camera.scale == pytest.approx(2 * cal.camera.scale, rel=1e-9)
-    none = _add_scale(clip / "video.mp4", vps, "", 0.85, 100, None, quiet)
+    none = _add_scale(clip / "video.mp4", vps, models, 0.85, 100, None, quiet)
     assert none.state == "vps" and none.camera.scale is None
     assert none.reason.startswith("no scale: too few matches") and "min-vehicles is 100" in none.reason
     save_calibration(none, tmp_path / "none.json")

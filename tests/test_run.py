@@ -127,6 +127,21 @@ def test_not_a_video(tmp_path):
     assert str(bad) in line and "not a video" in line
 
 
+@pytest.mark.parametrize("command", ["run", "demo", "calibrate", "fit-scale"])
+def test_a_bad_detector_is_refused_before_any_work(clip, tmp_path, command):
+    """The commands sharing --detector open the model first: a missing file is one line naming it, before a render,
+    a VP stage (calibrate --scale would lose the vanishing points it found) or a pass over the video."""
+    missing = tmp_path / "missing.onnx"
+    out = tmp_path / "out"
+    args = {"run": [clip / "video.mp4", "--out", out, "--no-overlay"],
+            "demo": ["--out", out, "--duration", "4"],
+            "calibrate": [clip / "video.mp4", "-o", out / "cal.json", "--scale", "--no-progress"],
+            "fit-scale": ["--train", clip, "-o", out / "reg.json"]}[command]
+    line = one_line_error(trafficcal(command, *args, "--detector", missing))
+    assert str(missing) in line and "not found" in line
+    assert not out.exists()
+
+
 def test_missing_video(tmp_path):
     proc = trafficcal("run", tmp_path / "absent.mp4", "--out", tmp_path / "out")
     assert proc.returncode == 2 and "does not exist" in proc.stderr and "Traceback" not in proc.stderr

@@ -6,7 +6,7 @@ from pathlib import Path
 
 import click
 
-from .run import detector_option, model_of
+from .run import check_detector, detector_option
 
 
 def parse_focal_range(text: str | None) -> tuple[float, float] | None:
@@ -70,6 +70,13 @@ def command(video: Path, out_path: Path, png_path: Path | None, method: str, min
 
     if min_duration < 0 or max_duration <= 0:
         raise InputError("durations must be positive")
+    if with_scale:  # bad scale inputs are one-line errors now, not after the vanishing points were found
+        from ..scale.regression import load_regression
+        from ..scale.streaming import load_align_models
+
+        align_models = load_align_models(scale_models)
+        regression = load_regression(regression_file) if regression_file is not None else None
+        model = check_detector(detector)
     cfg = CalibratorConfig(method=method, min_duration=min_duration, max_duration=max_duration,
                            focal_range=parse_focal_range(focal_range), horizon_max_deg=horizon_max)
     console = Console(stderr=True)
@@ -87,7 +94,7 @@ def command(video: Path, out_path: Path, png_path: Path | None, method: str, min
     cal = result.calibration
     out = Console()
     if with_scale and cal.camera is not None:
-        cal = _add_scale(video, cal, scale_models, iou_threshold, min_vehicles, regression_file, out, detector)
+        cal = _add_scale(video, cal, align_models, iou_threshold, min_vehicles, regression, out, model)
     save_calibration(cal, out_path)
     fps = result.frames_read / max(result.seconds_processing, 1e-9)
     if cal.camera is None:
@@ -107,16 +114,14 @@ def command(video: Path, out_path: Path, png_path: Path | None, method: str, min
               f"vp2 {cal.confidence.get('vp2', 0):.2f} -> {out_path}, {png}", markup=False)
 
 
-def _add_scale(video: Path, cal, models: str, iou_threshold: float, min_vehicles: int, regression_file, out,
-               detector: str = ""):
-    """The calibration with BBScale's λ from ``video`` (gst_trafficcal.scale.video), or with the reason."""
-    from ..scale.regression import load_regression
-    from ..scale.streaming import load_align_models
+def _add_scale(video: Path, cal, models, iou_threshold: float, min_vehicles: int, regression, out, model: str = ""):
+    """The calibration with BBScale's λ from ``video`` (gst_trafficcal.scale.video), or with the reason
+    (``models``: loaded align models; ``regression``: a loaded ScaleRegression or None; ``model``: vehicledetect's,
+    "" for the background detector)."""
     from ..scale.video import scale_from_video
 
-    reg = load_regression(regression_file) if regression_file is not None else None
-    res = scale_from_video(video, cal, models=load_align_models(models), iou_threshold=iou_threshold,
-                           min_vehicles=min_vehicles, regression=reg, detector=str(model_of(detector) or ""))
+    res = scale_from_video(video, cal, models=models, iou_threshold=iou_threshold, min_vehicles=min_vehicles,
+                           regression=regression, detector=model)
     r = res.result
     if r.converged:
         out.print(f"scale λ {r.scale:.3f} m (λ* {r.raw_scale:.3f}, confidence {r.confidence:.2f}, "

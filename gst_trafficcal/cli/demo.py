@@ -19,7 +19,7 @@ from pathlib import Path
 
 import click
 
-from .run import detector_option, model_of
+from .run import check_detector, detector_option
 
 
 @click.command(name="demo")
@@ -54,10 +54,7 @@ def command(out_dir: Path, preset: str, duration: float, seed: int, detector: st
     from .run import RunPaths, measure_video, pipeline_description
 
     console = Console()
-    if model_of(detector):  # a bad model is a one-line error now, not after the render
-        from ..detection.factory import create_detector
-
-        create_detector(model_of(detector))
+    check_detector(detector)  # before the render
     out_dir.mkdir(parents=True, exist_ok=True)
     scene_dir = out_dir / "scene"
 

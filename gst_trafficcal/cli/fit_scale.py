@@ -15,7 +15,7 @@ from pathlib import Path
 
 import click
 
-from .run import detector_option, model_of
+from .run import check_detector, detector_option
 
 
 def true_scale(folder: Path, calibration) -> tuple[float, str]:
@@ -81,6 +81,7 @@ def command(train: tuple[Path, ...], out_path: Path, models: str, iou_threshold:
                 raise InputError(f"{d}: no calibration.json in it or in its subfolders (a trafficcal synth output?)")
             folders.extend(sub)
     align_models = load_align_models(models)
+    model = check_detector(detector)
     console = Console(stderr=True)
     table = Table("scene", "truth", "true λ", "λ*", "error %", "status")
     names, raw, true = [], [], []
@@ -89,7 +90,7 @@ def command(train: tuple[Path, ...], out_path: Path, models: str, iou_threshold:
         lam_true, source = true_scale(f, cal)
         res = scale_from_video(f / "video.mp4", cal.with_scale(None), models=align_models,
                                iou_threshold=iou_threshold, min_vehicles=min_vehicles, max_duration=max_duration,
-                               detector=str(model_of(detector) or ""))
+                               detector=model)
         r = res.result
         lam = r.raw_scale if r.converged else None
         names.append(f.name)

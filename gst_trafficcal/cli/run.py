@@ -53,9 +53,20 @@ DEFAULT_DETECTOR = "vehicleseg"  # trafficcal run / demo; the element's own defa
 BACKGROUND = "background"  # --detector value for vehicledetect without a model
 
 
-def model_of(detector: Path | str | None) -> Path | str | None:
-    """vehicledetect's ``model`` for a ``--detector`` value: None for the built-in background detector."""
-    return None if detector in (None, "", BACKGROUND) else detector
+def model_of(detector: Path | str | None) -> str:
+    """vehicledetect's ``model`` for a ``--detector`` value: "" for the built-in background detector."""
+    return "" if detector in (None, "", BACKGROUND) else str(detector)
+
+
+def check_detector(detector: Path | str | None) -> str:
+    """:func:`model_of` ``detector``, opened once now so that a missing, corrupt or unknown model is a one-line
+    error before any work (not a failed pipeline, or a lost calibration, later)."""
+    model = model_of(detector)
+    if model:
+        from ..detection.factory import create_detector
+
+        create_detector(model)
+    return model
 
 
 def detector_option(what: str):
@@ -290,10 +301,7 @@ def command(video: Path, out_dir: Path, calibration_path: Path | None, gt_path: 
         from ..scale.regression import load_regression
 
         load_regression(regression_path)  # unreadable or not a regression: a one-line error now
-    if model_of(detector):  # a bad model is a one-line error now, not a failed pipeline later
-        from ..detection.factory import create_detector
-
-        create_detector(model_of(detector))
+    check_detector(detector)
     paths = RunPaths(out_dir)
     bbscale = (elements_dir() / "python" / "bbscale.py").exists()
     description = pipeline_description(video, paths, calibration_path, detector, overlay=not no_overlay,
