@@ -174,6 +174,11 @@ def measure(folder: Path, min_vehicles: int, cache_dir: Path, background: str = 
     return row
 
 
+def is_replay(scene: str) -> bool:
+    """Whether a scene (folder name) is a BrnoCompSpeed replay (``session<k>_<view>``) rather than a synth preset."""
+    return scene.startswith("session")
+
+
 def loo_regression(rows: list[dict], form: str = "ratio") -> list[float | None]:
     """Per scene, λ_reg from the regression (``trafficcal fit-scale --form``) fitted on the other converged scenes."""
     from gst_trafficcal.scale.regression import leave_one_out
@@ -278,9 +283,9 @@ def main() -> None:
             v = rg if k == "reg" else row[k]
             errs[k].append(None if v is None else 100 * (v / t - 1))
     groups = [("all", [True] * len(rows))]
-    is_replay = [r["scene"].startswith("session") for r in rows]
-    if any(is_replay) and not all(is_replay):
-        groups = [("synth", [not x for x in is_replay]), ("replays", is_replay)] + groups
+    replay = [is_replay(r["scene"]) for r in rows]
+    if any(replay) and not all(replay):
+        groups = [("synth", [not x for x in replay]), ("replays", replay)] + groups
     for name, mask in groups:
         def pick(k):
             return [e for e, m in zip(errs[k], mask) if m]

@@ -190,8 +190,7 @@ def main() -> None:
 
     options = field_overrides(parameter_defaults(ScaleEstimator), a.estimator, "ScaleEstimator")
     variants = a.variant.split(",")
-    table: dict[str, list[float | None]] = {v: [] for v in variants}
-    rows: dict[str, list[dict]] = {v: [] for v in variants}  # for the leave-one-out regression
+    results: dict[str, list[dict]] = {v: [] for v in variants}  # per variant, replay()'s result of each scene
     print("| scene | " + " | ".join(variants) + " |")
     print("|---|" + "---|" * len(variants))
     for f in a.files:
@@ -199,30 +198,27 @@ def main() -> None:
         cells = []
         for v in variants:
             res = replay(data, v, min_vehicles=a.min_vehicles, **options)
-            table[v].append(res["error"])
-            rows[v].append({"scene": res["scene"], "true": res["true"], "bbscale": res["raw"],
-                            "converged": res["converged"]})
+            results[v].append(res)
             cells.append("–" if res["error"] is None else
                          f"{res['error']:+.2f}{'' if res['converged'] else '*'} ({res['matched']}/{res['agreeing']})")
         print(f"| {data['scene']} | " + " | ".join(cells) + " |", flush=True)
         if a.vehicles:
             print(vehicle_table(data, variants, a.min_vehicles, **options), flush=True)
-    print("| median / mean abs % | " + " | ".join(_summary(table[v]) for v in variants) + " |")
-    # per set (replays: the BrnoCompSpeed recordings, scenes named session*; synth: the rest), λ* and λ_reg = α·λ*
-    # left one out within the set, as benchmarks/scale.py's BBScale and BBScale+reg (LOO) columns
-    from scale import loo_regression
+    print("| median / mean abs % | " + " | ".join(_summary([r["error"] for r in results[v]]) for v in variants) + " |")
+    # per set (replays: the BrnoCompSpeed recordings; synth: the rest), λ* and λ_reg = α·λ* left one out within the
+    # set, as benchmarks/scale.py's BBScale and BBScale+reg (LOO) columns
+    from scale import is_replay, loo_regression
 
     for name, replays in (("synth", False), ("replays", True)):
-        if not any(r["scene"].startswith("session") == replays for r in rows[variants[0]]):
+        sets = {v: [r for r in results[v] if is_replay(r["scene"]) == replays] for v in variants}
+        if not sets[variants[0]]:
             continue
-        raw, reg = [], []
+        reg = []
         for v in variants:
-            sel = [r for r in rows[v] if r["scene"].startswith("session") == replays]
-            raw.append(_summary([None if r["bbscale"] is None else 100 * (r["bbscale"] / r["true"] - 1)
-                                 for r in sel]))
-            reg.append(_summary([None if x is None else 100 * (x / r["true"] - 1)
-                                 for x, r in zip(loo_regression(sel), sel)]))
-        print(f"| {name}: median / mean abs % | " + " | ".join(raw) + " |")
+            lam = loo_regression([{**r, "bbscale": r["raw"]} for r in sets[v]])
+            reg.append(_summary([None if x is None else 100 * (x / r["true"] - 1) for x, r in zip(lam, sets[v])]))
+        print(f"| {name}: median / mean abs % | " + " | ".join(_summary([r["error"] for r in sets[v]])
+                                                                for v in variants) + " |")
         print(f"| {name}, +reg (leave-one-out α·λ*) | " + " | ".join(reg) + " |")
 
 
