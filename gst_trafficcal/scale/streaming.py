@@ -297,7 +297,8 @@ class ScaleEstimator:
         silhouette = any(e.silhouette for e in early)
         fits = fit_shapes(self.camera, [np.asarray(e.hull, np.float64).reshape(-1, 2) for e in early],
                           None if silhouette else ())
-        k = track_choice(fits.fit[:, :TrackerConfig.shape_fits].T) if silhouette else 0  # as the tracker chooses
+        n = TrackerConfig.shape_fits
+        k = track_choice(fits.fit[:, :n].T, fits.params[0, :n], fits.kinds) if silhouette else 0  # as the tracker
         boxes = boxes_from_fits(self.camera, fits, np.full(len(early), k))
         out = []
         for j, e in enumerate(early):

@@ -23,6 +23,7 @@ road, VPs near infinity):
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass
 from functools import lru_cache
 from typing import Sequence
@@ -257,18 +258,23 @@ class ShapeFits:
     names: tuple[str, ...]
     pts: np.ndarray
     valid: np.ndarray
+    kinds: tuple[str, ...] = ()  # (S,) each shape's kind ("box", "car", "long"; shapes.BodyShape.kind)
 
     def best(self) -> np.ndarray:
-        """(N,) index of the shape that explains each hull's tangents best."""
-        return self.fit.argmin(axis=0)
+        """(N,) index of the shape that explains each hull's tangents best, of those its plain box's proportions
+        allow (:func:`allowed_shapes`)."""
+        if not self.fit.size:
+            return np.zeros(self.fit.shape[1] if self.fit.ndim == 2 else 0, np.int64)
+        ok = allowed_shapes(self.kinds, proportions_class(self.params[0]))
+        return np.where(ok, self.fit, np.inf).argmin(axis=0)
 
 
 def fit_shapes(camera: Camera, hulls: Sequence[np.ndarray] | np.ndarray,
                shapes: Sequence[BodyShape] | None = None) -> ShapeFits:
-    """Fit the plain box (Dubská's construction) and each car body shape to each convex hull (pixels).
+    """Fit the plain box (Dubská's construction) and each body shape to each convex hull (pixels).
 
-    ``shapes`` defaults to the box and the catalogue's car bodies (:func:`.shapes.default_shapes`); ``()`` is the
-    plain box alone.  A hull that is an upright rectangle (a detector's box standing in for a missing outline)
+    ``shapes`` defaults to the box and the catalogue's car and long-vehicle bodies
+    (:func:`.shapes.default_shapes`); ``()`` is the plain box alone.  A hull that is an upright rectangle (a detector's box standing in for a missing outline)
     says nothing about the body and is fitted with the box only."""
     if isinstance(hulls, np.ndarray) and hulls.ndim == 3:
         pts = hulls.astype(np.float64)
@@ -281,7 +287,8 @@ def fit_shapes(camera: Camera, hulls: Sequence[np.ndarray] | np.ndarray,
     cars = [s for s in shapes if not s.is_box]
     if n == 0:
         k = 1 + len(cars)
-        return ShapeFits(np.zeros((k, 0, 5)), np.zeros((k, 0)), ("box", *(s.name for s in cars)), pts, np.zeros(0, bool))
+        return ShapeFits(np.zeros((k, 0, 5)), np.zeros((k, 0)), ("box", *(s.name for s in cars)), pts, np.zeros(0, bool),
+                         ("box", *(s.kind for s in cars)))
     dirs, valid = _tangents(camera, pts)
     A, b, sel = _corner_equations(dirs)
     theta, _ = _tightest_box(A, b, sel, valid)
@@ -293,14 +300,50 @@ def fit_shapes(camera: Camera, hulls: Sequence[np.ndarray] | np.ndarray,
         ths, fits = _fit_shapes(dirs, np.where(ok[:, None], start, np.nan), cars, valid)
         params += list(ths)
         fit += list(np.where(ok[None], fits, np.inf))
-    return ShapeFits(np.stack(params), np.stack(fit), ("box", *(s.name for s in cars)), pts, valid)
+    return ShapeFits(np.stack(params), np.stack(fit), ("box", *(s.name for s in cars)), pts, valid,
+                     ("box", *(s.kind for s in cars)))
 
 
-def track_choice(fit: np.ndarray) -> int:
-    """The one body shape for all of a track's silhouettes: the least summed misfit over their fits ``fit``
-    (N, S), each capped at 1 radian so that one bad outline cannot decide (0 = the box, also for no fits)."""
+#: the plain box's proportions (length / width, height / width) that tell which body shapes a vehicle may hold:
+#: the catalogue's car styles are 2.2-2.8 and 0.8-0.95, a van about 2.6 and 1.15; a rigid truck 3.8 and 1.4, an
+#: articulated one 6.4 and 1.55, a bus 4.7 and 1.2 (longer than LONG); a motorcycle with its rider 2.7 and 1.9
+#: and a tall van up to 1.5 (neither: the plain box only)
+LONG, TALL = 3.5, 1.2
+
+
+def proportions_class(boxes: np.ndarray) -> np.ndarray:
+    """Per vehicle, from its plain boxes ``boxes`` (..., 5: x0, x1, y0, y1, h; medians over the leading axis
+    when 3-D, i.e. (M, N, 5) for M boxes of N vehicles): "long" (a truck, a bus), "car" or "other" (N,)."""
+    b = np.asarray(boxes, np.float64)
+    b = b.reshape(1, -1, 5) if b.ndim < 3 else b
+    width = np.abs(b[..., 3] - b[..., 2])
+    with np.errstate(divide="ignore", invalid="ignore"), warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # all-NaN columns (no box): "other"
+        length = np.nanmedian(np.abs(b[..., 1] - b[..., 0]) / width, axis=0)
+        height = np.nanmedian(b[..., 4] / width, axis=0)
+    return np.where(length > LONG, "long", np.where((length <= LONG) & (height <= TALL), "car", "other"))
+
+
+def allowed_shapes(kinds: Sequence[str], classes: np.ndarray) -> np.ndarray:
+    """(S, N) which of the shapes of ``kinds`` (S,) each vehicle of ``classes`` (N,) may hold: the box, and a car
+    the car bodies, a long vehicle the truck and bus bodies.  The misfit alone cannot choose among all of them: a
+    sedan's sloped ends explain a truck's silhouette best of all (measured on the synth trucks) and put its front
+    metres ahead of the cab."""
+    k = np.asarray(kinds)[:, None]
+    c = np.asarray(classes)[None, :]
+    return (k == "box") | ((k == "car") & (c == "car")) | ((k == "long") & (c == "long"))
+
+
+def track_choice(fit: np.ndarray, boxes: np.ndarray, kinds: Sequence[str]) -> int:
+    """The one body shape for all of a track's silhouettes: of the shapes its plain boxes ``boxes`` (N, 5) allow
+    (:func:`allowed_shapes`; ``kinds`` (S,) of the fitted shapes), the least summed misfit over their fits
+    ``fit`` (N, S), each capped at 1 radian so that one bad outline cannot decide (0 = the box, also for no fits)."""
     fit = np.asarray(fit, np.float64)
-    return int(np.argmin(np.sum(np.minimum(fit, 1.0), axis=0))) if fit.size else 0
+    if not fit.size:
+        return 0
+    allowed = allowed_shapes(kinds[:fit.shape[1]], proportions_class(np.asarray(boxes)[:, None, :]))[:, 0]
+    total = np.where(allowed, np.sum(np.minimum(fit, 1.0), axis=0), np.inf)
+    return int(np.argmin(total)) if np.isfinite(total).any() else 0
 
 
 def boxes_from_fits(camera: Camera, fits: ShapeFits, choice: np.ndarray | None = None) -> Boxes3D:

@@ -571,20 +571,24 @@ def body_shape_name(track: Track) -> str:
         return "box"
     from .shapes import default_shapes
 
-    cars = [s.name for s in default_shapes() if not s.is_box]
-    return cars[track.shape - 1] if track.shape - 1 < len(cars) else "box"
+    names = [s.name for s in default_shapes()]
+    return names[track.shape] if track.shape < len(names) else "box"
 
 
 def track_shape(track: Track, first: int | None = None) -> int:
     """The body shape that explains the tangents of the track's silhouettes best (summed misfit; 0 = box), over
-    its ``first`` fits (all: None)."""
-    fits = []
+    its ``first`` fits (all: None), of the shapes its proportions allow (a car's bodies for a car, a truck's or a
+    bus's for a long vehicle, else the box: box3d.allowed_shapes)."""
+    fits, boxes = [], []
     for o in track.observations:
         if first is not None and len(fits) >= first:  # the choice is made: later fits cannot change it
             break
         if o.shape_fit is not None and len(o.shape_fit) > 1:
             fits.append(o.shape_fit)
-    return track_choice(np.array(fits))
+            boxes.append(o.shape_params[0])
+    from .shapes import default_shapes
+
+    return track_choice(np.array(fits), np.array(boxes), [s.kind for s in default_shapes()])
 
 
 def apply_shape(camera: Camera, track: Track, observations: list[Observation]) -> None:
