@@ -56,7 +56,7 @@ def dump(folder: Path, out: Path, detector: str, duration: float | None) -> Path
     from gst_trafficcal.scale.video import frame_sightings, scale_from_video
     from gst_trafficcal.synth.groundtruth import records_by_frame
 
-    dest = out / f"{folder.name}{'_' + detector if detector else ''}.pkl"
+    dest = out / f"{folder.name}{'_' + Path(detector).stem if detector else ''}.pkl"
     if dest.is_file():
         return dest
     cal = load_calibration(folder / "calibration.json")
