@@ -297,8 +297,8 @@ class ScaleEstimator:
         silhouette = any(e.silhouette for e in early)
         fits = fit_shapes(self.camera, [np.asarray(e.hull, np.float64).reshape(-1, 2) for e in early],
                           None if silhouette else ())
-        n = TrackerConfig.shape_fits
-        k = track_choice(fits.fit[:, :n].T, fits.params[0, :n], fits.kinds) if silhouette else 0  # as the tracker
+        first = np.flatnonzero(np.isfinite(fits.fit[0]))[:TrackerConfig.shape_fits]  # as the tracker chooses
+        k = track_choice(fits.fit[:, first].T, fits.params[0, first], fits.kinds) if silhouette else 0
         boxes = boxes_from_fits(self.camera, fits, np.full(len(early), k))
         out = []
         for j, e in enumerate(early):

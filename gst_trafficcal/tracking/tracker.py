@@ -577,13 +577,13 @@ def body_shape_name(track: Track) -> str:
 
 def track_shape(track: Track, first: int | None = None) -> int:
     """The body shape that explains the tangents of the track's silhouettes best (summed misfit; 0 = box), over
-    its ``first`` fits (all: None), of the shapes its proportions allow (a car's bodies for a car, a truck's or a
+    its ``first`` valid fits (all: None; a silhouette whose tangents give no box does not count), of the shapes its proportions allow (a car's bodies for a car, a truck's or a
     bus's for a long vehicle, else the box: box3d.allowed_shapes)."""
     fits, boxes = [], []
     for o in track.observations:
         if first is not None and len(fits) >= first:  # the choice is made: later fits cannot change it
             break
-        if o.shape_fit is not None and len(o.shape_fit) > 1:
+        if o.shape_fit is not None and len(o.shape_fit) > 1 and np.isfinite(o.shape_fit[0]):  # a valid box fit
             fits.append(o.shape_fit)
             boxes.append(o.shape_params[0])
     from .shapes import default_shapes
