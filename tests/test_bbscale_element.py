@@ -79,8 +79,7 @@ def test_emits_the_true_scale(clip, scaled):
 
 
 def test_regression_file_is_applied(clip, scaled, tmp_path):
-    from gst_trafficcal.scale.regression import ScaleRegression, load_regression, save_regression
-    from gst_trafficcal.scale.streaming import load_align_models
+    from gst_trafficcal.scale.regression import ScaleRegression, save_regression
 
     save_regression(ScaleRegression(1.5, 0.25), tmp_path / "reg.json")
     run = run_pipeline(chain(clip, "vps.json", f"min-vehicles=3 regression-file={tmp_path / 'reg.json'}"),

@@ -263,8 +263,6 @@ class ShapeFits:
     def best(self) -> np.ndarray:
         """(N,) index of the shape that explains each hull's tangents best, of those its plain box's proportions
         allow (:func:`allowed_shapes`)."""
-        if not self.fit.size:
-            return np.zeros(self.fit.shape[1] if self.fit.ndim == 2 else 0, np.int64)
         ok = allowed_shapes(self.kinds, proportions_class(self.params[0]))
         return np.where(ok, self.fit, np.inf).argmin(axis=0)
 
@@ -274,8 +272,8 @@ def fit_shapes(camera: Camera, hulls: Sequence[np.ndarray] | np.ndarray,
     """Fit the plain box (Dubská's construction) and each body shape to each convex hull (pixels).
 
     ``shapes`` defaults to the box and the catalogue's car and long-vehicle bodies
-    (:func:`.shapes.default_shapes`); ``()`` is the plain box alone.  A hull that is an upright rectangle (a detector's box standing in for a missing outline)
-    says nothing about the body and is fitted with the box only."""
+    (:func:`.shapes.default_shapes`); ``()`` is the plain box alone.  A hull that is an upright rectangle (a
+    detector's box standing in for a missing outline) says nothing about the body and is fitted with the box only."""
     if isinstance(hulls, np.ndarray) and hulls.ndim == 3:
         pts = hulls.astype(np.float64)
     elif len(hulls) == 0:
@@ -284,24 +282,23 @@ def fit_shapes(camera: Camera, hulls: Sequence[np.ndarray] | np.ndarray,
         pts = _pad_hulls(hulls)
     n = len(pts)
     shapes = default_shapes() if shapes is None else tuple(shapes)
-    cars = [s for s in shapes if not s.is_box]
+    bodies = [s for s in shapes if not s.is_box]
+    names, kinds = ("box", *(s.name for s in bodies)), ("box", *(s.kind for s in bodies))
     if n == 0:
-        k = 1 + len(cars)
-        return ShapeFits(np.zeros((k, 0, 5)), np.zeros((k, 0)), ("box", *(s.name for s in cars)), pts, np.zeros(0, bool),
-                         ("box", *(s.kind for s in cars)))
+        k = len(names)
+        return ShapeFits(np.zeros((k, 0, 5)), np.zeros((k, 0)), names, pts, np.zeros(0, bool), kinds)
     dirs, valid = _tangents(camera, pts)
     A, b, sel = _corner_equations(dirs)
     theta, _ = _tightest_box(A, b, sel, valid)
     start = np.where(np.all(np.isfinite(theta), axis=1)[:, None], theta, np.nan)
     box_fit = _shape_residual(*_shape_equations(dirs, np.nan_to_num(start), _row_sections((box_shape(),))), start)
     params, fit = [theta], [np.where(np.isfinite(box_fit), box_fit, np.inf)]
-    if cars:
+    if bodies:
         ok = ~_is_rectangle(pts)
-        ths, fits = _fit_shapes(dirs, np.where(ok[:, None], start, np.nan), cars, valid)
+        ths, fits = _fit_shapes(dirs, np.where(ok[:, None], start, np.nan), bodies, valid)
         params += list(ths)
         fit += list(np.where(ok[None], fits, np.inf))
-    return ShapeFits(np.stack(params), np.stack(fit), ("box", *(s.name for s in cars)), pts, valid,
-                     ("box", *(s.kind for s in cars)))
+    return ShapeFits(np.stack(params), np.stack(fit), names, pts, valid, kinds)
 
 
 #: the plain box's proportions (length / width, height / width) that tell which body shapes a vehicle may hold:

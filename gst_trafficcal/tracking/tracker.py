@@ -577,8 +577,9 @@ def body_shape_name(track: Track) -> str:
 
 def track_shape(track: Track, first: int | None = None) -> int:
     """The body shape that explains the tangents of the track's silhouettes best (summed misfit; 0 = box), over
-    its ``first`` valid fits (all: None; a silhouette whose tangents give no box does not count), of the shapes its proportions allow (a car's bodies for a car, a truck's or a
-    bus's for a long vehicle, else the box: box3d.allowed_shapes)."""
+    its ``first`` valid fits (all: None; a silhouette whose tangents give no box does not count), of the shapes
+    its proportions allow (a car's bodies for a car, a truck's or a bus's for a long vehicle, else the box:
+    box3d.allowed_shapes)."""
     fits, boxes = [], []
     for o in track.observations:
         if first is not None and len(fits) >= first:  # the choice is made: later fits cannot change it
