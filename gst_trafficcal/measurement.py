@@ -41,6 +41,7 @@ from .lanes import LaneModel, lateral_offset
 from .outputs import AWAY_FROM_VP1, TOWARDS_VP1, VehicleEvent
 from .speed import DEFAULT_TAU, SpeedChecks, VehicleSpeed, _median_velocity, metres_per_pixel, vehicle_speed
 from .tracking.box3d import corners_fit_hulls, pixels_to_road
+from .tracking.box3d import TypicalHeight
 from .tracking.tracker import Observation, Track, TrackerConfig, TrackState, rebuild_boxes
 from .tracking.tracker import _set_references, _update_direction  # the tracker's own finishing step
 
@@ -144,6 +145,9 @@ class SpeedMeter:
         self.lanes = LaneModel()
         self._live: dict[int, _Record] = {}
         self._pending: list[_Record] = []  # left before a calibration with scale existed
+        # the typical vehicle height among the vehicles whose 3D boxes are built here late (tracker.TrackerConfig's
+        # body-shape choice), with the camera it is in plane units of
+        self._late_heights, self._late_camera = TypicalHeight(), None
         self.t: float | None = None
         if calibration is not None:
             self.set_calibration(calibration)
@@ -263,7 +267,11 @@ class SpeedMeter:
         if rec.unboxed:  # seen without a 3D box (no vanishing points at the time): build it from the hull now
             idx, rec.unboxed = rec.unboxed, []
             late = Track(id=rec.id, state=TrackState.FINISHED, observations=[obs[k] for k in idx])
-            rebuild_boxes(camera, late, TrackerConfig.shape_fits)
+            if camera is not self._late_camera:
+                self._late_heights.clear()
+                self._late_camera = camera
+            rebuild_boxes(camera, late, TrackerConfig.shape_fits, self._late_heights.value)
+            self._late_heights.add(late.height)
         if last is not None:
             obs = obs[-last:]
         track = Track(id=rec.id, state=TrackState.FINISHED, observations=obs)

@@ -222,3 +222,65 @@ def test_proportions_decide_which_bodies_a_vehicle_may_hold():
     assert proportions_class(track).tolist() == ["car"]
     ok = allowed_shapes(["box", "car", "long"], np.array(["car", "long", "other"]))
     assert ok.tolist() == [[True, True, True], [True, False, False], [False, True, False]]
+    # with the scene's typical height a long box must also stand tall: a car whose box came out long stays a car
+    long_car, truck = np.array([[0, 9.0, 0, 1.8, 1.5]]), np.array([[0, 16.5, 0, 2.55, 4.0]])
+    assert proportions_class(long_car).tolist() == ["long"]
+    assert proportions_class(long_car, typical_height=1.5).tolist() == ["car"]
+    assert proportions_class(truck, typical_height=1.5).tolist() == ["long"]
+
+
+def test_typical_height_is_the_median_of_the_last_vehicles():
+    from gst_trafficcal.tracking.box3d import TypicalHeight
+
+    typical = TypicalHeight(size=4, least=3)
+    typical.add(0.3)
+    typical.add(None)
+    typical.add(float("nan"))
+    assert typical.value is None  # one height is not a scene's
+    assert typical.value_with([0.32, 0.9]) == pytest.approx(0.32)  # the vehicles in view stand in
+    for h in (0.31, 0.9, 0.33, 0.34):
+        typical.add(h)
+    assert len(typical.heights) == 4 and typical.value == pytest.approx(0.335)  # the first (0.3) has left
+    typical.clear()
+    assert typical.value is None
+
+
+def test_a_long_box_of_a_cars_height_holds_a_cars_body():
+    """A car's plain box can come out far too long (a low camera, its far lane: 1.5-3x, from the segmenter's
+    outline), and a car's silhouette must then not take a truck's body, which would move its front by metres.
+    Exact silhouettes seen by two cameras: a car stretched to a semitrailer's proportions but of a car's height
+    takes a car body once the scene's typical height is known, the semitrailer keeps a long body."""
+    from gst_trafficcal.tracking.box3d import TypicalHeight, fit_shapes, proportions_class, track_choice
+    from gst_trafficcal.vehicles.catalogue import load_catalogue
+    from gst_trafficcal.vehicles.mesh import mesh_for
+
+    cat = load_catalogue()
+
+    def mesh(name: str, stretch: float = 1.0) -> np.ndarray:
+        V = np.unique(np.asarray(mesh_for(cat[name], np.random.default_rng(0)).vertices), axis=0) * [stretch, 1, 1]
+        return V - [(V[:, 0].min() + V[:, 0].max()) / 2, (V[:, 1].min() + V[:, 1].max()) / 2, V[:, 2].min()]
+
+    for pan, tilt, height in ((-10, 18, 8), (5, 12, 6)):
+        cam, K, R, t = make_camera(pan, tilt, 0, height)
+
+        def choice(V: np.ndarray, typical: float | None) -> tuple[str, float, str]:
+            """(kind of the body chosen, the plain boxes' median height, the class they give)"""
+            hulls = [hull_of(project(K, R, t, V + [x, y, 0])) for x in (20.0, 24.0, 28.0) for y in (-3.0, 2.5)]
+            fits = fit_shapes(cam, hulls)
+            k = track_choice(fits.fit.T, fits.params[0], fits.kinds, typical)
+            cls = proportions_class(fits.params[0][:, None], typical)[0]
+            return fits.kinds[k], float(np.median(fits.params[0, :, 4])), cls
+
+        typical = TypicalHeight()
+        for name in ("skoda_octavia_mk1_combi", "vw_golf_mk4_hatchback", "skoda_superb_mk2_liftback",
+                     "skoda_fabia_mk1_hatchback", "vw_passat_b6_variant"):
+            kind, h, _ = choice(mesh(name), typical.value)
+            assert kind in ("car", "box"), name
+            typical.add(h)
+        stretched = mesh("skoda_octavia_mk1_combi", stretch=2.2)  # 10 m long, 1.5 m tall
+        assert choice(stretched, None)[2] == "long"  # proportions alone: a long vehicle's bodies
+        kind, _, cls = choice(stretched, typical.value)
+        assert cls == "car" and kind in ("car", "box")
+        for name in ("eu_tractor_semitrailer_16_5m", "mercedes_citaro_o530_12m_bus"):
+            kind, _, cls = choice(mesh(name), typical.value)
+            assert cls == "long" and kind in ("long", "box"), name

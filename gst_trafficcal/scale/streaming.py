@@ -38,6 +38,7 @@ import numpy as np
 
 from ..errors import GeometryError, InputError, TrafficcalError
 from ..geometry import Camera
+from ..tracking.box3d import TypicalHeight
 from .alignment import AlignModel, Observation, align, align_model
 from .estimate import DEFAULT_IOU_THRESHOLD, kde_mode
 
@@ -213,6 +214,7 @@ class ScaleEstimator:
         self._n_selected = 0
         self._n_not_car = 0
         self._result: ScaleResult | None = None
+        self._early_heights = TypicalHeight()  # as the tracker's, for the early sightings' body shapes (_boxed)
 
     def set_camera(self, camera: Camera | None) -> None:
         """Use ``camera`` (its vanishing points; any scale is ignored).  A change of VPs drops the evidence."""
@@ -298,7 +300,10 @@ class ScaleEstimator:
         fits = fit_shapes(self.camera, [np.asarray(e.hull, np.float64).reshape(-1, 2) for e in early],
                           None if silhouette else ())
         first = np.flatnonzero(np.isfinite(fits.fit[0]))[:TrackerConfig.shape_fits]  # as the tracker chooses
-        k = track_choice(fits.fit[:, first].T, fits.params[0, first], fits.kinds) if silhouette else 0
+        k = track_choice(fits.fit[:, first].T, fits.params[0, first], fits.kinds, self._early_heights.value) \
+            if silhouette else 0
+        if silhouette and len(first) >= TrackerConfig.shape_fits:
+            self._early_heights.add(float(np.median(fits.params[0, first, 4])))
         boxes = boxes_from_fits(self.camera, fits, np.full(len(early), k))
         out = []
         for j, e in enumerate(early):

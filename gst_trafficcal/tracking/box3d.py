@@ -24,7 +24,8 @@ road, VPs near infinity):
 from __future__ import annotations
 
 import warnings
-from dataclasses import dataclass
+from collections import deque
+from dataclasses import dataclass, field
 from functools import lru_cache
 from typing import Sequence
 
@@ -307,10 +308,50 @@ def fit_shapes(camera: Camera, hulls: Sequence[np.ndarray] | np.ndarray,
 #: and a tall van up to 1.5 (neither: the plain box only)
 LONG, TALL = 3.5, 1.2
 
+#: a truck or a bus stands 3-4 m tall, a car 1.4-1.7 m, a van up to 2.5 m: a box is "long" only when it is also
+#: at least TALLER times as tall as the scene's typical vehicle (:class:`TypicalHeight`).  Where the vanishing
+#: directions meet at a narrow angle (a low camera looking along the road, its far lane) the plain box of a
+#: rounded car comes out 1.5-3x too long for its width, but its height stays the cars' (measured on low_camera:
+#: 10 cars classed long at 0.96-1.19x the typical height, its two buses at 2.35 and 2.58x)
+TALLER = 1.6
 
-def proportions_class(boxes: np.ndarray) -> np.ndarray:
+
+@dataclass
+class TypicalHeight:
+    """The scene's typical vehicle height, plane units: the median of the plain-box heights of the last ``size``
+    vehicles (each the median over the fits that chose its shape), once ``least`` are known (else None).  Most
+    traffic is cars, so it is a car's height; a road of trucks alone makes it a truck's, and then no vehicle is
+    taller: the bodies fall back to the cars' (the box always stays allowed)."""
+
+    size: int = 200
+    least: int = 5
+    heights: deque = field(default_factory=deque, repr=False)
+
+    def add(self, height: float | None) -> None:
+        if height is not None and np.isfinite(height) and height > 0:
+            self.heights.append(float(height))
+            while len(self.heights) > self.size:
+                self.heights.popleft()
+
+    def clear(self) -> None:
+        self.heights.clear()
+
+    @property
+    def value(self) -> float | None:
+        return self.value_with(())
+
+    def value_with(self, provisional: Sequence[float]) -> float | None:
+        """The value counting also the ``provisional`` heights of vehicles not yet chosen (the scene's first
+        vehicles: those in view stand in for the ones to come)."""
+        h = list(self.heights) + [v for v in provisional if np.isfinite(v) and v > 0]
+        return float(np.median(h)) if len(h) >= self.least else None
+
+
+def proportions_class(boxes: np.ndarray, typical_height: float | None = None) -> np.ndarray:
     """Per vehicle, from its plain boxes ``boxes`` (..., 5: x0, x1, y0, y1, h; medians over the leading axis
-    when 3-D, i.e. (M, N, 5) for M boxes of N vehicles): "long" (a truck, a bus), "car" or "other" (N,)."""
+    when 3-D, i.e. (M, N, 5) for M boxes of N vehicles): "long" (a truck, a bus), "car" or "other" (N,).  With
+    the scene's ``typical_height`` (plane units) a long box must also be :data:`TALLER` than it, else it is
+    judged as a shorter one (a car when its height / width allows)."""
     b = np.asarray(boxes, np.float64)
     b = b.reshape(1, -1, 5) if b.ndim < 3 else b
     width = np.abs(b[..., 3] - b[..., 2])
@@ -318,7 +359,10 @@ def proportions_class(boxes: np.ndarray) -> np.ndarray:
         warnings.simplefilter("ignore", RuntimeWarning)  # all-NaN columns (no box): "other"
         length = np.nanmedian(np.abs(b[..., 1] - b[..., 0]) / width, axis=0)
         height = np.nanmedian(b[..., 4] / width, axis=0)
-    return np.where(length > LONG, "long", np.where((length <= LONG) & (height <= TALL), "car", "other"))
+        tall = np.ones(length.shape, bool) if typical_height is None else \
+            np.nanmedian(b[..., 4], axis=0) >= TALLER * typical_height
+    long = (length > LONG) & tall
+    return np.where(long, "long", np.where(~long & (height <= TALL), "car", "other"))
 
 
 def allowed_shapes(kinds: Sequence[str], classes: np.ndarray) -> np.ndarray:
@@ -331,14 +375,17 @@ def allowed_shapes(kinds: Sequence[str], classes: np.ndarray) -> np.ndarray:
     return (k == "box") | ((k == "car") & (c == "car")) | ((k == "long") & (c == "long"))
 
 
-def track_choice(fit: np.ndarray, boxes: np.ndarray, kinds: Sequence[str]) -> int:
+def track_choice(fit: np.ndarray, boxes: np.ndarray, kinds: Sequence[str], typical_height: float | None = None
+                 ) -> int:
     """The one body shape for all of a track's silhouettes: of the shapes its plain boxes ``boxes`` (N, 5) allow
-    (:func:`allowed_shapes`; ``kinds`` (S,) of the fitted shapes), the least summed misfit over their fits
-    ``fit`` (N, S), each capped at 1 radian so that one bad outline cannot decide (0 = the box, also for no fits)."""
+    (:func:`allowed_shapes` and :func:`proportions_class` with the scene's ``typical_height``; ``kinds`` (S,) of
+    the fitted shapes), the least summed misfit over their fits ``fit`` (N, S), each capped at 1 radian so that
+    one bad outline cannot decide (0 = the box, also for no fits)."""
     fit = np.asarray(fit, np.float64)
     if not fit.size:
         return 0
-    allowed = allowed_shapes(kinds[:fit.shape[1]], proportions_class(np.asarray(boxes)[:, None, :]))[:, 0]
+    classes = proportions_class(np.asarray(boxes)[:, None, :], typical_height)
+    allowed = allowed_shapes(kinds[:fit.shape[1]], classes)[:, 0]
     total = np.where(allowed, np.sum(np.minimum(fit, 1.0), axis=0), np.inf)
     return int(np.argmin(total)) if np.isfinite(total).any() else 0
 

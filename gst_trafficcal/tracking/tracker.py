@@ -35,8 +35,8 @@ from scipy.optimize import linear_sum_assignment
 from ..detection.records import Detections, box_iou
 from ..errors import InputError
 from ..geometry import Camera
-from .box3d import (CORNER_BITS, _boxes, _pad_hulls, fit_shapes, pixels_to_road, track_choice, world_rays,
-                    world_to_pixels)
+from .box3d import (CORNER_BITS, TypicalHeight, _boxes, _pad_hulls, fit_shapes, pixels_to_road, track_choice,
+                    world_rays, world_to_pixels)
 from .kalman import BoxKF, ConstantVelocityKF
 from .occluders import OccluderMap, complete_boxes
 
@@ -87,6 +87,7 @@ class Track:
     road_kf_t: float = field(default=0.0, repr=False)
     ever_confirmed: bool = False
     shape: int = 0  # index of the body shape its 3D boxes hold (0 = the plain box; see box3d.fit_shapes)
+    height: float | None = None  # plain-box height over the fits that chose the shape (plane units), once chosen
 
     @property
     def label(self) -> str:
@@ -111,10 +112,11 @@ class Track:
         road = np.array([o.ref_road if o.ref_road is not None else (np.nan, np.nan) for o in self.observations])
         return px.reshape(-1, 2), road.reshape(-1, 2)
 
-    def recompute(self, camera: Camera, shape_fits: int | None = None) -> None:
+    def recompute(self, camera: Camera, shape_fits: int | None = None, typical_height: float | None = None) -> None:
         """(Re)build the 3D boxes and reference points of every observation with ``camera`` (the body shape
-        chosen over the first ``shape_fits`` silhouette fits, as the tracker does live)."""
-        rebuild_boxes(camera, self, shape_fits)
+        chosen over the first ``shape_fits`` silhouette fits, as the tracker does live; ``typical_height``: the
+        scene's, box3d.TypicalHeight)."""
+        rebuild_boxes(camera, self, shape_fits, typical_height)
         _update_direction(self)
         _set_references(camera, self, self.observations)
         self.road_kf = None
@@ -198,6 +200,7 @@ class Tracker:
         self.t: float | None = None
         self._silhouettes = False  # this frame's hulls get the car body shapes (set by update)
         self.occluders: OccluderMap | None = OccluderMap() if self.config.occluders else None
+        self.typical_height = TypicalHeight()  # of the vehicles whose body shape is chosen (plane units)
         if camera is not None:
             self.set_camera(camera)
 
@@ -212,8 +215,10 @@ class Tracker:
             self.occluders.vp1 = None if camera is None else np.asarray(camera.vp1, np.float64)
         if same or camera is None:
             return
-        for tr in self.tracks + self.finished:
-            tr.recompute(camera, self.config.shape_fits)
+        self.typical_height.clear()  # plane units change with the camera
+        for tr in sorted(self.tracks + self.finished, key=lambda tr: tr.id):  # in the order they were chosen
+            tr.recompute(camera, self.config.shape_fits, self.typical_height.value)
+            self.typical_height.add(tr.height)
 
     # ----------------------------------------------------------------- main step
     def update(self, t: float, detections: Detections, hulls: list[np.ndarray | None] | None = None,
@@ -442,12 +447,25 @@ class Tracker:
         rows, cols = linear_sum_assignment(cost)
         return [(int(r), int(c)) for r, c in zip(rows, cols) if cost[r, c] < big]
 
+    def _choose_shape(self, track: Track) -> int:
+        """The track's body shape while its first fits come in (:func:`track_shape`); once they are all in, its
+        height joins the scene's typical one."""
+        if track.height is not None:  # chosen
+            return track.shape
+        typical = self.typical_height.value
+        if typical is None:  # the scene's first vehicles: the ones in view so far stand in
+            typical = self.typical_height.value_with([_fit_height(tr, self.config.shape_fits) for tr in self.tracks
+                                                      if tr.height is None])
+        shape = track_shape(track, self.config.shape_fits, typical)
+        self.typical_height.add(track.height)
+        return shape
+
     def _attach_3d(self, observations: list[Observation], tracks: list[Track]) -> None:
         cam = self.camera
         fit_boxes(cam, observations)
         for tr, obs in zip(tracks, observations):
             new_fit = obs.shape_fit is not None and len(obs.shape_fit) > 1  # else the fits are as before
-            shape = track_shape(tr, self.config.shape_fits) if new_fit else tr.shape
+            shape = self._choose_shape(tr) if new_fit else tr.shape
             if shape != tr.shape:  # the track's body shape changed: every box of the track holds the new one
                 tr.shape = shape
                 apply_shape(cam, tr, tr.observations)
@@ -557,11 +575,14 @@ def fit_boxes(camera: Camera, observations: list[Observation]) -> None:
             o.shape_params, o.shape_fit, o.shape_ok = fits.params[:, j], fits.fit[:, j], bool(fits.valid[j])
 
 
-def rebuild_boxes(camera: Camera, track: Track, shape_fits: int | None = None) -> None:
+def rebuild_boxes(camera: Camera, track: Track, shape_fits: int | None = None,
+                  typical_height: float | None = None) -> None:
     """Fit and set the 3D boxes of all the track's observations, with the body shape chosen over its first
-    ``shape_fits`` silhouette fits (as the tracker chooses live; None: over all)."""
+    ``shape_fits`` silhouette fits (as the tracker chooses live; None: over all; ``typical_height``: the scene's,
+    box3d.TypicalHeight)."""
     fit_boxes(camera, track.observations)
-    track.shape = track_shape(track, shape_fits)
+    track.height = None
+    track.shape = track_shape(track, shape_fits, typical_height)
     apply_shape(camera, track, track.observations)
 
 
@@ -575,11 +596,19 @@ def body_shape_name(track: Track) -> str:
     return names[track.shape] if track.shape < len(names) else "box"
 
 
-def track_shape(track: Track, first: int | None = None) -> int:
+def _fit_height(track: Track, first: int) -> float:
+    """Median plain-box height of the track's first ``first`` valid fits so far (NaN: none)."""
+    h = [o.shape_params[0][4] for o in track.observations
+         if o.shape_fit is not None and len(o.shape_fit) > 1 and np.isfinite(o.shape_fit[0])][:first]
+    return float(np.median(h)) if h else np.nan
+
+
+def track_shape(track: Track, first: int | None = None, typical_height: float | None = None) -> int:
     """The body shape that explains the tangents of the track's silhouettes best (summed misfit; 0 = box), over
     its ``first`` valid fits (all: None; a silhouette whose tangents give no box does not count), of the shapes
-    its proportions allow (a car's bodies for a car, a truck's or a bus's for a long vehicle, else the box:
-    box3d.allowed_shapes)."""
+    its proportions allow (a car's bodies for a car, a truck's or a bus's for a long vehicle taller than the
+    scene's ``typical_height``, else the box: box3d.track_choice).  Once those fits are all in (or with
+    ``first`` None), sets ``track.height``: their plain boxes' median height."""
     fits, boxes = [], []
     for o in track.observations:
         if first is not None and len(fits) >= first:  # the choice is made: later fits cannot change it
@@ -587,9 +616,11 @@ def track_shape(track: Track, first: int | None = None) -> int:
         if o.shape_fit is not None and len(o.shape_fit) > 1 and np.isfinite(o.shape_fit[0]):  # a valid box fit
             fits.append(o.shape_fit)
             boxes.append(o.shape_params[0])
+    if boxes and (first is None or len(boxes) >= first):
+        track.height = float(np.median(np.array(boxes)[:, 4]))
     from .shapes import default_shapes
 
-    return track_choice(np.array(fits), np.array(boxes), [s.kind for s in default_shapes()])
+    return track_choice(np.array(fits), np.array(boxes), [s.kind for s in default_shapes()], typical_height)
 
 
 def apply_shape(camera: Camera, track: Track, observations: list[Observation]) -> None:
