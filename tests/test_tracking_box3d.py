@@ -226,6 +226,8 @@ def test_proportions_decide_which_bodies_a_vehicle_may_hold():
     long_car, truck = np.array([[0, 9.0, 0, 1.8, 1.5]]), np.array([[0, 16.5, 0, 2.55, 4.0]])
     assert proportions_class(long_car).tolist() == ["long"]
     assert proportions_class(long_car, typical_height=1.5).tolist() == ["car"]
+    narrow = np.array([[0, 9.0, 0, 1.2, 1.5]])  # its width short too: height / width 1.25 is no van's here
+    assert proportions_class(narrow, typical_height=1.5).tolist() == ["car"]
     assert proportions_class(truck, typical_height=1.5).tolist() == ["long"]
 
 

@@ -350,8 +350,8 @@ class TypicalHeight:
 def proportions_class(boxes: np.ndarray, typical_height: float | None = None) -> np.ndarray:
     """Per vehicle, from its plain boxes ``boxes`` (..., 5: x0, x1, y0, y1, h; medians over the leading axis
     when 3-D, i.e. (M, N, 5) for M boxes of N vehicles): "long" (a truck, a bus), "car" or "other" (N,).  With
-    the scene's ``typical_height`` (plane units) a long box must also be :data:`TALLER` than it, else it is
-    judged as a shorter one (a car when its height / width allows)."""
+    the scene's ``typical_height`` (plane units) a long box must also be :data:`TALLER` than it, else it is a
+    car's whose box came out long (its width short: its height / width is not judged either)."""
     b = np.asarray(boxes, np.float64)
     b = b.reshape(1, -1, 5) if b.ndim < 3 else b
     width = np.abs(b[..., 3] - b[..., 2])
@@ -361,8 +361,9 @@ def proportions_class(boxes: np.ndarray, typical_height: float | None = None) ->
         height = np.nanmedian(b[..., 4] / width, axis=0)
         tall = np.ones(length.shape, bool) if typical_height is None else \
             np.nanmedian(b[..., 4], axis=0) >= TALLER * typical_height
-    long = (length > LONG) & tall
-    return np.where(long, "long", np.where(~long & (height <= TALL), "car", "other"))
+    car = (length <= LONG) & (height <= TALL)
+    stretched = (length > LONG) & ~tall  # a car whose box came out long: its height / width is off as well
+    return np.where((length > LONG) & tall, "long", np.where(car | stretched, "car", "other"))
 
 
 def allowed_shapes(kinds: Sequence[str], classes: np.ndarray) -> np.ndarray:
