@@ -40,8 +40,7 @@ from .geometry import Camera
 from .lanes import LaneModel, lateral_offset
 from .outputs import AWAY_FROM_VP1, TOWARDS_VP1, VehicleEvent
 from .speed import DEFAULT_TAU, SpeedChecks, VehicleSpeed, _median_velocity, metres_per_pixel, vehicle_speed
-from .tracking.box3d import corners_fit_hulls, pixels_to_road
-from .tracking.box3d import TypicalHeight
+from .tracking.box3d import TypicalHeight, corners_fit_hulls, pixels_to_road
 from .tracking.tracker import Observation, Track, TrackerConfig, TrackState, rebuild_boxes
 from .tracking.tracker import _set_references, _update_direction  # the tracker's own finishing step
 

@@ -244,3 +244,23 @@ def test_body_shape_is_kept_after_the_first_fits(scene):
     assert late_switches(10) == 0
     with pytest.raises(InputError, match="shape_fits"):
         TrackerConfig(shape_fits=0)
+
+
+def test_typical_height_is_a_cars_and_survives_the_switch_to_3d(scene):
+    """The scene's typical vehicle height (which decides whether a long box may hold a truck's body) comes from
+    the tracked vehicles' plain boxes: on the simulated road (cars 1.35-1.9 m, trucks 2.6-3.6 m; camera 8 m up,
+    so plane units are 8 m) it is a car's, and it is rebuilt when the calibration arrives mid-stream."""
+    live = Tracker(TrackerConfig(body_shapes="cars"), camera=scene.camera, image_size=scene.image_size)
+    late = Tracker(TrackerConfig(body_shapes="cars"), image_size=scene.image_size)  # 2D until half-way
+    rng = np.random.default_rng(0)
+    half = len(scene.frames) // 2
+    for i, f in enumerate(scene.frames):
+        det, hulls, _ = detect(f, rng, scene.image_size)
+        if i == half:
+            assert late.typical_height.value is None  # nothing in 3D yet
+            late.set_camera(scene.camera)
+            assert late.typical_height.value is not None  # the tracks so far, rebuilt in 3D
+        live.update(f.t, det, hulls)
+        late.update(f.t, det, hulls)
+    for tracker in (live, late):
+        assert 1.35 <= 8.0 * tracker.typical_height.value <= 1.9

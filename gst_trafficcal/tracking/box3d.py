@@ -311,8 +311,9 @@ LONG, TALL = 3.5, 1.2
 #: a truck or a bus stands 3-4 m tall, a car 1.4-1.7 m, a van up to 2.5 m: a box is "long" only when it is also
 #: at least TALLER times as tall as the scene's typical vehicle (:class:`TypicalHeight`).  Where the vanishing
 #: directions meet at a narrow angle (a low camera looking along the road, its far lane) the plain box of a
-#: rounded car comes out 1.5-3x too long for its width, but its height stays the cars' (measured on low_camera:
-#: 10 cars classed long at 0.96-1.19x the typical height, its two buses at 2.35 and 2.58x)
+#: rounded car comes out 1.5-3x too long for its width, but its height stays the cars' (measured over ten
+#: catalogue renders and two with semitrailers: cars classed long 0.9-1.45x the typical height, trucks and
+#: buses 2.0-2.9x; docs/tracking.md)
 TALLER = 1.6
 
 

@@ -596,10 +596,14 @@ def body_shape_name(track: Track) -> str:
     return names[track.shape] if track.shape < len(names) else "box"
 
 
+def _valid_fit(o: Observation) -> bool:
+    """Whether the observation's silhouette was fitted with every shape and its tangents gave a plain box."""
+    return o.shape_fit is not None and len(o.shape_fit) > 1 and bool(np.isfinite(o.shape_fit[0]))
+
+
 def _fit_height(track: Track, first: int) -> float:
     """Median plain-box height of the track's first ``first`` valid fits so far (NaN: none)."""
-    h = [o.shape_params[0][4] for o in track.observations
-         if o.shape_fit is not None and len(o.shape_fit) > 1 and np.isfinite(o.shape_fit[0])][:first]
+    h = [o.shape_params[0][4] for o in track.observations if _valid_fit(o)][:first]
     return float(np.median(h)) if h else np.nan
 
 
@@ -613,7 +617,7 @@ def track_shape(track: Track, first: int | None = None, typical_height: float | 
     for o in track.observations:
         if first is not None and len(fits) >= first:  # the choice is made: later fits cannot change it
             break
-        if o.shape_fit is not None and len(o.shape_fit) > 1 and np.isfinite(o.shape_fit[0]):  # a valid box fit
+        if _valid_fit(o):
             fits.append(o.shape_fit)
             boxes.append(o.shape_params[0])
     if boxes and (first is None or len(boxes) >= first):
