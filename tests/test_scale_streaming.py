@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
@@ -287,6 +289,21 @@ def test_vehicles_that_are_not_car_shaped_are_not_aligned(cam, models):
         r = est.result()
         assert r.converged is aligned, r
         if not aligned:
+            assert "1 not car-shaped" in r.status and r.n_vehicles == 0
+
+
+def test_a_car_whose_plain_box_came_out_long_is_not_aligned(cam, models):
+    """The tracker flags a car whose plain box came out long but who stands no taller than the scene's cars
+    (``proportions`` "stretched": its outline is off); even with a car-shaped 3D box and a 2D box that matches a
+    car model exactly, it gives no scale evidence, and the status counts it as not car-shaped."""
+    frames = vehicle_sightings(cam, models, np.random.default_rng(3), 1)
+    for stretched in (False, True):
+        est = ScaleEstimator(models, min_vehicles=1, refine_base=False)
+        est.set_camera(cam)
+        run(est, [[replace(s, stretched=stretched) for s in ss] for ss in frames])
+        r = est.result()
+        assert r.converged is not stretched, r
+        if stretched:
             assert "1 not car-shaped" in r.status and r.n_vehicles == 0
 
 

@@ -220,14 +220,14 @@ def test_proportions_decide_which_bodies_a_vehicle_may_hold():
     # the median over a track's boxes decides: one distorted box does not make a car long
     track = np.array([[0, 4.6, 0, 1.8, 1.46], [0, 9.0, 0, 1.8, 1.46], [0, 4.4, 0, 1.7, 1.4]])[:, None, :]
     assert proportions_class(track).tolist() == ["car"]
-    ok = allowed_shapes(["box", "car", "long"], np.array(["car", "long", "other"]))
-    assert ok.tolist() == [[True, True, True], [True, False, False], [False, True, False]]
+    ok = allowed_shapes(["box", "car", "long"], np.array(["car", "long", "other", "stretched"]))
+    assert ok.tolist() == [[True, True, True, True], [True, False, False, True], [False, True, False, False]]
     # with the scene's typical height a long box must also stand tall: a car whose box came out long stays a car
     long_car, truck = np.array([[0, 9.0, 0, 1.8, 1.5]]), np.array([[0, 16.5, 0, 2.55, 4.0]])
     assert proportions_class(long_car).tolist() == ["long"]
-    assert proportions_class(long_car, typical_height=1.5).tolist() == ["car"]
+    assert proportions_class(long_car, typical_height=1.5).tolist() == ["stretched"]
     narrow = np.array([[0, 9.0, 0, 1.2, 1.5]])  # its width short too: height / width 1.25 is no van's here
-    assert proportions_class(narrow, typical_height=1.5).tolist() == ["car"]
+    assert proportions_class(narrow, typical_height=1.5).tolist() == ["stretched"]
     assert proportions_class(truck, typical_height=1.5).tolist() == ["long"]
 
 
@@ -282,7 +282,7 @@ def test_a_long_box_of_a_cars_height_holds_a_cars_body():
         stretched = mesh("skoda_octavia_mk1_combi", stretch=2.2)  # 10 m long, 1.5 m tall
         assert choice(stretched, None)[2] == "long"  # proportions alone: a long vehicle's bodies
         kind, _, cls = choice(stretched, typical.value)
-        assert cls == "car" and kind in ("car", "box")
+        assert cls == "stretched" and kind in ("car", "box")
         for name in ("eu_tractor_semitrailer_16_5m", "mercedes_citaro_o530_12m_bus"):
             kind, _, cls = choice(mesh(name), typical.value)
             assert cls == "long" and kind in ("long", "box"), name

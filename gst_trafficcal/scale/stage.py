@@ -44,6 +44,7 @@ def sighting_from_fields(object_id: int, label: str, box: tuple[float, float, fl
                     bool(fields.get("truncated", False)), probs,
                     corners=fields["box3d"] if base is not None else None,
                     body_shape=str(fields.get("body_shape", "box")),
+                    stretched=fields.get("proportions") == "stretched",
                     hull=None if hull is None else np.asarray(hull, np.float64).reshape(-1, 2),
                     silhouette=bool(fields.get("silhouette", False)))
 

@@ -72,6 +72,7 @@ class Sighting:
     body_shape: str = "box"  # the body the tracker's 3D box holds (box or a catalogue car body, tracking.shapes)
     hull: np.ndarray | None = None  # Kx2 convex hull, pixels: a sighting before the vanishing points were known
     silhouette: bool = False  # the hull is a segmentation's outline (car body shapes apply, tracking.tracker)
+    stretched: bool = False  # a car whose plain box came out long (box3d.proportions_class): its outline is off
 
 
 def length_to_width(camera: Camera, corners_px) -> float | None:
@@ -291,7 +292,7 @@ class ScaleEstimator:
         one body shape per track) and the track's heading (the tracker's, or from the boxes' motion)."""
         from dataclasses import replace
 
-        from ..tracking.box3d import boxes_from_fits, fit_shapes, track_choice
+        from ..tracking.box3d import boxes_from_fits, fit_shapes, proportions_class, track_choice
         from ..tracking.tracker import TrackerConfig
         from .alignment import heading_from_track
 
@@ -300,8 +301,10 @@ class ScaleEstimator:
         fits = fit_shapes(self.camera, [np.asarray(e.hull, np.float64).reshape(-1, 2) for e in early],
                           None if silhouette else ())
         first = np.flatnonzero(np.isfinite(fits.fit[0]))[:TrackerConfig.shape_fits]  # as the tracker chooses
-        k = track_choice(fits.fit[:, first].T, fits.params[0, first], fits.kinds, self._early_heights.value) \
-            if silhouette else 0
+        typical = self._early_heights.value
+        k = track_choice(fits.fit[:, first].T, fits.params[0, first], fits.kinds, typical) if silhouette else 0
+        stretched = silhouette and len(first) > 0 and \
+            proportions_class(fits.params[0, first][:, None, :], typical)[0] == "stretched"
         if silhouette and len(first) >= TrackerConfig.shape_fits:
             self._early_heights.add(float(np.median(fits.params[0, first, 4])))
         boxes = boxes_from_fits(self.camera, fits, np.full(len(early), k))
@@ -309,7 +312,8 @@ class ScaleEstimator:
         for j, e in enumerate(early):
             base = base_centre(boxes.corners_px[j]) if boxes.valid[j] else None
             if base is not None:
-                out.append(replace(e, base=base, corners=boxes.corners_px[j], body_shape=fits.names[k], hull=None))
+                out.append(replace(e, base=base, corners=boxes.corners_px[j], body_shape=fits.names[k], hull=None,
+                                   stretched=stretched))
         heading = buf.heading
         if heading == 0 and len(out) >= 2:
             try:
@@ -355,7 +359,11 @@ class ScaleEstimator:
         road must lie in ``shape_range`` (a truck, bus, two vehicles merged into one blob or a broken box lie
         outside; measured on the replays these are the matches 50-60 % off), and with ``shape_tolerance`` only
         sightings whose own ratio is within that relative distance of the median are kept.  Empty when the
-        vehicle is not car-shaped; unchanged without 3D-box corners."""
+        vehicle is not car-shaped; unchanged without 3D-box corners.  Also empty for a car whose plain box the
+        tracker found stretched (long, but of a car's height: its outline is off, e.g. a far lane seen past the
+        median barrier; admitted, six such cars moved session2_center's λ from −2.1 to −3.2 %)."""
+        if any(s.stretched for s in sightings):
+            return []
         if self.shape_range is None:
             return sightings
         ratios = [length_to_width(self.camera, s.corners) if s.corners is not None else None for s in sightings]

@@ -42,7 +42,7 @@ def frame_sightings(result, detections, camera, box: str = "detector") -> list[S
         out.append(Sighting(int(track.id), float(o.t), tuple(float(v) for v in b), base,
                             float(track.direction), str(detections.labels[i]), bool(o.occluded),
                             bool(o.truncated), corners=o.corners_px if base is not None else None,
-                            body_shape=body_shape_name(track)))
+                            body_shape=body_shape_name(track), stretched=track.proportions == "stretched"))
     return out
 
 

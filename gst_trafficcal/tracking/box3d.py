@@ -350,9 +350,10 @@ class TypicalHeight:
 
 def proportions_class(boxes: np.ndarray, typical_height: float | None = None) -> np.ndarray:
     """Per vehicle, from its plain boxes ``boxes`` (..., 5: x0, x1, y0, y1, h; medians over the leading axis
-    when 3-D, i.e. (M, N, 5) for M boxes of N vehicles): "long" (a truck, a bus), "car" or "other" (N,).  With
-    the scene's ``typical_height`` (plane units) a long box must also be :data:`TALLER` than it, else it is a
-    car's whose box came out long (its width short: its height / width is not judged either)."""
+    when 3-D, i.e. (M, N, 5) for M boxes of N vehicles): "long" (a truck, a bus), "car", "stretched" or "other"
+    (N,).  With the scene's ``typical_height`` (plane units) a long box must also be :data:`TALLER` than it, else
+    it is "stretched": a car's whose box came out long (its width short: its height / width is not judged either;
+    it may hold the car bodies, but its outline is no evidence for the scale)."""
     b = np.asarray(boxes, np.float64)
     b = b.reshape(1, -1, 5) if b.ndim < 3 else b
     width = np.abs(b[..., 3] - b[..., 2])
@@ -364,7 +365,7 @@ def proportions_class(boxes: np.ndarray, typical_height: float | None = None) ->
             np.nanmedian(b[..., 4], axis=0) >= TALLER * typical_height
     car = (length <= LONG) & (height <= TALL)
     stretched = (length > LONG) & ~tall  # a car whose box came out long: its height / width is off as well
-    return np.where((length > LONG) & tall, "long", np.where(car | stretched, "car", "other"))
+    return np.where((length > LONG) & tall, "long", np.where(car, "car", np.where(stretched, "stretched", "other")))
 
 
 def allowed_shapes(kinds: Sequence[str], classes: np.ndarray) -> np.ndarray:
@@ -374,7 +375,7 @@ def allowed_shapes(kinds: Sequence[str], classes: np.ndarray) -> np.ndarray:
     metres ahead of the cab."""
     k = np.asarray(kinds)[:, None]
     c = np.asarray(classes)[None, :]
-    return (k == "box") | ((k == "car") & (c == "car")) | ((k == "long") & (c == "long"))
+    return (k == "box") | ((k == "car") & ((c == "car") | (c == "stretched"))) | ((k == "long") & (c == "long"))
 
 
 def track_choice(fit: np.ndarray, boxes: np.ndarray, kinds: Sequence[str], typical_height: float | None = None

@@ -35,8 +35,8 @@ from scipy.optimize import linear_sum_assignment
 from ..detection.records import Detections, box_iou
 from ..errors import InputError
 from ..geometry import Camera
-from .box3d import (CORNER_BITS, TypicalHeight, _boxes, _pad_hulls, fit_shapes, pixels_to_road, track_choice,
-                    world_rays, world_to_pixels)
+from .box3d import (CORNER_BITS, TypicalHeight, _boxes, _pad_hulls, fit_shapes, pixels_to_road,
+                    proportions_class, track_choice, world_rays, world_to_pixels)
 from .kalman import BoxKF, ConstantVelocityKF
 from .occluders import OccluderMap, complete_boxes
 
@@ -88,6 +88,7 @@ class Track:
     ever_confirmed: bool = False
     shape: int = 0  # index of the body shape its 3D boxes hold (0 = the plain box; see box3d.fit_shapes)
     height: float | None = None  # plain-box height over the fits that chose the shape (plane units), once chosen
+    proportions: str = ""  # what those fits' plain boxes say it is (box3d.proportions_class; "" before any fit)
 
     @property
     def label(self) -> str:
@@ -622,6 +623,7 @@ def track_shape(track: Track, first: int | None = None, typical_height: float | 
             boxes.append(o.shape_params[0])
     if boxes and (first is None or len(boxes) >= first):
         track.height = float(np.median(np.array(boxes)[:, 4]))
+    track.proportions = str(proportions_class(np.array(boxes)[:, None, :], typical_height)[0]) if boxes else ""
     from .shapes import default_shapes
 
     return track_choice(np.array(fits), np.array(boxes), [s.kind for s in default_shapes()], typical_height)

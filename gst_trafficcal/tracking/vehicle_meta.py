@@ -15,6 +15,9 @@ Fields (all present unless noted):
 * ``ref_x``, ``ref_y`` (doubles): the reference point (centre of the bottom-front edge) in pixels;
 * ``body_shape`` (string): the body the 3D box holds — ``box`` (Dubská's plain box) or a catalogue car body
   (``tracking.shapes``), chosen per track for clean silhouettes;
+* ``proportions`` (string): what the plain boxes that chose it say the vehicle is (``box3d.proportions_class``:
+  ``car``, ``long`` — a truck or a bus —, ``stretched`` — a car whose box came out long, which bbscale does not
+  use —, ``other``; empty before any silhouette fit);
 * ``road_x``, ``road_y`` (doubles): the reference point on the road plane, world frame in plane units (x along
   VP1, camera foot at 0; multiply by the scale λ for metres);
 * ``world_x``, ``world_y`` (doubles, only when the scale is known): the same in metres;
@@ -50,6 +53,7 @@ def vehicle_fields(track: Track, obs: Observation, camera: Camera | None, calibr
         fields["box3d"] = [[float(x), float(y)] for x, y in obs.corners_px]
         fields["ref_x"], fields["ref_y"] = (float(v) for v in obs.ref_px)
         fields["body_shape"] = body_shape_name(track)
+        fields["proportions"] = track.proportions
         fields["road_x"], fields["road_y"] = (float(v) for v in obs.ref_road)
         if camera.scale is not None:
             fields["world_x"], fields["world_y"] = (float(v) * camera.scale for v in obs.ref_road)
