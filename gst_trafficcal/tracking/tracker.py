@@ -611,9 +611,10 @@ def _fit_height(track: Track, first: int) -> float:
 def track_shape(track: Track, first: int | None = None, typical_height: float | None = None) -> int:
     """The body shape that explains the tangents of the track's silhouettes best (summed misfit; 0 = box), over
     its ``first`` valid fits (all: None; a silhouette whose tangents give no box does not count), of the shapes
-    its proportions allow (a car's bodies for a car, a truck's or a bus's for a long vehicle taller than the
-    scene's ``typical_height``, else the box: box3d.track_choice).  Once those fits are all in (or with
-    ``first`` None), sets ``track.height``: their plain boxes' median height."""
+    its proportions allow (a car's bodies for a car and for a "stretched" one — long, but no taller than the
+    scene's ``typical_height`` —, a truck's or a bus's for a long vehicle taller than that, else the box:
+    box3d.track_choice).  Sets ``track.proportions`` (that class) and, once those fits are all in (or with
+    ``first`` None), ``track.height``: their plain boxes' median height."""
     fits, boxes = [], []
     for o in track.observations:
         if first is not None and len(fits) >= first:  # the choice is made: later fits cannot change it
