@@ -252,7 +252,7 @@ def test_a_long_box_of_a_cars_height_holds_a_cars_body():
     outline), and a car's silhouette must then not take a truck's body, which would move its front by metres.
     Exact silhouettes seen by two cameras: a car stretched to a semitrailer's proportions but of a car's height
     takes a car body once the scene's typical height is known, the semitrailer keeps a long body."""
-    from gst_trafficcal.tracking.box3d import TypicalHeight, fit_shapes, proportions_class, track_choice
+    from gst_trafficcal.tracking.box3d import TypicalHeight, fit_shapes, track_choice, track_class
     from gst_trafficcal.vehicles.catalogue import load_catalogue
     from gst_trafficcal.vehicles.mesh import mesh_for
 
@@ -269,8 +269,8 @@ def test_a_long_box_of_a_cars_height_holds_a_cars_body():
             """(kind of the body chosen, the plain boxes' median height, the class they give)"""
             hulls = [hull_of(project(K, R, t, V + [x, y, 0])) for x in (20.0, 24.0, 28.0) for y in (-3.0, 2.5)]
             fits = fit_shapes(cam, hulls)
-            k = track_choice(fits.fit.T, fits.params[0], fits.kinds, typical)
-            cls = proportions_class(fits.params[0][:, None], typical)[0]
+            cls = track_class(fits.params[0], typical)
+            k = track_choice(fits.fit.T, fits.kinds, cls)
             return fits.kinds[k], float(np.median(fits.params[0, :, 4])), cls
 
         typical = TypicalHeight()

@@ -292,7 +292,7 @@ class ScaleEstimator:
         one body shape per track) and the track's heading (the tracker's, or from the boxes' motion)."""
         from dataclasses import replace
 
-        from ..tracking.box3d import boxes_from_fits, fit_shapes, proportions_class, track_choice
+        from ..tracking.box3d import boxes_from_fits, fit_shapes, track_choice, track_class
         from ..tracking.tracker import TrackerConfig
         from .alignment import heading_from_track
 
@@ -301,10 +301,9 @@ class ScaleEstimator:
         fits = fit_shapes(self.camera, [np.asarray(e.hull, np.float64).reshape(-1, 2) for e in early],
                           None if silhouette else ())
         first = np.flatnonzero(np.isfinite(fits.fit[0]))[:TrackerConfig.shape_fits]  # as the tracker chooses
-        typical = self._early_heights.value
-        k = track_choice(fits.fit[:, first].T, fits.params[0, first], fits.kinds, typical) if silhouette else 0
-        stretched = silhouette and len(first) > 0 and \
-            proportions_class(fits.params[0, first][:, None, :], typical)[0] == "stretched"
+        cls = track_class(fits.params[0, first], self._early_heights.value) if silhouette and len(first) else ""
+        k = track_choice(fits.fit[:, first].T, fits.kinds, cls) if silhouette else 0
+        stretched = cls == "stretched"
         if silhouette and len(first) >= TrackerConfig.shape_fits:
             self._early_heights.add(float(np.median(fits.params[0, first, 4])))
         boxes = boxes_from_fits(self.camera, fits, np.full(len(early), k))

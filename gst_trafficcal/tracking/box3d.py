@@ -328,11 +328,12 @@ class TypicalHeight:
     least: int = 5
     heights: deque = field(default_factory=deque, repr=False)
 
+    def __post_init__(self) -> None:
+        self.heights = deque(self.heights, maxlen=self.size)
+
     def add(self, height: float | None) -> None:
         if height is not None and np.isfinite(height) and height > 0:
             self.heights.append(float(height))
-            while len(self.heights) > self.size:
-                self.heights.popleft()
 
     def clear(self) -> None:
         self.heights.clear()
@@ -368,6 +369,11 @@ def proportions_class(boxes: np.ndarray, typical_height: float | None = None) ->
     return np.where((length > LONG) & tall, "long", np.where(car, "car", np.where(stretched, "stretched", "other")))
 
 
+def track_class(boxes: np.ndarray, typical_height: float | None = None) -> str:
+    """:func:`proportions_class` of one track from its plain boxes ``boxes`` (N, 5) (medians over them)."""
+    return str(proportions_class(np.asarray(boxes, np.float64).reshape(-1, 1, 5), typical_height)[0])
+
+
 def allowed_shapes(kinds: Sequence[str], classes: np.ndarray) -> np.ndarray:
     """(S, N) which of the shapes of ``kinds`` (S,) each vehicle of ``classes`` (N,) may hold: the box, and a car
     the car bodies, a long vehicle the truck and bus bodies.  The misfit alone cannot choose among all of them: a
@@ -378,17 +384,15 @@ def allowed_shapes(kinds: Sequence[str], classes: np.ndarray) -> np.ndarray:
     return (k == "box") | ((k == "car") & ((c == "car") | (c == "stretched"))) | ((k == "long") & (c == "long"))
 
 
-def track_choice(fit: np.ndarray, boxes: np.ndarray, kinds: Sequence[str], typical_height: float | None = None
-                 ) -> int:
-    """The one body shape for all of a track's silhouettes: of the shapes its plain boxes ``boxes`` (N, 5) allow
-    (:func:`allowed_shapes` and :func:`proportions_class` with the scene's ``typical_height``; ``kinds`` (S,) of
-    the fitted shapes), the least summed misfit over their fits ``fit`` (N, S), each capped at 1 radian so that
-    one bad outline cannot decide (0 = the box, also for no fits)."""
+def track_choice(fit: np.ndarray, kinds: Sequence[str], vehicle_class: str) -> int:
+    """The one body shape for all of a track's silhouettes: of the shapes its class allows (``vehicle_class``,
+    :func:`track_class` of its plain boxes; :func:`allowed_shapes`; ``kinds`` (S,) of the fitted shapes), the
+    least summed misfit over its fits ``fit`` (N, S), each capped at 1 radian so that one bad outline cannot
+    decide (0 = the box, also for no fits)."""
     fit = np.asarray(fit, np.float64)
     if not fit.size:
         return 0
-    classes = proportions_class(np.asarray(boxes)[:, None, :], typical_height)
-    allowed = allowed_shapes(kinds[:fit.shape[1]], classes)[:, 0]
+    allowed = allowed_shapes(kinds[:fit.shape[1]], np.array([vehicle_class]))[:, 0]
     total = np.where(allowed, np.sum(np.minimum(fit, 1.0), axis=0), np.inf)
     return int(np.argmin(total)) if np.isfinite(total).any() else 0
 

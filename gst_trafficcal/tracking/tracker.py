@@ -35,8 +35,8 @@ from scipy.optimize import linear_sum_assignment
 from ..detection.records import Detections, box_iou
 from ..errors import InputError
 from ..geometry import Camera
-from .box3d import (CORNER_BITS, TypicalHeight, _boxes, _pad_hulls, fit_shapes, pixels_to_road,
-                    proportions_class, track_choice, world_rays, world_to_pixels)
+from .box3d import (CORNER_BITS, TypicalHeight, _boxes, _pad_hulls, fit_shapes, pixels_to_road, track_choice,
+                    track_class, world_rays, world_to_pixels)
 from .kalman import BoxKF, ConstantVelocityKF
 from .occluders import OccluderMap, complete_boxes
 
@@ -602,9 +602,20 @@ def _valid_fit(o: Observation) -> bool:
     return o.shape_fit is not None and len(o.shape_fit) > 1 and bool(np.isfinite(o.shape_fit[0]))
 
 
+def _first_fits(track: Track, first: int | None) -> list[Observation]:
+    """The track's observations with a valid fit, the first ``first`` of them (all: None)."""
+    out = []
+    for o in track.observations:
+        if first is not None and len(out) >= first:
+            break
+        if _valid_fit(o):
+            out.append(o)
+    return out
+
+
 def _fit_height(track: Track, first: int) -> float:
     """Median plain-box height of the track's first ``first`` valid fits so far (NaN: none)."""
-    h = [o.shape_params[0][4] for o in track.observations if _valid_fit(o)][:first]
+    h = [o.shape_params[0][4] for o in _first_fits(track, first)]
     return float(np.median(h)) if h else np.nan
 
 
@@ -615,19 +626,17 @@ def track_shape(track: Track, first: int | None = None, typical_height: float | 
     scene's ``typical_height`` —, a truck's or a bus's for a long vehicle taller than that, else the box:
     box3d.track_choice).  Sets ``track.proportions`` (that class) and, once those fits are all in (or with
     ``first`` None), ``track.height``: their plain boxes' median height."""
-    fits, boxes = [], []
-    for o in track.observations:
-        if first is not None and len(fits) >= first:  # the choice is made: later fits cannot change it
-            break
-        if _valid_fit(o):
-            fits.append(o.shape_fit)
-            boxes.append(o.shape_params[0])
-    if boxes and (first is None or len(boxes) >= first):
-        track.height = float(np.median(np.array(boxes)[:, 4]))
-    track.proportions = str(proportions_class(np.array(boxes)[:, None, :], typical_height)[0]) if boxes else ""
+    rows = _first_fits(track, first)  # the choice is made over these: later fits cannot change it
+    if not rows:
+        track.proportions = ""
+        return 0
+    boxes = np.array([o.shape_params[0] for o in rows])
+    if first is None or len(rows) >= first:
+        track.height = float(np.median(boxes[:, 4]))
+    track.proportions = track_class(boxes, typical_height)
     from .shapes import default_shapes
 
-    return track_choice(np.array(fits), np.array(boxes), [s.kind for s in default_shapes()], typical_height)
+    return track_choice(np.array([o.shape_fit for o in rows]), [s.kind for s in default_shapes()], track.proportions)
 
 
 def apply_shape(camera: Camera, track: Track, observations: list[Observation]) -> None:
