@@ -58,11 +58,21 @@ CATALOGUE_TRAFFIC = (
         "vw_passat_b6_variant", "skoda_yeti_suv", "vw_tiguan_mk1_suv")) + "}\n")
 
 
-def render_replay(name: str, work: Path, traffic: str = "preset") -> Path:
+def replay_duration(name: str, duration: float | None = None) -> float:
+    """Seconds of recording ``name`` a replay holds: ``duration``, by default 60 (120 for the sparse session 3)."""
+    return float(duration) if duration else (120.0 if name.startswith("session3") else 60.0)
+
+
+def render_replay(name: str, work: Path, traffic: str = "preset", duration: float | None = None) -> Path:
     """The replay folder of recording ``name`` in ``work`` (rendered when missing; ``traffic`` "catalogue" adds
-    :data:`CATALOGUE_TRAFFIC`)."""
+    :data:`CATALOGUE_TRAFFIC`; ``duration`` see :func:`replay_duration`).  A folder rendered with another duration
+    is an error, not reused."""
     out = work / name
+    dur = replay_duration(name, duration)
     if (out / "video.mp4").is_file():
+        held = json.loads((out / "scenario.json").read_text()).get("duration")
+        if held is not None and abs(float(held) - dur) > 1e-6:
+            raise SystemExit(f"{out} holds {held:g} s of replay, not {dur:g} s: use another --replay-work")
         return out
     gt = BRNO / name / "gt_data.pkl"
     if not gt.is_file():
@@ -72,9 +82,8 @@ def render_replay(name: str, work: Path, traffic: str = "preset") -> Path:
     tc = str(ROOT / ".venv/bin/trafficcal")
     subprocess.run([tc, "calibrate-manual", "--gt", str(gt), "-o", str(cfg / f"cal_{name}.json")], check=True,
                    capture_output=True)
-    dur = 120 if name.startswith("session3") else 60
     (cfg / f"{name}.yaml").write_text(
-        f"duration: {dur}\nimaging: {{fps: 25}}\nlighting: {{preset: overcast}}\nreplay:\n  gt_data: {gt}\n"
+        f"duration: {dur:g}\nimaging: {{fps: 25}}\nlighting: {{preset: overcast}}\nreplay:\n  gt_data: {gt}\n"
         f"  calibration: cal_{name}.json\n  start: {REPLAY_STARTS[name]}\n"
         + (CATALOGUE_TRAFFIC if traffic == "catalogue" else ""))
     subprocess.run([tc, "synth", "--scenario", str(cfg / f"{name}.yaml"), "--out", str(out), "--no-progress"],
