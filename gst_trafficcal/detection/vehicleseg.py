@@ -270,10 +270,11 @@ def decode(mask: np.ndarray, centre: np.ndarray, offset: np.ndarray, geometry: W
         score = float(peak_score[i]) if i < len(peaks) else float(prob[sl][region].mean()) * 0.5
         if score < threshold:
             continue
-        hull = outline_hull(prob, inst, i + 1, sl, level=mask_threshold)
-        hulls.append(hull * (sx, sy) - 0.5)  # work pixel edges -> frame pixels (centres at integers)
-        lo, hi = hull.min(axis=0), hull.max(axis=0)
-        boxes.append((lo[0] * sx, lo[1] * sy, hi[0] * sx, hi[1] * sy))
+        # work pixel edges -> frame pixels (centres at integers, as the renderer's and the models' projected boxes);
+        # the box is the hull's extent in the same coordinates
+        hull = outline_hull(prob, inst, i + 1, sl, level=mask_threshold) * (sx, sy) - 0.5
+        hulls.append(hull)
+        boxes.append((*hull.min(axis=0), *hull.max(axis=0)))
         scores.append(score)
         kept.append(i + 1)
     remap = np.zeros(int(inst.max()) + 1, np.int32)
