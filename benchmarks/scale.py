@@ -58,12 +58,16 @@ CATALOGUE_TRAFFIC = (
         "vw_passat_b6_variant", "skoda_yeti_suv", "vw_tiguan_mk1_suv")) + "}\n")
 
 
-def replay_duration(name: str, duration: float | None = None) -> float:
-    """Seconds of recording ``name`` a replay holds: ``duration``, by default 60 (120 for the sparse session 3)."""
-    return float(duration) if duration else (120.0 if name.startswith("session3") else 60.0)
+def replay_duration(name: str, duration: str | float | None = None) -> float:
+    """Seconds of recording ``name`` a replay holds.  ``duration``: None for 60 (120 for the sparse session 3), a
+    number for every recording, or "SECONDS,SESSION3_SECONDS"."""
+    if duration is None or duration == "":
+        return 120.0 if name.startswith("session3") else 60.0
+    parts = [float(v) for v in str(duration).split(",")]
+    return parts[-1] if name.startswith("session3") else parts[0]
 
 
-def render_replay(name: str, work: Path, traffic: str = "preset", duration: float | None = None) -> Path:
+def render_replay(name: str, work: Path, traffic: str = "preset", duration: str | float | None = None) -> Path:
     """The replay folder of recording ``name`` in ``work`` (rendered when missing; ``traffic`` "catalogue" adds
     :data:`CATALOGUE_TRAFFIC`; ``duration`` see :func:`replay_duration`).  A folder rendered with another duration
     is an error, not reused."""
@@ -243,6 +247,9 @@ def main() -> None:
     ap.add_argument("--jobs", type=int, default=2)
     ap.add_argument("--replays", default="", help="BrnoCompSpeed replays: comma-separated names or 'all'")
     ap.add_argument("--replay-work", type=Path, default=Path("/tmp/replays"))
+    ap.add_argument("--replay-duration", default=None, metavar="S[,S3]",
+                    help="seconds of each recording to replay, optionally another figure for session 3 (default 60,120);"
+                         " a longer stretch shows the scale more vehicles")
     ap.add_argument("--renders", type=Path, default=None,
                     help="use the synth scenes already rendered in RENDERS/<preset> (e.g. /tmp/aa_syn, 60 s) instead of "
                          "rendering; the first --duration seconds are analysed")
@@ -269,7 +276,7 @@ def main() -> None:
             folders = list(pool.map(render, presets, [a.work] * len(presets), [a.duration] * len(presets),
                                     [a.seed] * len(presets), [a.traffic] * len(presets)))
         n_synth = len(folders)
-        folders += [render_replay(r, a.replay_work, a.traffic) for r in replays]
+        folders += [render_replay(r, a.replay_work, a.traffic, a.replay_duration) for r in replays]
         cache = a.work / ((f"results_{detector_key(a.detector)}_{a.traffic}" if a.detector
                            else f"results_{a.background}_{a.traffic}") + f"_code-{code_key()}")
         cache.mkdir(exist_ok=True)
