@@ -11,6 +11,7 @@ box or the exact base swapped in, to separate the error of the boxes, of the bas
     .venv/bin/python benchmarks/scale_sightings.py dump /tmp/replays_cat/session* --out /tmp/sightings [--detector vehicleseg]
     .venv/bin/python benchmarks/scale_sightings.py replay /tmp/sightings/*.pkl --variant chain,exact_box,exact_base,exact
     .venv/bin/python benchmarks/scale_sightings.py replay /tmp/sightings/*.pkl --variant chain --estimator iou_threshold=0.9
+    .venv/bin/python benchmarks/scale_sightings.py replay /tmp/sightings/*.pkl --variant chain --until 60,120
 """
 
 from __future__ import annotations
@@ -124,7 +125,8 @@ def load(path: Path) -> dict:
     return data
 
 
-def replay(data: dict, variant: str, **options) -> dict:
+def replay(data: dict, variant: str, until: float | None = None, **options) -> dict:
+    """λ* of ``variant``'s sightings; ``until``: only those of the first seconds, as if the video ended there."""
     from gst_trafficcal.scale.streaming import ScaleEstimator, load_align_models
 
     est = ScaleEstimator(load_align_models(None), **options)
@@ -132,6 +134,8 @@ def replay(data: dict, variant: str, **options) -> dict:
     frames: dict[int, list] = {}
     times: dict[int, float] = {}
     for n, t, s in variant_sightings(data["records"], variant):
+        if until is not None and t > until:
+            continue
         frames.setdefault(n, []).append(s)
         times[n] = t
     for n in sorted(frames):
@@ -180,6 +184,9 @@ def main() -> None:
     r.add_argument("--estimator", action="append", default=[], metavar="FIELD=VALUE",
                    help="a ScaleEstimator keyword for every variant (repeatable), e.g. --estimator iou_threshold=0.9 "
                         "or --estimator select=spread --estimator per_track=6")
+    r.add_argument("--until", default="", metavar="S[,S...]",
+                   help="also λ* from only the first S seconds of each scene, as if its video ended there (how long "
+                        "the scale needs to watch), e.g. 60,120,240")
     a = ap.parse_args()
     if a.cmd == "dump":
         for f in a.folders:
@@ -189,21 +196,23 @@ def main() -> None:
     from options import field_overrides, parameter_defaults
 
     options = field_overrides(parameter_defaults(ScaleEstimator), a.estimator, "ScaleEstimator")
-    variants = a.variant.split(",")
-    results: dict[str, list[dict]] = {v: [] for v in variants}  # per variant, replay()'s result of each scene
+    untils = [float(x) for x in a.until.split(",") if x] + [None]
+    columns = {(f"{v} ≤ {u:g} s" if u is not None else v): (v, u) for u in untils for v in a.variant.split(",")}
+    variants = list(columns)
+    results: dict[str, list[dict]] = {v: [] for v in variants}  # per column, replay()'s result of each scene
     print("| scene | " + " | ".join(variants) + " |")
     print("|---|" + "---|" * len(variants))
     for f in a.files:
         data = load(f)
         cells = []
         for v in variants:
-            res = replay(data, v, min_vehicles=a.min_vehicles, **options)
+            res = replay(data, columns[v][0], columns[v][1], min_vehicles=a.min_vehicles, **options)
             results[v].append(res)
             cells.append("–" if res["error"] is None else
                          f"{res['error']:+.2f}{'' if res['converged'] else '*'} ({res['matched']}/{res['agreeing']})")
         print(f"| {data['scene']} | " + " | ".join(cells) + " |", flush=True)
         if a.vehicles:
-            print(vehicle_table(data, variants, a.min_vehicles, **options), flush=True)
+            print(vehicle_table(data, a.variant.split(","), a.min_vehicles, **options), flush=True)
     print("| median / mean abs % | " + " | ".join(_summary([r["error"] for r in results[v]]) for v in variants) + " |")
     # per set (replays: the BrnoCompSpeed recordings; synth: the rest), λ* and λ_reg = α·λ* left one out within the
     # set, as benchmarks/scale.py's BBScale and BBScale+reg (LOO) columns
