@@ -10,13 +10,16 @@ docs/results/scale.md (with ``--write``).
 BrnoCompSpeed replays (``--replays session0_center,...``, folders in --replay-work): each recording of
 sessions 0-3 replayed by ``trafficcal synth`` (docs/synth.md "Replay mode") with the camera of its
 ManualCalib+ManualScale calibration (``trafficcal calibrate-manual``), overcast light, 1920x1080, 60 s (120 s
-for the sparse session 3) from the busiest window (:data:`REPLAY_STARTS`); the true λ is that rendering
-camera's.  Folders already in --replay-work are reused (the lead's /tmp/replays), missing ones rendered.
+for the sparse session 3) from the busiest window (:data:`REPLAY_STARTS`), or ``--replay-duration`` seconds from
+its start; the true λ is that rendering camera's.  Folders already in --replay-work are reused (the lead's
+/tmp/replays; one rendered with another duration is an error), missing ones rendered.
 Per-scene results are kept in --work under a name holding the detector's weights and the chain's code
 (:func:`detector_key`, :func:`code_key`): a second run of the same code only re-prints (e.g. to ``--write``).
 
     .venv/bin/python benchmarks/scale.py --work /tmp/scale_bench --duration 40 --jobs 2 \
         --replay-work /tmp/replays --replays all
+    .venv/bin/python benchmarks/scale.py --presets '' --replays all --replay-work /tmp/replays_long \
+        --replay-duration 240,360 --traffic catalogue --detector vehicleseg --work /tmp/scale_long
 """
 
 from __future__ import annotations
