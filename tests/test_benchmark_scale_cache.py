@@ -52,3 +52,20 @@ def test_cache_key_follows_the_chains_code(tmp_path):
     assert code_key(tmp_path, ("scale", "tracking")) != before
     assert code_key(tmp_path, ("tracking",)) != code_key(tmp_path, ("scale", "tracking"))
     assert len(code_key()) == 8  # the repository's own chain
+
+
+def test_replay_length_and_a_folder_of_another_length(tmp_path):
+    """--replay-duration: 60 s (120 s for the sparse session 3) by default, one figure for all or "S,S3"; a replay
+    folder rendered with another length is refused, not silently measured as if it were the asked one."""
+    bench = _scale_benchmark()
+    assert bench.replay_duration("session0_left") == 60 and bench.replay_duration("session3_right") == 120
+    assert bench.replay_duration("session1_center", "240") == 240 == bench.replay_duration("session3_left", 240)
+    assert bench.replay_duration("session2_left", "240,360") == 240
+    assert bench.replay_duration("session3_center", "240,360") == 360
+    folder = tmp_path / "session0_left"
+    folder.mkdir()
+    (folder / "video.mp4").write_bytes(b"\0")
+    (folder / "scenario.json").write_text('{"duration": 60.0}')
+    assert bench.render_replay("session0_left", tmp_path, "catalogue") == folder  # the default length: reused
+    with pytest.raises(SystemExit, match="holds 60 s of replay, not 240 s"):
+        bench.render_replay("session0_left", tmp_path, "catalogue", "240,360")
