@@ -111,7 +111,7 @@ def score_sample(det: VehicleSegDetector, d: dict, tally: Tally, min_width: floa
     tally.shadow_fg += int((shadow & pred).sum())
     g = true_boxes(inst, 12)
     g = g[(g[:, 2] - g[:, 0]) >= min_width]
-    b = found.boxes.reshape(-1, 4)
+    b = found.boxes.reshape(-1, 4) + 0.5  # pixel-centre coordinates -> pixel edges, as true_boxes
     tally.vehicles += len(g)
     if not len(g) or not len(b):
         return
