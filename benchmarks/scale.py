@@ -66,8 +66,25 @@ def replay_duration(name: str, duration: str | float | None = None) -> float:
     number for every recording, or "SECONDS,SESSION3_SECONDS"."""
     if duration is None or duration == "":
         return 120.0 if name.startswith("session3") else 60.0
-    parts = [float(v) for v in str(duration).split(",")]
+    parts = duration_arg(str(duration))
     return parts[-1] if name.startswith("session3") else parts[0]
+
+
+def duration_arg(text: str) -> list[float]:
+    """``--replay-duration``'s "S" or "S,S3": positive seconds (argparse reports a bad one at start-up)."""
+    try:
+        parts = [float(v) for v in text.split(",")]
+    except ValueError:
+        parts = []
+    if not 1 <= len(parts) <= 2 or not all(0 < v < float("inf") for v in parts):
+        raise argparse.ArgumentTypeError(f"expected SECONDS or SECONDS,SESSION3_SECONDS (positive), got {text!r}")
+    return parts
+
+
+def _duration_option(text: str) -> str:
+    """``--replay-duration`` checked at start-up, kept as given (:func:`replay_duration` reads it per recording)."""
+    duration_arg(text)
+    return text
 
 
 def render_replay(name: str, work: Path, traffic: str = "preset", duration: str | float | None = None) -> Path:
@@ -77,7 +94,8 @@ def render_replay(name: str, work: Path, traffic: str = "preset", duration: str 
     out = work / name
     dur = replay_duration(name, duration)
     if (out / "video.mp4").is_file():
-        held = json.loads((out / "scenario.json").read_text()).get("duration")
+        scenario = out / "scenario.json"  # renders older than the scenario file are taken as they are
+        held = json.loads(scenario.read_text()).get("duration") if scenario.is_file() else None
         if held is not None and abs(float(held) - dur) > 1e-6:
             raise SystemExit(f"{out} holds {held:g} s of replay, not {dur:g} s: use another --replay-work")
         return out
@@ -250,7 +268,7 @@ def main() -> None:
     ap.add_argument("--jobs", type=int, default=2)
     ap.add_argument("--replays", default="", help="BrnoCompSpeed replays: comma-separated names or 'all'")
     ap.add_argument("--replay-work", type=Path, default=Path("/tmp/replays"))
-    ap.add_argument("--replay-duration", default=None, metavar="S[,S3]",
+    ap.add_argument("--replay-duration", default=None, metavar="S[,S3]", type=_duration_option,
                     help="seconds of each recording to replay, optionally another figure for session 3 (default 60,120);"
                          " a longer stretch shows the scale more vehicles")
     ap.add_argument("--renders", type=Path, default=None,

@@ -184,7 +184,7 @@ def main() -> None:
     r.add_argument("--estimator", action="append", default=[], metavar="FIELD=VALUE",
                    help="a ScaleEstimator keyword for every variant (repeatable), e.g. --estimator iou_threshold=0.9 "
                         "or --estimator select=spread --estimator per_track=6")
-    r.add_argument("--until", default="", metavar="S[,S...]",
+    r.add_argument("--until", default=[], metavar="S[,S...]", type=_seconds_list,
                    help="also λ* from only the first S seconds of each scene, as if its video ended there (how long "
                         "the scale needs to watch), e.g. 60,120,240")
     a = ap.parse_args()
@@ -196,8 +196,8 @@ def main() -> None:
     from options import field_overrides, parameter_defaults
 
     options = field_overrides(parameter_defaults(ScaleEstimator), a.estimator, "ScaleEstimator")
-    untils = [float(x) for x in a.until.split(",") if x] + [None]
-    columns = {(f"{v} ≤ {u:g} s" if u is not None else v): (v, u) for u in untils for v in a.variant.split(",")}
+    names = a.variant.split(",")
+    columns = {(f"{v} ≤ {u:g} s" if u is not None else v): (v, u) for u in [*a.until, None] for v in names}
     variants = list(columns)
     results: dict[str, list[dict]] = {v: [] for v in variants}  # per column, replay()'s result of each scene
     print("| scene | " + " | ".join(variants) + " |")
@@ -206,13 +206,13 @@ def main() -> None:
         data = load(f)
         cells = []
         for v in variants:
-            res = replay(data, columns[v][0], columns[v][1], min_vehicles=a.min_vehicles, **options)
+            res = replay(data, *columns[v], min_vehicles=a.min_vehicles, **options)
             results[v].append(res)
             cells.append("–" if res["error"] is None else
                          f"{res['error']:+.2f}{'' if res['converged'] else '*'} ({res['matched']}/{res['agreeing']})")
         print(f"| {data['scene']} | " + " | ".join(cells) + " |", flush=True)
         if a.vehicles:
-            print(vehicle_table(data, a.variant.split(","), a.min_vehicles, **options), flush=True)
+            print(vehicle_table(data, names, a.min_vehicles, **options), flush=True)
     print("| median / mean abs % | " + " | ".join(_summary([r["error"] for r in results[v]]) for v in variants) + " |")
     # per set (replays: the BrnoCompSpeed recordings; synth: the rest), λ* and λ_reg = α·λ* left one out within the
     # set, as benchmarks/scale.py's BBScale and BBScale+reg (LOO) columns
@@ -229,6 +229,17 @@ def main() -> None:
         print(f"| {name}: median / mean abs % | " + " | ".join(_summary([r["error"] for r in sets[v]])
                                                                 for v in variants) + " |")
         print(f"| {name}, +reg (leave-one-out α·λ*) | " + " | ".join(reg) + " |")
+
+
+def _seconds_list(text: str) -> list[float]:
+    """``--until``'s "S[,S...]": positive seconds (argparse reports a bad one at start-up)."""
+    try:
+        out = [float(v) for v in text.split(",") if v.strip()]
+    except ValueError:
+        out = []
+    if not out or not all(0 < v < float("inf") for v in out):
+        raise argparse.ArgumentTypeError(f"expected positive seconds, comma-separated, got {text!r}")
+    return out
 
 
 def _summary(errors: list[float | None]) -> str:

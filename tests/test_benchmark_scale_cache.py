@@ -3,6 +3,7 @@ chain's code, so a re-trained model or a changed estimator never reuses earlier 
 
 from __future__ import annotations
 
+import argparse
 import importlib.util
 from pathlib import Path
 
@@ -69,3 +70,16 @@ def test_replay_length_and_a_folder_of_another_length(tmp_path):
     assert bench.render_replay("session0_left", tmp_path, "catalogue") == folder  # the default length: reused
     with pytest.raises(SystemExit, match="holds 60 s of replay, not 240 s"):
         bench.render_replay("session0_left", tmp_path, "catalogue", "240,360")
+
+
+def test_a_replay_folder_without_its_scenario_file_is_reused_as_it_is(tmp_path):
+    """Renders older than the scenario file (no scenario.json) keep working: their length is not known, so they are
+    taken as they are; a malformed --replay-duration is refused with the option's own message."""
+    bench = _scale_benchmark()
+    folder = tmp_path / "session1_left"
+    folder.mkdir()
+    (folder / "video.mp4").write_bytes(b"\0")
+    assert bench.render_replay("session1_left", tmp_path, "catalogue", "240") == folder
+    for bad in ("abc", "0", "60,-1", "60,120,240"):
+        with pytest.raises(argparse.ArgumentTypeError, match="SECONDS or SECONDS,SESSION3_SECONDS"):
+            bench.duration_arg(bad)
