@@ -81,12 +81,15 @@ def score_scene(scene: Path, detector, frames: int, first: int) -> dict:
 
 
 def summary(name: str, rows: list[dict]) -> str:
+    """One table row; a scene with no scored vehicle (e.g. a sparse scene's window) shows dashes, not NaN."""
     gt, tp = sum(r["vehicles"] for r in rows), sum(r["tp"] for r in rows)
     det, good = sum(r["detections"] for r in rows), sum(r["good"] for r in rows)
     ious = sum((r["ious"] for r in rows), [])
+    if not gt:
+        return f"| {name} | 0 | — | {good / det if det else 0:.3f} | — | — | — |"
     dx = np.median(np.array(sum((r["dx"] for r in rows), [])).reshape(-1, 2), axis=0)
     dy = np.median(np.array(sum((r["dy"] for r in rows), [])).reshape(-1, 2), axis=0)
-    return (f"| {name} | {gt} | {tp / max(gt, 1):.3f} | {good / max(det, 1):.3f} | "
+    return (f"| {name} | {gt} | {tp / gt:.3f} | {good / max(det, 1):.3f} | "
             f"{np.median(ious) if ious else 0:.2f} | {dx[0]:+.2f} / {dx[1]:+.2f} | {dy[0]:+.2f} / {dy[1]:+.2f} |")
 
 
