@@ -14,6 +14,20 @@ DETECTORS = SHARED / "models" / "detectors"
 RECORDINGS = [f"session{s}_{p}" for s in range(4) for p in ("center", "left", "right")]
 
 
+@pytest.fixture
+def load_benchmark():
+    """``load_benchmark("scale")`` imports benchmarks/scale.py (the benchmarks are scripts, not a package)."""
+    import importlib.util
+
+    def load(name: str):
+        spec = importlib.util.spec_from_file_location(f"{name}_benchmark", ROOT / "benchmarks" / f"{name}.py")
+        module = importlib.util.module_from_spec(spec)
+        spec.loader.exec_module(module)
+        return module
+
+    return load
+
+
 def require_shared(path: Path) -> Path:
     """Skip the calling test with a reason when a file of ../shared is not there."""
     if not path.exists():

@@ -3,22 +3,11 @@ a row of dashes instead of NaN and numpy warnings, and does not disturb the pool
 
 from __future__ import annotations
 
-import importlib.util
 import warnings
-from pathlib import Path
-
-ROOT = Path(__file__).resolve().parents[1]
 
 
-def _boxes_benchmark():
-    spec = importlib.util.spec_from_file_location("detection_boxes_benchmark", ROOT / "benchmarks" / "detection_boxes.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
-
-
-def test_a_scene_without_scored_vehicles_gives_dashes_not_nan():
-    bench = _boxes_benchmark()
+def test_a_scene_without_scored_vehicles_gives_dashes_not_nan(load_benchmark):
+    bench = load_benchmark("detection_boxes")
     empty = dict(scene="sparse", vehicles=0, tp=0, detections=3, good=3, ious=[], dx=[], dy=[], fps=90.0)
     busy = dict(scene="busy", vehicles=2, tp=2, detections=2, good=2, ious=[0.9, 0.8],
                 dx=[[0.02, -0.01], [0.04, 0.01]], dy=[[0.0, 0.02], [-0.02, 0.0]], fps=90.0)

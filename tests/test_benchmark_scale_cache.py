@@ -4,8 +4,6 @@ chain's code, so a re-trained model or a changed estimator never reuses earlier 
 from __future__ import annotations
 
 import argparse
-import importlib.util
-from pathlib import Path
 
 import pytest
 
@@ -13,18 +11,8 @@ from gst_trafficcal.detection import vehicleseg
 from gst_trafficcal.detection.models import sha256_of
 from gst_trafficcal.errors import InputError
 
-ROOT = Path(__file__).resolve().parents[1]
-
-
-def _scale_benchmark():
-    spec = importlib.util.spec_from_file_location("scale_benchmark", ROOT / "benchmarks" / "scale.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
-
-
-def test_cache_key_follows_the_weights(tmp_path):
-    key = _scale_benchmark().detector_key
+def test_cache_key_follows_the_weights(tmp_path, load_benchmark):
+    key = load_benchmark("scale").detector_key
     assert key("vehicleseg") == f"vehicleseg-{sha256_of(vehicleseg.WEIGHTS)[:8]}"
     same = tmp_path / "vehicleseg.onnx"
     same.write_bytes(vehicleseg.WEIGHTS.read_bytes())
@@ -36,10 +24,10 @@ def test_cache_key_follows_the_weights(tmp_path):
         key(str(tmp_path / "missing.onnx"))
 
 
-def test_cache_key_follows_the_chains_code(tmp_path):
+def test_cache_key_follows_the_chains_code(tmp_path, load_benchmark):
     """The cache is also named for the chain's source (detection, tracking, scale, vehicles): a change of the
     estimator (e.g. its kernel) must not reuse results written by the old code."""
-    code_key = _scale_benchmark().code_key
+    code_key = load_benchmark("scale").code_key
     for pkg in ("scale", "tracking"):
         (tmp_path / pkg / "sub").mkdir(parents=True)
         (tmp_path / pkg / "__init__.py").write_text("")
@@ -55,10 +43,10 @@ def test_cache_key_follows_the_chains_code(tmp_path):
     assert len(code_key()) == 8  # the repository's own chain
 
 
-def test_replay_length_and_a_folder_of_another_length(tmp_path):
+def test_replay_length_and_a_folder_of_another_length(tmp_path, load_benchmark):
     """--replay-duration: 60 s (120 s for the sparse session 3) by default, one figure for all or "S,S3"; a replay
     folder rendered with another length is refused, not silently measured as if it were the asked one."""
-    bench = _scale_benchmark()
+    bench = load_benchmark("scale")
     assert bench.replay_duration("session0_left") == 60 and bench.replay_duration("session3_right") == 120
     assert bench.replay_duration("session1_center", "240") == 240 == bench.replay_duration("session3_left", 240)
     assert bench.replay_duration("session2_left", "240,360") == 240
@@ -72,10 +60,10 @@ def test_replay_length_and_a_folder_of_another_length(tmp_path):
         bench.render_replay("session0_left", tmp_path, "catalogue", "240,360")
 
 
-def test_a_replay_folder_without_its_scenario_file_is_reused_as_it_is(tmp_path):
+def test_a_replay_folder_without_its_scenario_file_is_reused_as_it_is(tmp_path, load_benchmark):
     """Renders older than the scenario file (no scenario.json) keep working: their length is not known, so they are
     taken as they are; a malformed --replay-duration is refused with the option's own message."""
-    bench = _scale_benchmark()
+    bench = load_benchmark("scale")
     folder = tmp_path / "session1_left"
     folder.mkdir()
     (folder / "video.mp4").write_bytes(b"\0")
