@@ -11,6 +11,7 @@ from gst_trafficcal.detection import vehicleseg
 from gst_trafficcal.detection.models import sha256_of
 from gst_trafficcal.errors import InputError
 
+
 def test_cache_key_follows_the_weights(tmp_path, load_benchmark):
     key = load_benchmark("scale").detector_key
     assert key("vehicleseg") == f"vehicleseg-{sha256_of(vehicleseg.WEIGHTS)[:8]}"
