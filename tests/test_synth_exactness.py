@@ -175,6 +175,27 @@ def test_video_is_h264_with_all_frames(synth):
     assert (out / "preview.png").stat().st_size > 10000
 
 
+def test_an_interrupted_render_leaves_no_video_mp4(tmp_path, synth):
+    """A render stopped half-way (here an exception from the progress callback; Ctrl-C or a killed process alike)
+    leaves its frames under the partial name only, and replaces no finished scene's video.mp4 with a short one:
+    benchmarks reuse a folder that has video.mp4, so a short one would pass for the whole scene."""
+    scen = scenario_from_dict(SCENE)
+    (tmp_path / "video.mp4").write_bytes(b"an earlier render")
+
+    def stop_half_way(i, n):
+        if i == n // 2:
+            raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        generate(scen, tmp_path, progress=stop_half_way, box_vehicles=True, model_factory=_box_model)
+    assert not (tmp_path / "video.mp4").exists()
+    cap = cv2.VideoCapture(str(tmp_path / "video.partial.mp4"))  # what was written before the stop
+    assert 0 < int(cap.get(cv2.CAP_PROP_FRAME_COUNT)) < int(scen.duration * scen.imaging.fps)
+    # ... and a complete render leaves video.mp4 only (the fixture's scene)
+    _, out, _, _ = synth
+    assert (out / "video.mp4").is_file() and not (out / "video.partial.mp4").exists()
+
+
 def _frames(scen, out, **kw):
     frames: list = []
     generate(scen, out, write_video=False, keep_masks=frames, **kw)

@@ -25,6 +25,8 @@ from .traffic import Traffic, Vehicle, draw_model, generate_traffic
 
 VIDEO, GT_DATA, CALIBRATION, FRAMES_JSONL, PREVIEW, SCENARIO = (
     "video.mp4", "gt_data.pkl", "calibration.json", "frames.jsonl", "preview.png", "scenario.json")
+#: the video while it is being written (renamed to VIDEO when complete)
+PARTIAL_VIDEO = "video.partial.mp4"
 
 
 @dataclass
@@ -122,8 +124,15 @@ def generate(scen: Scenario, out_dir: str | Path, progress: Callable[[int, int],
     meshes: dict[int, object] = {}
     proxies: dict[int, object] = {}
     written = 0
-    writer = VideoWriter(out / VIDEO, (W, H), fps, scen.imaging.bitrate, variable_timestamps=vfr) \
+    # the video is written under a partial name and renamed when the last frame is in: an interrupted render (an
+    # exception, Ctrl-C, a killed process whose encoder still closes the file) never leaves a playable but short
+    # video.mp4 that a later run would take for a finished scene
+    partial = out / PARTIAL_VIDEO
+    if write_video:
+        (out / VIDEO).unlink(missing_ok=True)
+    writer = VideoWriter(partial, (W, H), fps, scen.imaging.bitrate, variable_timestamps=vfr) \
         if write_video else None
+    complete = False
     exposure = scen.imaging.motion_blur
     areas = SilhouetteAreas()
     t_loop, cpu_loop = time.perf_counter(), _cpu_seconds()
@@ -188,9 +197,12 @@ def generate(scen: Scenario, out_dir: str | Path, progress: Callable[[int, int],
                         del proxies[key]
         if progress is not None:
             progress(n, n)
+        complete = True
     finally:
         if writer is not None:
             writer.close()
+            if complete:
+                partial.replace(out / VIDEO)
         renderer.release()
     loop_seconds, loop_cpu = time.perf_counter() - t_loop, _cpu_seconds() - cpu_loop
     contact_sheet(sheet, out / PREVIEW)
