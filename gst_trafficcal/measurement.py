@@ -68,6 +68,7 @@ class Sighting:
     ref_px: np.ndarray | None = None  # the tracker's reference point of this frame
     hull: np.ndarray | None = None  # Kx2 convex hull when known (builds the 3D box later if VPs come late)
     silhouette: bool = False  # the hull is a segmentation's clean outline (car body shapes apply, tracker.py)
+    cut_top: bool = False  # truncated by the image's top edge alone: its 3D box may still measure (tracker.py)
 
     @classmethod
     def from_fields(cls, object_id: int, label: str, confidence: float, fields: Mapping[str, Any],
@@ -76,14 +77,16 @@ class Sighting:
         time = float(fields["t"]) if t is None else float(t)
         box = tuple(float(v) for v in fields.get("hull_box", (np.nan,) * 4))
         corners = ref = None
-        if fields.get("has_3d") and "box3d" in fields:
+        cut_top = bool(fields.get("cut_top", False))
+        if (fields.get("has_3d") or cut_top) and "box3d" in fields:
             corners = np.asarray(fields["box3d"], np.float64).reshape(8, 2)
             if "ref_x" in fields and "ref_y" in fields:
                 ref = np.array([float(fields["ref_x"]), float(fields["ref_y"])])
         hull = fields.get("hull")
         hull = None if hull is None else np.asarray(hull, np.float64).reshape(-1, 2)
         return cls(int(object_id), str(label), time, box, float(confidence), bool(fields.get("truncated", False)),
-                   bool(fields.get("occluded", False)), corners, ref, hull, bool(fields.get("silhouette", False)))
+                   bool(fields.get("occluded", False)), corners, ref, hull, bool(fields.get("silhouette", False)),
+                   cut_top)
 
 
 @dataclass(frozen=True)
@@ -184,7 +187,7 @@ class SpeedMeter:
             if rec is None:
                 rec = self._live[s.id] = _Record(s.id)
             obs = _observation(s, self.camera)
-            if obs.box3d is None and obs.hull is not None and not obs.truncated and not obs.occluded:
+            if obs.box3d is None and obs.hull is not None and (not obs.truncated or obs.cut_top) and not obs.occluded:
                 rec.unboxed.append(len(rec.observations))
             rec.observations.append(obs)
             rec.last_t = s.t
@@ -345,7 +348,8 @@ def _observation(s: Sighting, camera: Camera | None) -> Observation:
     if hull is None and np.all(np.isfinite(box)):
         hull = np.array([[box[0], box[1]], [box[2], box[1]], [box[2], box[3]], [box[0], box[3]]])
     obs = Observation(t=float(s.t), box=box, det_box=box, score=float(s.confidence), label=s.label, hull=hull,
-                      truncated=s.truncated, occluded=s.occluded, silhouette=s.silhouette and s.hull is not None)
+                      truncated=s.truncated, occluded=s.occluded, silhouette=s.silhouette and s.hull is not None,
+                      cut_top=s.cut_top)
     # a 3D box far outside the tracked hull (a degenerate solve upstream) gives no reference point
     if (s.corners_px is not None and camera is not None
             and corners_fit_hulls(s.corners_px[None], box[None, :2], box[None, 2:])[0]):

@@ -58,8 +58,9 @@ class Observation:
     score: float
     label: str
     hull: np.ndarray | None = None  # convex hull, Kx2 pixels
-    truncated: bool = False  # touches the image border: not fully visible, no 3D box
+    truncated: bool = False  # touches the image border: not fully visible, no 3D box (but see cut_top)
     occluded: bool = False  # partly covered by a nearer vehicle: not measured, no 3D box
+    cut_top: bool = False  # truncated by the image's top edge alone: 3D box, measured only as MIN_WHOLE_BOXES says
     box3d: np.ndarray | None = None  # x0, x1, y0, y1, h in world plane units
     corners_px: np.ndarray | None = None  # 8x2 pixels, order box3d.CORNER_BITS
     ref_px: np.ndarray | None = None  # reference point (centre of the bottom-front edge), pixels
@@ -380,16 +381,21 @@ class Tracker:
     def _observation(self, t: float, det: Detections, i: int, box: np.ndarray, hull, occluded: bool,
                      cut: bool = False) -> Observation:
         trunc = bool(cut)  # cut by a static occluder: not fully visible either
+        cut_top = False
         if self.image_size is not None and not trunc:
             w, h = self.image_size
             b = self.config.border
             # the hull's box or the detector's: a hull whose lower part the background model missed (a dark
             # bumper taken for shadow) can stop short of the edge the vehicle is cut by
             both = np.stack([np.asarray(box, np.float64), det.boxes[i].astype(np.float64)])
-            trunc = bool(np.any((both[:, :2] <= b) | (both[:, 2:] >= np.array([w - 1 - b, h - 1 - b]))))
+            edges = np.concatenate([both[:, :2] <= b, both[:, 2:] >= np.array([w - 1 - b, h - 1 - b])], axis=1)
+            trunc = bool(edges.any())
+            # only the top edge cuts it (a truck's roof above the frame of a near camera): the ground-touching
+            # tangents, which give the near faces and the reference point, are whole
+            cut_top = trunc and bool(edges[:, 1].any()) and not bool(edges[:, [0, 2, 3]].any())
         return Observation(t=t, box=np.asarray(box, np.float64).copy(), det_box=det.boxes[i].astype(np.float64),
                            score=float(det.scores[i]), label=str(det.labels[i]), hull=hull, truncated=trunc,
-                           occluded=bool(occluded), silhouette=self._silhouettes)
+                           occluded=bool(occluded), silhouette=self._silhouettes, cut_top=cut_top)
 
     def _occluded(self, boxes: np.ndarray) -> np.ndarray:
         """Detections partly covered by a nearer detection (the paper's heuristic)."""
@@ -477,16 +483,16 @@ class Tracker:
             old = tr.direction
             _update_direction(tr, self.config.min_direction_span)
             if reshaped:
-                _set_references(cam, tr, tr.observations)
+                _set_references(cam, tr, tr.observations, cut_top=False)
                 if tr.direction != old and old != 0:
                     tr.road_kf = None
             elif tr.direction != old and old != 0:
-                _set_references(cam, tr, tr.observations)
+                _set_references(cam, tr, tr.observations, cut_top=False)
                 tr.road_kf = None
             elif tr.direction != old:
-                _set_references(cam, tr, tr.observations)
+                _set_references(cam, tr, tr.observations, cut_top=False)
             else:
-                _set_references(cam, tr, [obs])
+                _set_references(cam, tr, [obs], cut_top=False)
             _filter_road(tr, obs)
 
 
@@ -561,13 +567,14 @@ def _inside(boxes: np.ndarray, hosts: np.ndarray) -> np.ndarray:
 
 def fit_boxes(camera: Camera, observations: list[Observation]) -> None:
     """Fit the 3D box (the plain box, and the car body shapes for silhouettes) to every observation that has a
-    hull and is fully visible, in two vectorised solves; the box itself is set by :func:`apply_shape`."""
+    hull and is fully visible or cut by the top edge alone, in two vectorised solves; the box itself is set by
+    :func:`apply_shape`."""
     for o in observations:
         o.box3d = o.corners_px = o.shape_params = o.shape_fit = None
         o.shape_ok = False
     for cars in (False, True):
         idx = [k for k, o in enumerate(observations)
-               if o.hull is not None and not o.truncated and not o.occluded and o.silhouette == cars]
+               if o.hull is not None and (not o.truncated or o.cut_top) and not o.occluded and o.silhouette == cars]
         if not idx:
             continue
         fits = fit_shapes(camera, [observations[k].hull for k in idx], None if cars else ())
@@ -598,8 +605,10 @@ def body_shape_name(track: Track) -> str:
 
 
 def _valid_fit(o: Observation) -> bool:
-    """Whether the observation's silhouette was fitted with every shape and its tangents gave a plain box."""
-    return o.shape_fit is not None and len(o.shape_fit) > 1 and bool(np.isfinite(o.shape_fit[0]))
+    """Whether the observation's silhouette was fitted with every shape and its tangents gave a plain box (a
+    silhouette cut by the top edge has no say in the body shape or the height)."""
+    return (not o.cut_top and o.shape_fit is not None and len(o.shape_fit) > 1
+            and bool(np.isfinite(o.shape_fit[0])))
 
 
 def _first_fits(track: Track, first: int | None) -> list[Observation]:
@@ -660,7 +669,7 @@ def _update_direction(track: Track, min_span: float = 0.02) -> None:
     The median displacement between observations half the track apart: the whole track votes, so the end of a
     track far away (a pixel is metres there, and a receding vehicle barely moves in the image) cannot flip it.
     """
-    x = np.array([0.5 * (o.box3d[0] + o.box3d[1]) for o in track.observations if o.box3d is not None])
+    x = np.array([0.5 * (o.box3d[0] + o.box3d[1]) for o in measured_boxes(track)])
     if len(x) < 2:
         return
     h = max(1, len(x) // 2)
@@ -669,14 +678,30 @@ def _update_direction(track: Track, min_span: float = 0.02) -> None:
         track.direction = 1 if step > 0 else -1
 
 
-def track_dimensions(track: Track) -> tuple[float, float] | None:
+#: a track with at least this many 3D boxes of whole silhouettes is measured from those alone; one with fewer (a
+#: truck or a bus whose roof leaves a near camera's frame at the top before its front has come in: never seen
+#: whole) also from its boxes of silhouettes cut by the top edge alone (Observation.cut_top), whose
+#: ground-touching tangents — the near faces the reference point is built from — are whole.  Their far faces
+#: and height are not: they are never a whole vehicle's measurement when whole ones exist
+MIN_WHOLE_BOXES = 10
+
+
+def measured_boxes(track: Track) -> list[Observation]:
+    """The track's observations whose 3D boxes give reference points and dimensions (:data:`MIN_WHOLE_BOXES`)."""
+    boxed = [o for o in track.observations if o.box3d is not None]
+    whole = [o for o in boxed if not o.cut_top]
+    return whole if len(whole) >= MIN_WHOLE_BOXES else boxed
+
+
+def track_dimensions(track: Track, cut_top: bool = True) -> tuple[float, float] | None:
     """Length (along the road) and width of the vehicle, plane units (None without 3D boxes).
 
     Far away and seen along the road, a vehicle's length spans a pixel or two and is not measurable; so each
     dimension is the median over the observations where its box edge is longest in the image (at least half
-    of the longest), which are the well-conditioned ones.
+    of the longest), which are the well-conditioned ones.  Over :func:`measured_boxes`, or with ``cut_top``
+    False over the whole silhouettes' boxes alone.
     """
-    obs = [o for o in track.observations if o.box3d is not None]
+    obs = measured_boxes(track) if cut_top else [o for o in track.observations if o.box3d is not None and not o.cut_top]
     if not obs:
         return None
     p = np.array([o.box3d for o in obs])
@@ -703,23 +728,28 @@ def _anchored(lo: np.ndarray, hi: np.ndarray, size: float) -> tuple[np.ndarray, 
     return new_lo, new_hi
 
 
-def _set_references(camera: Camera, track: Track, observations: list[Observation]) -> None:
+def _set_references(camera: Camera, track: Track, observations: list[Observation], cut_top: bool = True) -> None:
     """Reference point = centre of the bottom edge at the front (direction of travel; +x when unknown).
 
     The box's faces nearer to the camera come from the ground-touching tangents and are well conditioned; the
     far faces (often hidden) are noisy.  A vehicle's length and width do not change, so the far faces are placed
     at the track's median length and width from the near ones: exact for exact hulls, and far steadier on
-    real foreground masks.
+    real foreground masks.  Observations cut by the top edge get points as :func:`measured_boxes` says, and only
+    with ``cut_top`` (the tracker's live frames have none: whether a track will be seen whole is known when it
+    ends).
     """
     front = 1 if track.direction >= 0 else 0
-    sel = [o for o in observations if o.box3d is not None]
+    allowed = {id(o) for o in measured_boxes(track)} if cut_top else None
+    sel = [o for o in observations if o.box3d is not None
+           and (id(o) in allowed if cut_top else not o.cut_top)]
+    chosen = {id(o) for o in sel}
     for o in observations:
-        if o.box3d is None:
+        if id(o) not in chosen:
             o.ref_px = o.ref_road = o.ref_road_filtered = None
     if not sel:
         return
     p = np.array([o.box3d for o in sel])
-    length, width = track_dimensions(track)
+    length, width = track_dimensions(track, cut_top)
     x0, x1 = _anchored(p[:, 0], p[:, 1], length)
     y0, y1 = _anchored(p[:, 2], p[:, 3], width)
     road = np.stack([x1 if front else x0, 0.5 * (y0 + y1)], axis=1)

@@ -7,7 +7,10 @@ Fields (all present unless noted):
 * ``direction`` (int): +1 moving towards VP1, −1 away from it, 0 not known yet;
 * ``occluded`` / ``truncated`` (boolean): partly covered by a nearer vehicle / touching the image border or a
   static occluder the tracker learned (a lamp pole in front of the road) — the vehicle is tracked but not
-  measured (no 3D box);
+  measured (no 3D box) — except ``cut_top``;
+* ``cut_top`` (boolean): truncated by the image's top edge alone (a tall vehicle near the camera): ``box3d`` is
+  present, without a reference point, and the vehicle's measurement uses it only if it is seen whole too seldom
+  (``tracker.MIN_WHOLE_BOXES``);
 * ``hull_box`` (4 doubles): x0, y0, x1, y1 of the convex hull that was tracked, pixels;
 * ``has_3d`` (boolean): whether the following are present;
 * ``box3d`` (8 pairs of doubles): image corners of the 3D box, index = ix + 2·iy + 4·iz with ix/iy the
@@ -41,7 +44,7 @@ def vehicle_fields(track: Track, obs: Observation, camera: Camera | None, calibr
     """The structure's fields for one observation of a track."""
     fields: dict[str, Any] = {
         "t": float(obs.t), "state": track.state.value, "direction": int(track.direction),
-        "occluded": bool(obs.occluded), "truncated": bool(obs.truncated),
+        "occluded": bool(obs.occluded), "truncated": bool(obs.truncated), "cut_top": bool(obs.cut_top),
         "hull_box": [float(v) for v in obs.box], "calibration_id": str(calibration_id),
     }
     has_3d = camera is not None and obs.corners_px is not None and obs.ref_px is not None
@@ -49,8 +52,9 @@ def vehicle_fields(track: Track, obs: Observation, camera: Camera | None, calibr
     if camera is None and obs.hull is not None:  # no vanishing points yet: bbscale builds the 3D box later
         fields["hull"] = [[float(x), float(y)] for x, y in obs.hull]
         fields["silhouette"] = bool(obs.silhouette)
-    if has_3d:
+    if camera is not None and obs.corners_px is not None and (has_3d or obs.cut_top):
         fields["box3d"] = [[float(x), float(y)] for x, y in obs.corners_px]
+    if has_3d:
         fields["ref_x"], fields["ref_y"] = (float(v) for v in obs.ref_px)
         fields["body_shape"] = body_shape_name(track)
         fields["proportions"] = track.proportions
