@@ -215,6 +215,39 @@ def test_sightings_from_the_tracker_structure_match_the_tracker(scene, truth):
         assert np.abs(true_speeds - e.speed_kmh).min() < 0.5, e
 
 
+def test_a_truck_never_seen_whole_is_measured_through_the_tracker_structure():
+    """A truck whose roof stays above a steep camera's frame while its front is in view: the tracker writes the
+    boxes of its top-cut silhouettes (``cut_top``, ``box3d`` without a reference point) and the meter, which
+    measures from the structure alone, gives its speed."""
+    from gst_trafficcal.detection.records import Detections
+    from gst_trafficcal.tracking.simulate import vehicle_passing
+
+    cam = default_camera(SIZE, tilt=20.0, height=7.0, hfov=40.0)
+    scene = vehicle_passing(cam, (16.5, 2.5, 4.0), lane=1.75, x_start=60.0, speed_kmh=80.0, direction=-1,
+                            image_size=SIZE)
+    cal = cal_of(cam)
+    pipe = TrackingPipeline(config=TrackerConfig(), background=None)
+    pipe.set_camera(cam)
+    meter = SpeedMeter(calibration=cal)
+    events, cut = [], 0
+    for f in scene.frames:
+        det = Detections(f.boxes, np.array([0.9]), np.array([7]), np.array(["truck"], dtype=object))
+        tr = pipe.tracker.update(f.t, det, f.hulls, image_size=SIZE).track_of(0)
+        sights = []
+        if tr is not None:
+            fields = vehicle_fields(tr, tr.last, cam, cal.id)
+            if fields["cut_top"]:
+                cut += 1
+                assert fields["truncated"] and "box3d" in fields and "ref_x" not in fields
+            sights.append(Sighting.from_fields(tr.id, tr.label, 0.9, fields))
+        events += meter.update(f.t, sights).finished
+    events += meter.flush()
+    assert cut >= 30
+    (event,) = [m.event for m in events]
+    assert event.measured and event.speed_kmh == pytest.approx(80.0, abs=0.1)
+    assert event.direction == AWAY_FROM_VP1  # coming towards the camera, away from VP1
+
+
 def test_bad_settings_and_time_going_backwards(scene):
     with pytest.raises(ValueError, match="min_track_length"):
         SpeedMeter(tau=5, min_track_length=5)

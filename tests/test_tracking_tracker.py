@@ -10,8 +10,8 @@ import pytest
 from gst_trafficcal.detection.records import Detections, box_iou
 from gst_trafficcal.errors import InputError
 from gst_trafficcal.tracking.kalman import BoxKF, ConstantVelocityKF
-from gst_trafficcal.tracking.simulate import default_camera, detect, simulate
-from gst_trafficcal.tracking.tracker import Tracker, TrackerConfig, TrackState
+from gst_trafficcal.tracking.simulate import default_camera, detect, simulate, vehicle_passing
+from gst_trafficcal.tracking.tracker import MIN_WHOLE_BOXES, Tracker, TrackerConfig, TrackState
 
 
 def mot_summary(scene, tracker, seed=0, miss=0.0, fp_rate=0.0, noise=0.0, camera_at=None, coast=0.0):
@@ -264,3 +264,47 @@ def test_typical_height_is_a_cars_and_survives_the_switch_to_3d(scene):
         late.update(f.t, det, hulls)
     for tracker in (live, late):
         assert 1.35 <= 8.0 * tracker.typical_height.value <= 1.9
+
+
+def _track_passing(camera, size):
+    """Track one vehicle driving towards a steep near camera (visible parts of its box as hulls); returns the
+    scene, the finished track and per frame (cut_top, has 3D box, has live reference point) as tracked."""
+    scene = vehicle_passing(camera, size, lane=1.75, x_start=60.0, speed_kmh=80.0, direction=-1)
+    tracker = Tracker(TrackerConfig(), camera=camera, image_size=scene.image_size)
+    live = []
+    for f in scene.frames:
+        det = Detections(f.boxes, np.array([0.9]), np.array([7]), np.array(["truck"], dtype=object))
+        tr = tracker.update(f.t, det, f.hulls).track_of(0)
+        if tr is not None:
+            live.append((tr.last.cut_top, tr.last.box3d is not None, tr.last.ref_px is not None))
+    (track,) = tracker.flush()
+    return scene, track, np.array(live)
+
+
+def test_a_vehicle_cut_by_the_top_edge_is_measured_only_when_never_seen_whole():
+    """A truck near a steep camera leaves the frame at the top before its front has come in: never seen whole,
+    it is measured from its silhouettes cut by the top edge alone (their ground-touching tangents are whole, so
+    the reference point is exact on an exact box).  A car seen whole often enough is measured from those
+    sightings alone, as before; live frames never measure a cut silhouette."""
+    cam = default_camera(tilt=20.0, height=7.0, hfov=40.0)
+    scene, truck, live = _track_passing(cam, (16.5, 2.5, 4.0))
+    cut = np.array([o.cut_top for o in truck.observations])
+    assert cut.sum() >= 30 and not any(o.box3d is not None and not o.cut_top for o in truck.observations)
+    assert live[live[:, 0]].all(axis=0).tolist() == [True, True, False]  # 3D box, no live reference point
+    _, road = truck.reference_points()
+    measured = np.isfinite(road).all(axis=1)
+    assert np.array_equal(measured, cut)  # every cut sighting, nothing else (the bottom-cut ones have no front)
+    truth = {f.t: f.ref_world[0] for f in scene.frames}
+    err = [np.linalg.norm(r * cam.scale - truth[o.t]) for o, r in zip(truck.observations, road) if o.cut_top]
+    assert max(err) < 1e-3  # metres
+    v = np.polyfit(truck.timestamps[measured], road[measured, 0] * cam.scale, 1)[0] * 3.6
+    assert v == pytest.approx(-80.0, abs=0.01) and truck.direction == -1
+
+    _, car, live = _track_passing(cam, (4.5, 1.8, 1.5))
+    whole = [o for o in car.observations if o.box3d is not None and not o.cut_top]
+    assert len(whole) >= MIN_WHOLE_BOXES and any(o.cut_top and o.box3d is not None for o in car.observations)
+    _, road = car.reference_points()
+    measured = np.isfinite(road).all(axis=1)
+    assert not measured[[o.cut_top for o in car.observations]].any()
+    assert measured[[o.box3d is not None and not o.cut_top for o in car.observations]].all()
+    assert not live[live[:, 0], 2].any()

@@ -146,3 +146,35 @@ def detect(frame: SimFrame, rng: np.random.Generator, image_size: tuple[int, int
     n = len(boxes)
     det = Detections(boxes, np.full(n, 0.9), np.full(n, 2), np.full(n, "car", dtype=object))
     return det, hulls, ids
+
+
+def vehicle_passing(camera: Camera, size: tuple[float, float, float], lane: float, x_start: float, speed_kmh: float,
+                    direction: int = -1, image_size: tuple[int, int] = (960, 540), duration: float = 6.0,
+                    fps: float = 25.0) -> Scene:
+    """One vehicle (length, width, height in metres) driving along the road at ``lane`` (metres across it) from
+    ``x_start`` (metres along it) at a constant speed, cut by the image borders as a camera cuts it: each frame's
+    hull and box are the visible part of its projected 3D box (frames where none of it is visible are left
+    out).  A tall vehicle near a steep camera leaves the frame at the top while its front is in view."""
+    w, h = image_size
+    length, width, height = size
+    rect = np.array([[0, 0], [w - 1, 0], [w - 1, h - 1], [0, h - 1]], np.float32)
+    bits = CORNER_BITS.astype(np.float64)
+    scene = Scene(camera, image_size)
+    for k in range(int(duration * fps)):
+        t = k / fps
+        xc = x_start + direction * speed_kmh / 3.6 * t
+        lo = np.array([xc - length / 2, lane - width / 2, 0.0])
+        X = lo + bits * (np.array([xc + length / 2, lane + width / 2, height]) - lo)
+        if np.any(camera.world_to_camera(X)[:, 2] < 0.5):
+            continue
+        px = camera.world_to_image(X)
+        hull = cv2.convexHull(px.astype(np.float32)).reshape(-1, 2)
+        area, visible = cv2.intersectConvexConvex(hull, rect)
+        if area <= 1.0 or visible is None:
+            continue
+        vis = visible.reshape(-1, 2).astype(np.float64)
+        front = np.array([[xc + direction * length / 2, lane, 0.0]])
+        scene.frames.append(SimFrame(t, np.array([1]), np.concatenate([vis.min(axis=0), vis.max(axis=0)])[None],
+                                     [vis], px[None], camera.world_to_image(front).reshape(1, 2), front[:, :2],
+                                     np.array([direction])))
+    return scene
