@@ -311,7 +311,7 @@ class SpeedMeter:
         cal = self.calibration
         times, px, track = self._reference_points(rec, self.camera)
         if len(px) == 0:
-            return self._unmeasured(rec, "no reference point (never fully visible with a 3D box)", cal)
+            return self._unmeasured(rec, "no reference point (no 3D box: never fully visible, nor cut by the top edge alone)", cal)
         m = self._speed(px, times)
         return self._finish(rec, track.label, m.speed_kmh, m.reason, times, px, cal, m.n_pairs, m.kept)
 
