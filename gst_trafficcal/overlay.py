@@ -425,7 +425,8 @@ def marks_from_params(box: Sequence[float], label: str, object_id: int | None,
     """
     tv = params.get("trafficcal-vehicle", {})
     sp = params.get("speed", {})
-    corners = tv.get("box3d")
+    # a silhouette cut by the top edge carries its box for the measurement, but its roof is the frame's edge
+    corners = None if tv.get("cut_top") and not tv.get("has_3d") else tv.get("box3d")
     if corners is not None:
         corners = np.asarray(corners, np.float64).reshape(-1)
         corners = corners.reshape(8, 2) if corners.size == 16 and np.all(np.isfinite(corners)) else None

@@ -217,6 +217,13 @@ def test_marks_from_the_tracker_structure() -> None:
     assert plain.corners is None and plain.direction is None and plain.speed_kmh is None
     no3d = marks_from_params((1, 2, 3, 4), "car", 2, {"trafficcal-vehicle": vehicle_fields(track, obs, None)})
     assert no3d.corners is None and no3d.ref_point is None
+    # cut by the top edge: the structure carries the box (for the meter), the overlay does not draw it
+    cut = Observation(t=1.0, box=np.array([10.0, 0, 60, 80]), det_box=np.array([10.0, 0, 60, 80]), score=0.9,
+                      label="truck", truncated=True, cut_top=True, corners_px=corners)
+    cut_fields = vehicle_fields(track, cut, cam, "abc")
+    assert cut_fields["cut_top"] and "box3d" in cut_fields and not cut_fields["has_3d"]
+    m = marks_from_params((10, 0, 60, 80), "truck", 5, {"trafficcal-vehicle": cut_fields})
+    assert m.corners is None and m.ref_point is None and m.track_id == 5
 
 
 @pytest.mark.parametrize("fmt", ["I420", "NV12"])
