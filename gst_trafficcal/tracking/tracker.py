@@ -682,7 +682,9 @@ def _update_direction(track: Track, min_span: float = 0.02) -> None:
 #: truck or a bus whose roof leaves a near camera's frame at the top before its front has come in: never seen
 #: whole) also from its boxes of silhouettes cut by the top edge alone (Observation.cut_top), whose
 #: ground-touching tangents — the near faces the reference point is built from — are whole.  Their far faces
-#: and height are not: they are never a whole vehicle's measurement when whole ones exist
+#: and height are not: they are never a whole vehicle's measurement when whole ones exist.  10 is the speed
+#: meter's default minimum track length (measurement.DEFAULT_MIN_TRACK_LENGTH): fewer whole boxes could not give
+#: a speed on their own
 MIN_WHOLE_BOXES = 10
 
 
