@@ -13,7 +13,8 @@ scenes' videos; writes refined dumps that ``scale_sightings.py replay`` reads:
         --scenes /tmp/replays_cat,/tmp/scl_cat
     .venv/bin/python benchmarks/scale_sightings.py replay /tmp/sight_edges/*.pkl --variant chain
 
-Not (yet) part of the product: see docs/bbscale_streaming.md "Stop 21".
+Not part of the product: it helped the scenes it was tuned on and hurt fresh ones (docs/bbscale_streaming.md
+"Stop 21").
 """
 
 from __future__ import annotations
