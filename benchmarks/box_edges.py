@@ -83,23 +83,30 @@ def refine_dump(pkl: Path, video: Path, out: Path, **params) -> tuple[np.ndarray
     renderer, N x 4 frame px) before and after, over the fully visible matched sightings."""
     import scale_sightings as ss
 
+    from gst_trafficcal.detection.seginput import WorkGeometry
+    from gst_trafficcal.errors import InputError
+    from gst_trafficcal.fileio import open_video
+
     data = ss.load(pkl)
     by_frame: dict[int, list[int]] = defaultdict(list)
     for i, r in enumerate(data["records"]):
         by_frame[r.frame].append(i)
     boxes: dict[int, tuple] = {}
-    cap = cv2.VideoCapture(str(video))
-    n, last = 0, max(by_frame, default=-1)
-    while n <= last:
-        ok, frame = cap.read()
-        if not ok:
-            break
-        if n in by_frame:
-            grey = cv2.cvtColor(frame, cv2.COLOR_BGR2GRAY)
-            work_px = grey.shape[1] / 480
-            for i in by_frame[n]:
-                boxes[i] = refine_box(grey, data["records"][i].sighting.box, work_px, **params)
-        n += 1
+    cap = open_video(video)
+    try:
+        n, last = 0, max(by_frame, default=-1)
+        while n <= last:
+            ok, frame = cap.read()
+            if not ok:
+                raise InputError(f"{video}: ends at frame {n}, before the dump's last sighting (frame {last})")
+            if n in by_frame:
+                grey = cv2.cvtColor(frame, cv2.COLOR_BGR2GRAY)
+                work_px = WorkGeometry((grey.shape[1], grey.shape[0])).scale[0]  # vehicleseg's default work width
+                for i in by_frame[n]:
+                    boxes[i] = refine_box(grey, data["records"][i].sighting.box, work_px, **params)
+            n += 1
+    finally:
+        cap.release()
     before, after, records = [], [], []
     for i, r in enumerate(data["records"]):
         if i in boxes:
@@ -120,11 +127,13 @@ def main() -> None:
     ap.add_argument("--out", type=Path, required=True)
     ap.add_argument("--scenes", default="/tmp/replays_cat,/tmp/scl_cat",
                     help="comma-separated folders holding the dumps' scene folders (with video.mp4)")
-    ap.add_argument("--band", type=float, default=2.5)
-    ap.add_argument("--tau", type=float, default=8.0)
-    ap.add_argument("--q", type=float, default=20.0)
-    ap.add_argument("--q-top", type=float, default=40.0)
+    ap.add_argument("--band", type=float, default=2.5, help="search band around each edge, work pixels")
+    ap.add_argument("--tau", type=float, default=8.0, help="smallest gradient that counts, grey levels / px")
+    ap.add_argument("--q", type=float, default=20.0, help="outermost percentile of the side edges' positions")
+    ap.add_argument("--q-top", type=float, default=40.0, help="the same for the top edge")
     a = ap.parse_args()
+    from gst_trafficcal.errors import InputError
+
     roots = [Path(p) for p in a.scenes.split(",") if p]
     print("| scene | n | detector − renderer, median left / top / right / bottom px | |median| | refined median | "
           "refined |median| |")
@@ -134,7 +143,10 @@ def main() -> None:
         video = next((r / scene / "video.mp4" for r in roots if (r / scene / "video.mp4").is_file()), None)
         if video is None:
             sys.exit(f"{pkl}: no {scene}/video.mp4 under {a.scenes}")
-        d, r = refine_dump(pkl, video, a.out, band=a.band, tau=a.tau, q=a.q, q_top=a.q_top)
+        try:
+            d, r = refine_dump(pkl, video, a.out, band=a.band, tau=a.tau, q=a.q, q_top=a.q_top)
+        except InputError as exc:
+            sys.exit(str(exc))
         f = lambda v: " / ".join(f"{x:+.1f}" for x in v)  # noqa: E731
         print(f"| {scene} | {len(d)} | {f(np.median(d, 0))} | {f(np.median(np.abs(d), 0))} | {f(np.median(r, 0))} | "
               f"{f(np.median(np.abs(r), 0))} |", flush=True)
