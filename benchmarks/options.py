@@ -8,7 +8,8 @@ from types import SimpleNamespace
 
 def field_overrides(defaults, pairs: list[str], name: str | None = None) -> dict:
     """``FIELD=VALUE`` strings (``--bg``, ``--tracker``) as keyword arguments for ``defaults``' class, each value
-    converted to its field's type: booleans from 1/true/yes, tuples from comma-separated numbers."""
+    converted to its field's type: booleans from 1/true/yes, tuples from comma-separated numbers (also for a field
+    whose default is None, e.g. ``loose=-1,0,-1,0``)."""
     out = {}
     for pair in pairs:
         k, _, v = pair.partition("=")
@@ -21,9 +22,21 @@ def field_overrides(defaults, pairs: list[str], name: str | None = None) -> dict
             out[k] = tuple(float(x) for x in v.split(","))
         elif isinstance(default, (int, float)):
             out[k] = type(default)(float(v))
+        elif default is None:
+            out[k] = _untyped(v)
         else:
             out[k] = v
     return out
+
+
+def _untyped(v: str):
+    """A value for a field whose default is None: comma-separated numbers as a tuple, one number as a float,
+    anything else as the string."""
+    try:
+        nums = tuple(float(x) for x in v.split(","))
+    except ValueError:
+        return v
+    return nums if "," in v else nums[0]
 
 
 def parameter_defaults(cls) -> SimpleNamespace:
