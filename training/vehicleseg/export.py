@@ -69,7 +69,8 @@ def card(out: Path, data: Path | list[Path], logs: list[Path], commands: list[st
     return {
         "model": out.name, "bytes": out.stat().st_size, "sha256": hashlib.sha256(out.read_bytes()).hexdigest(),
         "git_commit_at_export": commit, "torch": torch.__version__, "opset": 17,
-        "input": {"work_width": int(meta.get("work_width", WORK_WIDTH)), "background_tau_s": float(meta.get("tau", TAU)),
+        "input": {"work_width": int(meta.get("work_width", WORK_WIDTH)),
+                  "background_tau_s": float(meta.get("tau", TAU)),
                   "channels": "frame BGR + running-average background BGR, x/255 - 0.5"},
         "outputs": {"mask": "vehicle logit per work pixel", "centre": "instance-centre logit at 1/4",
                     "offset": "(dx, dy) to the instance centre at 1/4, in 1/4 cells"},
