@@ -170,7 +170,8 @@ def load_truth(scene: Path) -> dict[int, list[dict]]:
     return by_time
 
 
-def make_detector(name: str):
+def make_detector(name: str, model: str | None = None):
+    """The detector ``name`` stands for; ``model``: vehicleseg's ONNX file instead of the shipped one."""
     if name == "nanodet":
         from gst_trafficcal.detection.onnx_detector import OnnxDetector
         return OnnxDetector(NANODET, threshold=0.35)
@@ -182,15 +183,16 @@ def make_detector(name: str):
         return create_detector("", background="average")
     if name in ("vehicleseg", "vehicleseg-boxes"):  # vehicledetect model=vehicleseg (learned segmenter: boxes + hulls)
         from gst_trafficcal.detection.factory import create_detector
-        return create_detector("vehicleseg")
+        return create_detector(model or "vehicleseg")
     return None
 
 
 def evaluate_scene(preset: str, scene: Path, detector_name: str, background: dict | None = None,
-                   colour: bool = False, peeled: bool = False, tracker: dict | None = None) -> SceneScore:
+                   colour: bool = False, peeled: bool = False, tracker: dict | None = None,
+                   model: str | None = None) -> SceneScore:
     """Score one rendered scene; ``background`` overrides BackgroundModel fields, ``colour`` passes the frames'
     U and V planes to it (as the element does with I420/NV12 input) instead of the grey frame alone; ``tracker``
-    overrides TrackerConfig fields."""
+    overrides TrackerConfig fields; ``model``: vehicleseg's ONNX file (default: the shipped one)."""
     import motmetrics as mm
 
     cal = load_calibration(scene / "calibration.json")
@@ -199,7 +201,7 @@ def evaluate_scene(preset: str, scene: Path, detector_name: str, background: dic
     gt = load_gt_data(scene / "gt_data.pkl")
     lines = gt.measurement_lines
     truth = load_truth(scene)
-    detector = make_detector(detector_name)
+    detector = make_detector(detector_name, model)
     config = TrackerConfig(**(tracker or {}))
     if peeled:  # tracker peel=true: hulls from the background detector's peeled foreground
         from gst_trafficcal.tracking.peeled import PeeledBackground
@@ -425,6 +427,8 @@ def main() -> None:
                          "detector (background: the product's default chain; background-average: its "
                          "background=average), the learned segmenter (vehicleseg: its boxes and hulls; vehicleseg-boxes: its boxes, hulls from the "
                          "tracker's background model) or NanoDet")
+    ap.add_argument("--model", default="", help="vehicleseg, vehicleseg-boxes: another ONNX file than the shipped one "
+                                                "(e.g. one exported with --meta work_width=960)")
     ap.add_argument("--vehicles", default="catalogue", choices=("catalogue", "boxes"),
                     help="vehicle meshes from the synth catalogue, or cuboids (exact silhouettes)")
     ap.add_argument("--work", type=Path, default=Path("/tmp/trafficcal-bench-tracking"),
@@ -447,6 +451,14 @@ def main() -> None:
                          "tracker's own background model")
     ap.add_argument("--no-fps", action="store_true", help="skip the throughput measurements")
     args = ap.parse_args()
+    if args.model and args.detector not in ("vehicleseg", "vehicleseg-boxes"):
+        ap.error(f"--model is for --detector vehicleseg or vehicleseg-boxes, not {args.detector}")
+    if args.model:  # a missing or foreign file: one line at start-up, not a traceback in the first scene
+        from gst_trafficcal.errors import InputError
+        try:
+            make_detector(args.detector, args.model)
+        except InputError as exc:
+            ap.error(str(exc))
     global DEBUG, MIN_SIZE
     DEBUG, MIN_SIZE = args.verbose, args.min_size
     presets = DEFAULT_PRESETS if args.all else tuple(p for p in args.presets.split(",") if p)
@@ -460,7 +472,7 @@ def main() -> None:
     for preset, given in jobs:
         scene = given or render(preset, args.duration, args.seed, args.work, args.vehicles)
         s = evaluate_scene(preset, scene, args.detector, bg_opts, colour=args.colour, peeled=args.peeled,
-                           tracker=tr_opts)
+                           tracker=tr_opts, model=args.model or None)
         scores.append(s)
         print(json.dumps(asdict(s)), flush=True)
     cols = ["preset", "ap50", "ap50_zone", "mota", "idf1", "id_switches", "mostly_tracked", "recall", "fp_per_min", "speed_mae_kmh", "ref_err_px_median",
