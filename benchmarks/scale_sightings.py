@@ -12,6 +12,7 @@ box or the exact base swapped in, to separate the error of the boxes, of the bas
     .venv/bin/python benchmarks/scale_sightings.py replay /tmp/sightings/*.pkl --variant chain,exact_box,exact_base,exact
     .venv/bin/python benchmarks/scale_sightings.py replay /tmp/sightings/*.pkl --variant chain --estimator iou_threshold=0.9
     .venv/bin/python benchmarks/scale_sightings.py replay /tmp/sightings/*.pkl --variant chain --until 60,120
+    .venv/bin/python benchmarks/scale_sightings.py replay /tmp/sightings/*.pkl --variant chain,shifted_box --halves
 """
 
 from __future__ import annotations
@@ -97,12 +98,32 @@ def _exact_base(rec: Record):
     return base_centre(rec.true_corners) if rec.true_corners is not None else None
 
 
+#: the box edges ``shifted_box`` moves (left, top, right: stop 20 found the bottom is not what λ lacks)
+SHIFTED_EDGES = (0, 1, 2)
+
+
+def scene_edge_shift(records: list[Record], edges: tuple[int, ...] = SHIFTED_EDGES) -> np.ndarray:
+    """The scene's median renderer − detector offset of each box edge (x0, y0, x1, y1; px) over its fully visible
+    matched sightings, zero for the edges not in ``edges`` (and all zero without such sightings)."""
+    d = [np.subtract(r.true_box, r.sighting.box) for r in records if r.true_box is not None and r.true_visible > 0.99]
+    shift = np.zeros(4)
+    if d:
+        idx = list(edges)
+        shift[idx] = np.median(np.reshape(d, (-1, 4)), axis=0)[idx]
+    return shift
+
+
 def variant_sightings(records: list[Record], variant: str) -> list[tuple[int, float, object]]:
     """(frame, t, sighting) with what ``variant`` swaps in: chain (as seen), exact_box (renderer's 2D box),
-    exact_base (renderer's 3D-box base centre), exact (both), hull (the tracker's hull box)."""
+    exact_base (renderer's 3D-box base centre), exact (both), hull (the tracker's hull box), shifted_box (every
+    detector box moved by the scene's median renderer − detector offset of its left, top and right edges: an
+    oracle per-scene correction, the best any one correction per scene can do)."""
+    shift = scene_edge_shift(records) if variant == "shifted_box" else None
     out = []
     for r in records:
         s = r.sighting
+        if shift is not None:
+            s = replace(s, box=tuple(float(v) for v in np.add(s.box, shift)))
         if variant in ("exact_box", "exact"):
             if r.true_box is None:
                 continue
@@ -125,8 +146,9 @@ def load(path: Path) -> dict:
     return data
 
 
-def replay(data: dict, variant: str, until: float | None = None, **options) -> dict:
-    """λ* of ``variant``'s sightings; ``until``: only those of the first seconds, as if the video ended there."""
+def replay(data: dict, variant: str, until: float | None = None, parity: int | None = None, **options) -> dict:
+    """λ* of ``variant``'s sightings; ``until``: only those of the first seconds, as if the video ended there;
+    ``parity`` 0 / 1: only the tracks with even / odd ids (two disjoint halves of the scene's vehicles)."""
     from gst_trafficcal.scale.streaming import ScaleEstimator, load_align_models
 
     est = ScaleEstimator(load_align_models(None), **options)
@@ -135,6 +157,8 @@ def replay(data: dict, variant: str, until: float | None = None, **options) -> d
     times: dict[int, float] = {}
     for n, t, s in variant_sightings(data["records"], variant):
         if until is not None and t > until:
+            continue
+        if parity is not None and s.track_id % 2 != parity:
             continue
         frames.setdefault(n, []).append(s)
         times[n] = t
@@ -167,6 +191,22 @@ def vehicle_table(data: dict, variants: list[str], min_vehicles: int = 5, **opti
     return "\n".join(lines)
 
 
+def halves_rows(data: dict, variant: str, min_vehicles: int, **options) -> tuple[float | None, float | None]:
+    """λ* error (%) of the scene's even-id and odd-id tracks apart (each half needs ``min_vehicles``): where the
+    two agree while the whole is far off, the scene's error is a bias its boxes share, not sampling."""
+    out = []
+    for parity in (0, 1):
+        res = replay(data, variant, parity=parity, min_vehicles=min_vehicles, **options)
+        out.append(res["error"])
+    return out[0], out[1]
+
+
+def halves_summary(pairs: list[tuple[float | None, float | None]]) -> str:
+    """Median and RMS |even − odd| (%) over the scenes where both halves gave a λ*."""
+    d = np.array([a - b for a, b in pairs if a is not None and b is not None])
+    return "–" if not len(d) else f"{np.median(np.abs(d)):.2f} / {np.sqrt(np.mean(d ** 2)):.2f} ({len(d)} scenes)"
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     sub = ap.add_subparsers(dest="cmd", required=True)
@@ -184,6 +224,9 @@ def main() -> None:
     r.add_argument("--estimator", action="append", default=[], metavar="FIELD=VALUE",
                    help="a ScaleEstimator keyword for every variant (repeatable), e.g. --estimator iou_threshold=0.9 "
                         "or --estimator select=spread --estimator per_track=6")
+    r.add_argument("--halves", action="store_true",
+                   help="also λ* from the even-id and the odd-id tracks of each scene apart (min-vehicles halved): "
+                        "do two disjoint halves of the vehicles agree (a bias of the scene's boxes) or not (sampling)")
     r.add_argument("--until", default=[], metavar="S[,S...]", type=_seconds_list,
                    help="also λ* from only the first S seconds of each scene, as if its video ended there (how long "
                         "the scale needs to watch), e.g. 60,120,240")
@@ -192,6 +235,9 @@ def main() -> None:
         for f in a.folders:
             print(dump(f, a.out, a.detector, a.duration), flush=True)
         return
+    missing = [str(f) for f in a.files if not f.is_file()]
+    if missing:
+        raise SystemExit(f"scale_sightings.py replay: no such dump: {', '.join(missing)}")
     from gst_trafficcal.scale.streaming import ScaleEstimator
     from options import field_overrides, parameter_defaults
 
@@ -229,6 +275,21 @@ def main() -> None:
         print(f"| {name}: median / mean abs % | " + " | ".join(_summary([r["error"] for r in sets[v]])
                                                                 for v in variants) + " |")
         print(f"| {name}, +reg (leave-one-out α·λ*) | " + " | ".join(reg) + " |")
+    if a.halves:
+        half_min = (a.min_vehicles + 1) // 2
+        print("\n| scene | " + " | ".join(f"{v} even ids | {v} odd ids" for v in names) + " |")
+        print("|---|" + "---|---|" * len(names))
+        pairs: dict[str, list] = {v: [] for v in names}
+        for f in a.files:
+            data = load(f)
+            cells = []
+            for v in names:
+                pair = halves_rows(data, v, half_min, **options)
+                pairs[v].append(pair)
+                cells += ["–" if e is None else f"{e:+.2f}" for e in pair]
+            print(f"| {data['scene']} | " + " | ".join(cells) + " |", flush=True)
+        cells = [c for v in names for c in (halves_summary(pairs[v]), "")]
+        print("| median / RMS abs(even − odd) % | " + " | ".join(cells) + " |")
 
 
 def _seconds_list(text: str) -> list[float]:

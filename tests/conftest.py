@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import sys
 from pathlib import Path
 
 import pytest
@@ -14,7 +15,7 @@ DETECTORS = SHARED / "models" / "detectors"
 RECORDINGS = [f"session{s}_{p}" for s in range(4) for p in ("center", "left", "right")]
 
 
-@pytest.fixture
+@pytest.fixture(scope="session")
 def load_benchmark():
     """``load_benchmark("scale")`` imports benchmarks/scale.py (the benchmarks are scripts, not a package)."""
     import importlib.util
@@ -22,6 +23,7 @@ def load_benchmark():
     def load(name: str):
         spec = importlib.util.spec_from_file_location(f"{name}_benchmark", ROOT / "benchmarks" / f"{name}.py")
         module = importlib.util.module_from_spec(spec)
+        sys.modules[spec.name] = module  # a dataclass's string annotations are resolved through sys.modules
         spec.loader.exec_module(module)
         return module
 
