@@ -81,6 +81,14 @@ class SceneScore:
     ref_err_m_p95: float
     ref_points: int
     ref_err_m_median_near: float  # all measured observations within NEAR metres of the camera
+    # the in-zone reference points split by which face the front is (oncoming: the face nearer the camera, seen;
+    # receding: the far one, placed at the track's length): count and median signed error along the direction
+    # of travel (m, + = ahead of the true front), and the median absolute error across the road (m)
+    ref_oncoming: int
+    ref_along_oncoming_m: float
+    ref_receding: int
+    ref_along_receding_m: float
+    ref_lateral_m: float
     vehicles_per_frame: float
     tracker_fps: float
 
@@ -217,6 +225,7 @@ def evaluate_scene(preset: str, scene: Path, detector_name: str, background: dic
     frames = 0
     n_vehicles = 0
     ref_px_err, ref_m_err, near_m_err = [], [], []
+    faces: list[tuple[bool, float, float]] = []  # in-zone points: (receding, along the travel (m), across (m))
     gt_boxes_by_frame = []
     ap_scores, ap_tp, ap_gt = [], [], 0
     apz_scores, apz_tp, apz_gt = [], [], 0
@@ -292,6 +301,7 @@ def evaluate_scene(preset: str, scene: Path, detector_name: str, background: dic
             if points_between_lines(gref[None], lines[0], lines[-1])[0]:  # where speeds are measured
                 ref_px_err.append(err_px)
                 ref_m_err.append(err_m)
+                faces.append(face_error(cam, tr.last.ref_px, gref, tr.direction))
         gt_boxes_by_frame.append(len(recs))
     cap.release()
     tracks = pipe.flush()
@@ -346,8 +356,29 @@ def evaluate_scene(preset: str, scene: Path, detector_name: str, background: dic
         ref_err_m_p95=round(float(np.percentile(ref_m_err, 95)), 4) if ref_m_err else float("nan"),
         ref_points=len(ref_m_err),
         ref_err_m_median_near=round(float(np.median(near_m_err)), 4) if near_m_err else float("nan"),
+        **face_summary(faces),
         vehicles_per_frame=round(n_vehicles / max(frames, 1), 2),
         tracker_fps=round(frames / max(busy, 1e-9), 1))
+
+
+def face_error(cam, ref_px: np.ndarray, true_px: np.ndarray, direction: int) -> tuple[bool, float, float]:
+    """A reference point's error split by face: (receding — its front is the box face away from the camera —,
+    signed error along the direction of travel in metres (+ = ahead), error across the road in metres)."""
+    ours, true = cam.to_world(np.asarray(ref_px, np.float64))[:2], cam.to_world(np.asarray(true_px, np.float64))[:2]
+    d = 1 if direction >= 0 else -1
+    return bool(d * ours[0] > 0), float(d * (ours[0] - true[0])), float(ours[1] - true[1])
+
+
+def face_summary(faces: list[tuple[bool, float, float]]) -> dict:
+    """SceneScore's ref_oncoming … ref_lateral_m from :func:`face_error`'s tuples."""
+    a = np.array(faces, np.float64).reshape(-1, 3)
+    rec = a[:, 0] > 0
+
+    def med(x: np.ndarray) -> float:
+        return round(float(np.median(x)), 4) if len(x) else float("nan")
+
+    return dict(ref_oncoming=int((~rec).sum()), ref_along_oncoming_m=med(a[~rec, 1]), ref_receding=int(rec.sum()),
+                ref_along_receding_m=med(a[rec, 1]), ref_lateral_m=med(np.abs(a[:, 2])))
 
 
 def core_fps(n_vehicles: int = 10, size: tuple[int, int] = (960, 540),
@@ -481,6 +512,13 @@ def main() -> None:
     for s in scores:
         d = asdict(s)
         print("| " + " | ".join(str(d[c]) for c in cols) + " |")
+    if scores:  # where the reference error is: which face, along or across the road
+        fc = ["preset", "ref_err_m_median", "ref_oncoming", "ref_along_oncoming_m", "ref_receding",
+              "ref_along_receding_m", "ref_lateral_m"]
+        print("\n| " + " | ".join(fc) + " |\n|" + "---|" * len(fc))
+        for s in scores:
+            d = asdict(s)
+            print("| " + " | ".join(str(d[c]) for c in fc) + " |")
     if scores:
         rec = np.mean([s.recall for s in scores])
         fpm = sum(s.false_positives for s in scores) / sum(s.minutes for s in scores)

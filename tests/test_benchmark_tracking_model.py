@@ -34,3 +34,4 @@ def test_make_detector_takes_the_given_file(monkeypatch):
     shipped = ROOT / "gst_trafficcal" / "detection" / "weights" / "vehicleseg.onnx"
     det = tr.make_detector("vehicleseg", str(shipped))
     assert Path(det.path).resolve() == shipped.resolve()
+
