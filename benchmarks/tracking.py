@@ -167,6 +167,68 @@ def render(preset: str, duration: float, seed: int, work: Path, vehicles: str = 
     return out
 
 
+class SilhouetteHulls(list):
+    """``generate(keep_masks=...)`` sink keeping, per frame, only each visible vehicle's exact silhouette as a
+    convex hull (pixel centres at integers; the rendered id image itself is dropped): {time ms: {vehicle id: hull}}."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.hulls: dict[int, dict[int, np.ndarray]] = {}
+
+    def append(self, item) -> None:
+        t, _, ids, _, items, H = item
+        self.hulls[int(round(t * 1000))] = silhouette_hulls(ids, [v.id for v, *_ in items], H)
+
+
+def silhouette_hulls(ids: np.ndarray, vehicle_ids: list[int], H: np.ndarray | None = None) -> dict[int, np.ndarray]:
+    """Each vehicle's convex hull (K x 2 pixels) from the renderer's id image (slot k + 1 = ``vehicle_ids[k]``;
+    slots from 255 share one value and are skipped), moved by the camera-shake homography ``H`` when there is one."""
+    from gst_trafficcal.synth.imaging import apply_homography
+
+    out: dict[int, np.ndarray] = {}
+    labels = np.unique(ids)
+    for k in labels[(labels > 0) & (labels < 255)]:
+        if k - 1 >= len(vehicle_ids):
+            continue
+        ys, xs = np.nonzero(ids == k)
+        # the pixel squares' corners (pixel i spans [i - 0.5, i + 0.5])
+        pts = np.stack([xs, ys], axis=1).astype(np.float32)
+        hull = cv2.convexHull(pts).reshape(-1, 2).astype(np.float64)
+        corners = (hull[:, None, :] + np.array([[-0.5, -0.5], [0.5, -0.5], [-0.5, 0.5], [0.5, 0.5]])).reshape(-1, 2)
+        hull = cv2.convexHull(corners.astype(np.float32)).reshape(-1, 2).astype(np.float64)
+        out[int(vehicle_ids[k - 1])] = apply_homography(H, hull) if H is not None else hull
+    return out
+
+
+def render_silhouettes(scen, out: Path) -> Path:
+    """Render the scenario ``scen`` into ``out`` with every frame's exact vehicle silhouettes in
+    ``out/silhouettes.pkl`` (skipped when already there): what a perfect segmenter would give the tracker."""
+    import pickle
+
+    from gst_trafficcal.synth.generate import generate
+
+    if (out / "silhouettes.pkl").exists() and (out / "video.mp4").exists() and (out / "frames.jsonl").exists():
+        return out
+    sink = SilhouetteHulls()
+    generate(scen, out, keep_masks=sink)
+    with open(out / "silhouettes.pkl", "wb") as fh:
+        pickle.dump(sink.hulls, fh)
+    return out
+
+
+def silhouette_scene(preset: str, given: Path | None, duration: float, seed: int, work: Path) -> Path:
+    """The preset (or the given scene folder's scenario.json) rendered again with its exact silhouettes."""
+    from gst_trafficcal.synth.scenario import load_preset, load_scenario
+
+    if given is not None:
+        if not (given / "scenario.json").exists():
+            raise SystemExit(f"{given}: no scenario.json to render it again with silhouettes")
+        return render_silhouettes(load_scenario(given / "scenario.json"), work / f"{given.name}-silhouettes")
+    scen = load_preset(preset)
+    scen.duration, scen.seed = duration, seed
+    return render_silhouettes(scen, work / f"{preset}-{seed}-{duration:g}s-silhouettes")
+
+
 def load_truth(scene: Path) -> dict[int, list[dict]]:
     """Per-vehicle ground-truth records grouped by time in milliseconds."""
     by_time: dict[int, list[dict]] = {}
@@ -209,6 +271,14 @@ def evaluate_scene(preset: str, scene: Path, detector_name: str, background: dic
     gt = load_gt_data(scene / "gt_data.pkl")
     lines = gt.measurement_lines
     truth = load_truth(scene)
+    silhouettes = {}
+    if detector_name == "oracle-silhouette":
+        import pickle
+
+        if not (scene / "silhouettes.pkl").exists():
+            raise SystemExit(f"{scene}: no silhouettes.pkl (render it with render_silhouettes)")
+        with open(scene / "silhouettes.pkl", "rb") as fh:
+            silhouettes = pickle.load(fh)
     detector = make_detector(detector_name, model)
     config = TrackerConfig(**(tracker or {}))
     if peeled:  # tracker peel=true: hulls from the background detector's peeled foreground
@@ -245,7 +315,13 @@ def evaluate_scene(preset: str, scene: Path, detector_name: str, background: dic
         gref = np.array([r["ref"] for r in recs], np.float64).reshape(-1, 2)
         in_zone = points_between_lines(gref, lines[0], lines[-1]) if len(recs) else np.zeros(0, bool)
         hulls = None
-        if detector_name in ("oracle", "oracle-hull"):
+        if detector_name == "oracle-silhouette":  # the renderer's exact silhouettes: the tracker's geometry alone
+            sil = silhouettes.get(int(round(t * 1000)), {})
+            keep = seen & np.array([r["id"] in sil for r in recs], bool)
+            hl = [sil[r["id"]] for r, k in zip(recs, keep) if k]
+            bx = np.array([(*h.min(axis=0), *h.max(axis=0)) for h in hl], np.float64).reshape(-1, 4)
+            det = Detections(bx, np.ones(len(hl)), np.full(len(hl), 2), np.full(len(hl), "car", dtype=object), hl)
+        elif detector_name in ("oracle", "oracle-hull"):
             keep = seen
             if detector_name == "oracle-hull":  # exact silhouettes: isolates the tracker from segmentation
                 hulls = [cv2.convexHull(np.array(r["box3d"], np.float32)).reshape(-1, 2).astype(np.float64)
@@ -451,9 +527,12 @@ def main() -> None:
                          "calibration.json), e.g. the replays /tmp/replays/session0_left (real road backgrounds)")
     ap.add_argument("--duration", type=float, default=30.0, help="seconds of video per preset")
     ap.add_argument("--seed", type=int, default=1)
-    ap.add_argument("--detector", default="oracle", choices=("oracle", "oracle-hull", "blobs", "background", "background-average",
-                                                    "vehicleseg", "vehicleseg-boxes", "nanodet"),
-                    help="ground-truth boxes (oracle: hulls from the background model; oracle-hull: exact), "
+    ap.add_argument("--detector", default="oracle", choices=("oracle", "oracle-hull", "oracle-silhouette", "blobs",
+                                                              "background", "background-average", "vehicleseg",
+                                                              "vehicleseg-boxes", "nanodet"),
+                    help="ground-truth boxes (oracle: hulls from the background model; oracle-hull: the true 3D "
+                         "box's outline; oracle-silhouette: the rendered vehicles' exact silhouettes, the scene "
+                         "rendered again with them — the tracker's geometry alone), "
                          "foreground blobs inside the tracker (blobs), vehicledetect's default background "
                          "detector (background: the product's default chain; background-average: its "
                          "background=average), the learned segmenter (vehicleseg: its boxes and hulls; vehicleseg-boxes: its boxes, hulls from the "
@@ -501,7 +580,10 @@ def main() -> None:
     scores = []
     jobs = [(p, None) for p in presets] + [(Path(d).name, Path(d)) for d in args.scenes.split(",") if d]
     for preset, given in jobs:
-        scene = given or render(preset, args.duration, args.seed, args.work, args.vehicles)
+        if args.detector == "oracle-silhouette":
+            scene = silhouette_scene(preset, given, args.duration, args.seed, args.work)
+        else:
+            scene = given or render(preset, args.duration, args.seed, args.work, args.vehicles)
         s = evaluate_scene(preset, scene, args.detector, bg_opts, colour=args.colour, peeled=args.peeled,
                            tracker=tr_opts, model=args.model or None)
         scores.append(s)
