@@ -17,8 +17,12 @@ RECORDINGS = [f"session{s}_{p}" for s in range(4) for p in ("center", "left", "r
 
 @pytest.fixture(scope="session")
 def load_benchmark():
-    """``load_benchmark("scale")`` imports benchmarks/scale.py (the benchmarks are scripts, not a package)."""
+    """``load_benchmark("scale")`` imports benchmarks/scale.py (the benchmarks are scripts, not a package), with
+    benchmarks/ on the path as when it runs (the scripts import their siblings, e.g. options.py)."""
     import importlib.util
+
+    if str(ROOT / "benchmarks") not in sys.path:
+        sys.path.insert(0, str(ROOT / "benchmarks"))
 
     def load(name: str):
         spec = importlib.util.spec_from_file_location(f"{name}_benchmark", ROOT / "benchmarks" / f"{name}.py")

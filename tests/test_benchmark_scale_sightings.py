@@ -12,7 +12,7 @@ import pytest
 
 from gst_trafficcal.scale.streaming import load_align_models
 
-from .test_scale_streaming import TRUE_SCALE, vehicle_sightings
+from .test_scale_streaming import TRUE_SCALE, cam, vehicle_sightings  # noqa: F401  (cam: the same camera fixture)
 
 ROOT = Path(__file__).resolve().parents[1]
 #: every detector box this much outside the exact one on the left, top and right (a soft-shadow halo), px
@@ -31,15 +31,6 @@ def scene(cam, load_benchmark):
             records.append(mod.Record(n, replace(s, box=tuple(np.add(s.box, HALO))), None, true_id=s.track_id,
                                       true_box=s.box, true_visible=1.0))
     return mod, {"scene": "halo", "camera": cam, "true": TRUE_SCALE, "records": records}
-
-
-@pytest.fixture(scope="module")
-def cam():
-    from gst_trafficcal.synth.camera import build_camera
-    from gst_trafficcal.synth.scenario import CameraSpec
-
-    spec = CameraSpec(height=TRUE_SCALE, offset=-6.0, pan=18.0, tilt=14.0, roll=2.0, hfov=60.0, resolution=[1280, 720])
-    return build_camera(spec).calibration_camera()
 
 
 def test_the_scene_edge_shift_is_the_halo_undone_and_the_bottom_stays(scene):

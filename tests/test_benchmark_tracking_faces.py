@@ -1,22 +1,15 @@
 """benchmarks/tracking.py: the reference-point error split by face (oncoming fronts seen, receding fronts hidden)."""
 
-from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
-
-
-def test_reference_errors_split_by_face(monkeypatch):
+def test_reference_errors_split_by_face(load_benchmark):
     """face_error: which face the front is and the signed error along / across the road, in metres."""
-    import importlib
-
     import numpy as np
     import pytest
 
     from gst_trafficcal.synth.camera import build_camera
     from gst_trafficcal.synth.scenario import CameraSpec
 
-    monkeypatch.syspath_prepend(str(ROOT / "benchmarks"))
-    tr = importlib.import_module("tracking")
+    tr = load_benchmark("tracking")
     cam = build_camera(CameraSpec(height=8.0, offset=-4.0, pan=15.0, tilt=12.0, roll=1.0, hfov=60.0,
                                   resolution=[960, 540])).calibration_camera()
     px = lambda x, y: cam.world_to_image(np.array([x, y, 0.0]))  # noqa: E731

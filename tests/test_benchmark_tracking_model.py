@@ -26,12 +26,8 @@ def test_model_is_only_for_the_segmenter():
     assert r.returncode == 2 and "--model is for --detector vehicleseg" in r.stderr
 
 
-def test_make_detector_takes_the_given_file(monkeypatch):
-    import importlib
-
-    monkeypatch.syspath_prepend(str(ROOT / "benchmarks"))  # the script imports its sibling options.py
-    tr = importlib.import_module("tracking")  # as a module (its dataclasses need a sys.modules entry)
+def test_make_detector_takes_the_given_file(load_benchmark):
+    tr = load_benchmark("tracking")
     shipped = ROOT / "gst_trafficcal" / "detection" / "weights" / "vehicleseg.onnx"
     det = tr.make_detector("vehicleseg", str(shipped))
     assert Path(det.path).resolve() == shipped.resolve()
-

@@ -1,20 +1,15 @@
 """benchmarks/tracking.py --detector oracle-silhouette: the renderer's exact vehicle silhouettes as hulls."""
 
-import importlib
 import json
 import pickle
-from pathlib import Path
 
 import numpy as np
 import pytest
 
-ROOT = Path(__file__).resolve().parents[1]
 
-
-@pytest.fixture
-def tracking(monkeypatch):
-    monkeypatch.syspath_prepend(str(ROOT / "benchmarks"))  # the script imports its sibling options.py
-    return importlib.import_module("tracking")
+@pytest.fixture(scope="module")
+def tracking(load_benchmark):
+    return load_benchmark("tracking")
 
 
 def test_hulls_from_an_id_image(tracking):
