@@ -185,14 +185,15 @@ def silhouette_hulls(ids: np.ndarray, vehicle_ids: list[int], H: np.ndarray | No
     slots from 255 share one value and are skipped), moved by the camera-shake homography ``H`` when there is one."""
     from gst_trafficcal.synth.imaging import apply_homography
 
+    from scipy import ndimage
+
     out: dict[int, np.ndarray] = {}
-    labels = np.unique(ids)
-    for k in labels[(labels > 0) & (labels < 255)]:
-        if k - 1 >= len(vehicle_ids):
+    for k, sl in enumerate(ndimage.find_objects(ids, max_label=min(len(vehicle_ids), 254)), start=1):
+        if sl is None:
             continue
-        ys, xs = np.nonzero(ids == k)
+        ys, xs = np.nonzero(ids[sl] == k)
         # the pixel squares' corners (pixel i spans [i - 0.5, i + 0.5])
-        pts = np.stack([xs, ys], axis=1).astype(np.float32)
+        pts = np.stack([xs + sl[1].start, ys + sl[0].start], axis=1).astype(np.float32)
         hull = cv2.convexHull(pts).reshape(-1, 2).astype(np.float64)
         corners = (hull[:, None, :] + np.array([[-0.5, -0.5], [0.5, -0.5], [-0.5, 0.5], [0.5, 0.5]])).reshape(-1, 2)
         hull = cv2.convexHull(corners.astype(np.float32)).reshape(-1, 2).astype(np.float64)
@@ -457,6 +458,14 @@ def face_summary(faces: list[tuple[bool, float, float]]) -> dict:
                 ref_along_receding_m=med(a[rec, 1]), ref_lateral_m=med(np.abs(a[:, 2])))
 
 
+def print_table(scores: list[SceneScore], cols: list[str]) -> None:
+    """The ``cols`` fields of each scene's score as a Markdown table."""
+    print("\n| " + " | ".join(cols) + " |\n|" + "---|" * len(cols))
+    for s in scores:
+        d = asdict(s)
+        print("| " + " | ".join(str(d[c]) for c in cols) + " |")
+
+
 def core_fps(n_vehicles: int = 10, size: tuple[int, int] = (960, 540),
              seconds: float = 20.0) -> tuple[float, float, float]:
     """Tracker core (association, Kalman, 3D boxes) on simulated hulls with about ``n_vehicles`` in view:
@@ -590,17 +599,10 @@ def main() -> None:
         print(json.dumps(asdict(s)), flush=True)
     cols = ["preset", "ap50", "ap50_zone", "mota", "idf1", "id_switches", "mostly_tracked", "recall", "fp_per_min", "speed_mae_kmh", "ref_err_px_median",
             "ref_err_m_median", "ref_err_m_median_near", "vehicles_per_frame", "tracker_fps"]
-    print("\n| " + " | ".join(cols) + " |\n|" + "---|" * len(cols))
-    for s in scores:
-        d = asdict(s)
-        print("| " + " | ".join(str(d[c]) for c in cols) + " |")
-    if scores:  # where the reference error is: which face, along or across the road
-        fc = ["preset", "ref_err_m_median", "ref_oncoming", "ref_along_oncoming_m", "ref_receding",
-              "ref_along_receding_m", "ref_lateral_m"]
-        print("\n| " + " | ".join(fc) + " |\n|" + "---|" * len(fc))
-        for s in scores:
-            d = asdict(s)
-            print("| " + " | ".join(str(d[c]) for c in fc) + " |")
+    print_table(scores, cols)
+    # where the reference error is: which face, along or across the road
+    print_table(scores, ["preset", "ref_err_m_median", "ref_oncoming", "ref_along_oncoming_m", "ref_receding",
+                         "ref_along_receding_m", "ref_lateral_m"])
     if scores:
         rec = np.mean([s.recall for s in scores])
         fpm = sum(s.false_positives for s in scores) / sum(s.minutes for s in scores)
