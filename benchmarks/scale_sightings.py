@@ -246,6 +246,7 @@ def main() -> None:
     columns = {(f"{v} ≤ {u:g} s" if u is not None else v): (v, u) for u in [*a.until, None] for v in names}
     variants = list(columns)
     results: dict[str, list[dict]] = {v: [] for v in variants}  # per column, replay()'s result of each scene
+    halves: list[tuple[str, dict]] = []  # --halves: per scene, each variant's (even, odd) λ* errors
     print("| scene | " + " | ".join(variants) + " |")
     print("|---|" + "---|" * len(variants))
     for f in a.files:
@@ -259,6 +260,9 @@ def main() -> None:
         print(f"| {data['scene']} | " + " | ".join(cells) + " |", flush=True)
         if a.vehicles:
             print(vehicle_table(data, names, a.min_vehicles, **options), flush=True)
+        if a.halves:  # while the dump is loaded; printed after the summaries
+            halves.append((data["scene"], {v: halves_rows(data, v, (a.min_vehicles + 1) // 2, **options)
+                                           for v in names}))
     print("| median / mean abs % | " + " | ".join(_summary([r["error"] for r in results[v]]) for v in variants) + " |")
     # per set (replays: the BrnoCompSpeed recordings; synth: the rest), λ* and λ_reg = α·λ* left one out within the
     # set, as benchmarks/scale.py's BBScale and BBScale+reg (LOO) columns
@@ -276,19 +280,12 @@ def main() -> None:
                                                                 for v in variants) + " |")
         print(f"| {name}, +reg (leave-one-out α·λ*) | " + " | ".join(reg) + " |")
     if a.halves:
-        half_min = (a.min_vehicles + 1) // 2
         print("\n| scene | " + " | ".join(f"{v} even ids | {v} odd ids" for v in names) + " |")
         print("|---|" + "---|---|" * len(names))
-        pairs: dict[str, list] = {v: [] for v in names}
-        for f in a.files:
-            data = load(f)
-            cells = []
-            for v in names:
-                pair = halves_rows(data, v, half_min, **options)
-                pairs[v].append(pair)
-                cells += ["–" if e is None else f"{e:+.2f}" for e in pair]
-            print(f"| {data['scene']} | " + " | ".join(cells) + " |", flush=True)
-        cells = [c for v in names for c in (halves_summary(pairs[v]), "")]
+        for scene, pairs in halves:
+            print(f"| {scene} | " + " | ".join("–" if e is None else f"{e:+.2f}" for v in names for e in pairs[v])
+                  + " |")
+        cells = [c for v in names for c in (halves_summary([p[v] for _, p in halves]), "")]
         print("| median / RMS abs(even − odd) % | " + " | ".join(cells) + " |")
 
 
