@@ -4,10 +4,11 @@ For each rendered scene (a synth preset or a BrnoCompSpeed replay: a folder with
 gt_data.pkl): the calibrator's vanishing points (vpdetect's, from ``calibrate_video``, or an earlier
 ``benchmarks/end_to_end.py`` run's ``<scene>/auto/calibration.json`` with ``--e2e``), then vehicleseg and the
 tracker over the whole clip with that camera, and VP1 as the intersection of the vehicles' reference-point
-trajectories (:mod:`gst_trafficcal.vanishing.trajectories`).  Reported per scene: VP1's error (degrees on the
-viewing sphere) and the distance-ratio error of the calibration (against the segments as the scene's own camera
-measures them: the error towards the rendering camera), with the calibrator's VP1 and with the trajectories' (VP2
-and the principal point kept).  ``--speeds WORK`` also runs ``trafficcal run --calibration`` with each (bbscale
+trajectories (:mod:`gst_trafficcal.vanishing.trajectories`), alone and — when the calibrator runs here — as extra votes in its
+own VP1 accumulator (``--share`` of its weight).  Reported per scene: VP1's error (degrees on the viewing sphere)
+and the distance-ratio error of the calibration (against the segments as the scene's own camera measures them: the
+error towards the rendering camera), with the calibrator's VP1 and with the trajectories' (VP2 and the principal
+point kept).  ``--speeds WORK`` also runs ``trafficcal run --calibration`` with each (bbscale
 finds λ) and reports the mean absolute speed error from its evaluation.
 
     .venv/bin/python benchmarks/vp1_trajectories.py /tmp/replays_cat/session* --e2e /tmp/e2e [--speeds /tmp/vp1spd]
@@ -34,7 +35,7 @@ from gst_trafficcal.diamond import angle_between  # noqa: E402
 from gst_trafficcal.errors import GeometryError  # noqa: E402
 from gst_trafficcal.evaluation import evaluate_calibration  # noqa: E402
 from gst_trafficcal.geometry import Camera, homogeneous  # noqa: E402
-from gst_trafficcal.vanishing.trajectories import vp1_from_trajectories  # noqa: E402
+from gst_trafficcal.vanishing.trajectories import vp1_from_trajectories, vp1_with_trajectory_votes  # noqa: E402
 
 TRAFFICCAL = [sys.executable, "-m", "gst_trafficcal"]
 
@@ -50,16 +51,20 @@ class Row:
     ratio_traj: float | None = None  # ... with the trajectories' VP1
     speed_klt: float | None = None  # mean absolute speed error (km/h), trafficcal run with the calibrator's VP1
     speed_traj: float | None = None
+    vp1_votes_deg: float | None = None  # the calibrator's accumulator with the trajectories voted in
+    ratio_votes: float | None = None
     note: str = ""
 
 
-def calibrator_camera(scene: Path, e2e: Path | None) -> Camera | None:
-    """The fully automatic run's vanishing points: an end_to_end.py run's, else vpdetect's calibrator now."""
+def calibrator_camera(scene: Path, e2e: Path | None):
+    """The fully automatic run's vanishing points: an end_to_end.py run's, else vpdetect's calibrator now; with
+    the calibrator's VP1 accumulator in the second case (None in the first)."""
     if e2e is not None and (e2e / scene.name / "auto" / "calibration.json").is_file():
-        return load_calibration(e2e / scene.name / "auto" / "calibration.json").camera
+        return load_calibration(e2e / scene.name / "auto" / "calibration.json").camera, None
     from gst_trafficcal.vanishing.calibrator import calibrate_video
 
-    return calibrate_video(scene / "video.mp4").calibration.camera
+    res = calibrate_video(scene / "video.mp4")
+    return res.calibration.camera, res.calibrator.ds1
 
 
 def reference_trajectories(scene: Path, camera: Camera, detector: str = "vehicleseg") -> list[np.ndarray]:
@@ -113,10 +118,10 @@ def mean_speed_error(scene: Path, camera: Camera, out: Path) -> float | None:
     return speed["mean"] if speed.get("n") else None
 
 
-def evaluate(scene: Path, e2e: Path | None, speeds: Path | None) -> Row:
+def evaluate(scene: Path, e2e: Path | None, speeds: Path | None, share: float = 0.25) -> Row:
     row = Row(scene.name)
     truth = load_calibration(scene / "calibration.json").camera
-    auto = calibrator_camera(scene, e2e)
+    auto, accumulator = calibrator_camera(scene, e2e)
     if auto is None:
         row.note = "the calibrator found no vanishing points"
         return row
@@ -125,7 +130,15 @@ def evaluate(scene: Path, e2e: Path | None, speeds: Path | None) -> Row:
         return angle_between(homogeneous(cam.vp1), homogeneous(truth.vp1), truth.pp, truth.focal)
 
     row.vp1_klt_deg, row.ratio_klt = vp_err(auto), ratio_error(scene, auto)
-    vp = vp1_from_trajectories(reference_trajectories(scene, auto))
+    trajectories = reference_trajectories(scene, auto)
+    peak = vp1_with_trajectory_votes(accumulator, trajectories, share) if accumulator is not None else None
+    if peak is not None and peak.finite:
+        try:
+            votes = Camera(peak.xy, auto.vp2, auto.pp)
+            row.vp1_votes_deg, row.ratio_votes = vp_err(votes), ratio_error(scene, votes)
+        except GeometryError:
+            pass
+    vp = vp1_from_trajectories(trajectories)
     if vp is None:
         row.note = "too few straight trajectories"
         return row
@@ -147,12 +160,12 @@ def _f(v, fmt: str = ".3f") -> str:
 
 
 def table(rows: list[Row]) -> str:
-    out = ["| scene | trajectories (inliers) | VP1 err, calibrator → trajectories | ratio err | mean speed err km/h |",
-           "|---|---|---|---|---|"]
+    out = ["| scene | trajectories (inliers) | VP1 err, calibrator → trajectories | ratio err | mean speed err km/h "
+           "| calibrator + trajectory votes: VP1 err, ratio err |", "|---|---|---|---|---|---|"]
     for r in rows:
         out.append(f"| {r.scene} | {r.lines} ({r.inliers}) | {_f(r.vp1_klt_deg)}° → {_f(r.vp1_traj_deg)}° | "
-                   f"{_f(r.ratio_klt)} → {_f(r.ratio_traj)} | {_f(r.speed_klt, '.2f')} → {_f(r.speed_traj, '.2f')} |"
-                   + (f" {r.note}" if r.note else ""))
+                   f"{_f(r.ratio_klt)} → {_f(r.ratio_traj)} | {_f(r.speed_klt, '.2f')} → {_f(r.speed_traj, '.2f')} | "
+                   f"{_f(r.vp1_votes_deg)}°, {_f(r.ratio_votes)} |" + (f" {r.note}" if r.note else ""))
     both = [r for r in rows if r.vp1_traj_deg is not None]
     if both:
         def summary(a: str, b: str, fmt: str) -> str:
@@ -164,7 +177,8 @@ def table(rows: list[Row]) -> str:
             return (f"{np.mean(x):{fmt}} → {np.mean(y):{fmt}} mean, {np.median(x):{fmt}} → {np.median(y):{fmt}} "
                     f"median, better on {int(np.sum(y < x))} of {len(x)}")
         out.append(f"| **{len(both)} scenes** | | {summary('vp1_klt_deg', 'vp1_traj_deg', '.3f')} | "
-                   f"{summary('ratio_klt', 'ratio_traj', '.3f')} | {summary('speed_klt', 'speed_traj', '.2f')} |")
+                   f"{summary('ratio_klt', 'ratio_traj', '.3f')} | {summary('speed_klt', 'speed_traj', '.2f')} | "
+                   f"{summary('vp1_klt_deg', 'vp1_votes_deg', '.3f')}; {summary('ratio_klt', 'ratio_votes', '.3f')} |")
     return "\n".join(out)
 
 
@@ -176,6 +190,8 @@ def main() -> None:
                                              "vanishing points from its auto/calibration.json")
     ap.add_argument("--speeds", type=Path, help="also run trafficcal run with each VP1 into this folder and report "
                                                 "the mean absolute speed error (about a minute per scene and VP1)")
+    ap.add_argument("--share", type=float, default=0.25, help="weight of the trajectory votes in the calibrator's "
+                                                                  "accumulator, as a share of its own (default 0.25)")
     ap.add_argument("--json", type=Path, help="write the rows as JSON")
     args = ap.parse_args()
     missing = [s for s in args.scenes if not (s / "video.mp4").is_file() or not (s / "gt_data.pkl").is_file()]
@@ -183,10 +199,11 @@ def main() -> None:
         raise SystemExit(f"not a rendered scene (video.mp4 and gt_data.pkl needed): {', '.join(map(str, missing))}")
     rows = []
     for scene in args.scenes:
-        rows.append(evaluate(scene, args.e2e, args.speeds))
+        rows.append(evaluate(scene, args.e2e, args.speeds, args.share))
         r = rows[-1]
         print(f"{r.scene}: VP1 {_f(r.vp1_klt_deg)}° -> {_f(r.vp1_traj_deg)}°, ratio {_f(r.ratio_klt)} -> "
-              f"{_f(r.ratio_traj)}, speed {_f(r.speed_klt, '.2f')} -> {_f(r.speed_traj, '.2f')} km/h {r.note}",
+              f"{_f(r.ratio_traj)}, speed {_f(r.speed_klt, '.2f')} -> {_f(r.speed_traj, '.2f')} km/h; votes: VP1 "
+              f"{_f(r.vp1_votes_deg)}°, ratio {_f(r.ratio_votes)} {r.note}",
               flush=True)
     print()
     print(table(rows))

@@ -6,7 +6,8 @@ from __future__ import annotations
 import numpy as np
 
 from gst_trafficcal.geometry import Camera, rotation_matrix
-from gst_trafficcal.vanishing.trajectories import robust_intersection, trajectory_lines, vp1_from_trajectories
+from gst_trafficcal.vanishing.trajectories import (robust_intersection, trajectory_lines, vp1_from_trajectories,
+                                                  vp1_with_trajectory_votes)
 
 W, H = 1920, 1080
 
@@ -81,3 +82,30 @@ def test_parallel_lines_have_no_intersection():
     lines = np.array([[0.0, 1.0, -10.0], [0.0, 1.0, -20.0], [0.0, 2.0, -60.0]])  # y = 10, 20, 30
     assert robust_intersection(lines) is None
     assert robust_intersection(lines[:1]) is None
+
+
+def test_trajectory_votes_pull_a_biased_accumulator_towards_vp1():
+    from gst_trafficcal.diamond import DiamondSpace
+
+    cam, K, R, t = camera()
+    rng = np.random.default_rng(6)
+    # the calibrator's evidence: 300 short, noisy lines towards a VP1 that is 25 px off (a bias of its KLT tracks)
+    biased = cam.vp1 + np.array([20.0, 15.0])
+    starts = np.stack([rng.uniform(200, 1700, 300), rng.uniform(500, 1050, 300)], axis=1)
+    ends = starts + 0.1 * (biased - starts) + rng.normal(0, 1.0, (300, 2))
+    ones = np.ones((300, 1))
+    klt = np.cross(np.hstack([starts, ones]), np.hstack([ends, ones]))
+    ds = DiamondSpace.for_image(W, H, size=128)
+    ds.insert(klt, np.full(300, 40.0))
+    before = ds.weights.sum()
+    alone = ds.find_peak().xy
+    assert np.linalg.norm(alone - biased) < 5.0
+    tracks = lane_tracks(K, R, t, rng, n=16)
+    err = {share: np.linalg.norm(vp1_with_trajectory_votes(ds, tracks, share=share).xy - cam.vp1)
+           for share in (1.0, 4.0)}
+    # the more weight the trajectories get, the nearer the peak comes to the true VP1 (25 -> 18.5 -> 10.5 px)
+    e0 = np.linalg.norm(alone - cam.vp1)
+    assert err[4.0] < 0.5 * e0 and err[4.0] < err[1.0] < 0.85 * e0
+    # the calibrator's accumulator is untouched
+    assert ds.weights.sum() == before and np.allclose(ds.find_peak().xy, alone)
+    assert vp1_with_trajectory_votes(ds, tracks[:5]) is None  # fewer than 8 straight trajectories

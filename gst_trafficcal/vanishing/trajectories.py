@@ -5,16 +5,20 @@ observations).  A tracked vehicle's reference point (the centre of the bottom-fr
 on the road that moves along its lane for the whole traversal, so its image trajectory is a long straight line
 through VP1 — a second, independent estimate once a first calibration has given the tracker its 3D boxes.  The
 trajectory's direction hardly depends on which VPs built the boxes (the point's error along the road stays on the
-line).  Measured against the calibrator's in ``benchmarks/vp1_trajectories.py`` (docs/vpdetect.md, "Stop 24").
+line).  Measured against the calibrator's in ``benchmarks/vp1_trajectories.py`` (docs/vpdetect.md, "Stop 24"),
+alone (:func:`vp1_from_trajectories`) and as extra votes in the calibrator's own VP1 accumulator
+(:func:`vp1_with_trajectory_votes`).
 """
 
 from __future__ import annotations
 
+import copy
 from dataclasses import dataclass
 from typing import Sequence
 
 import numpy as np
 
+from ..diamond import DiamondSpace, Peak
 from .tracks import fit_lines
 
 
@@ -96,3 +100,17 @@ def vp1_from_trajectories(tracks: Sequence[np.ndarray], min_lines: int = 8, **li
     point, inliers = got
     d = lines[inliers, :2] @ point + lines[inliers, 2]
     return TrajectoryVP(point, lines, inliers, float(np.sqrt(np.mean(d * d))))
+
+
+def vp1_with_trajectory_votes(ds: DiamondSpace, tracks: Sequence[np.ndarray], share: float = 0.25,
+                              min_lines: int = 8, **line_options) -> Peak | None:
+    """VP1 of the calibrator's accumulator ``ds`` (its KLT track lines; left unchanged) with the straight
+    trajectories among ``tracks`` voted in as well, weighted by span and together ``share`` of the weight already
+    in it; None with fewer than ``min_lines`` straight trajectories or no peak."""
+    lines, spans = trajectory_lines(tracks, **line_options)
+    total = float(ds.weights.sum())
+    if len(lines) < min_lines or total <= 0:
+        return None
+    both = copy.deepcopy(ds)
+    both.insert(lines, share * total * spans / spans.sum())
+    return both.find_peak()
