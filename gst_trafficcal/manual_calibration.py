@@ -37,12 +37,15 @@ def image_centre(image_size: tuple[int, int]) -> np.ndarray:
     return np.array([w / 2 + 0.5, h / 2 + 0.5])
 
 
-def intersect_lines_lsq(lines: np.ndarray) -> np.ndarray:
-    """Least-squares intersection of homogeneous lines (L, 3): normalise normals, solve A u = −b."""
+def intersect_lines_lsq(lines: np.ndarray, weights: np.ndarray | None = None) -> np.ndarray:
+    """Least-squares intersection of homogeneous lines (L, 3): normalise normals, solve A u = −b (each row
+    scaled by √weight when ``weights`` (L,) are given: weighted point-to-line distances)."""
     lines = np.asarray(lines, dtype=float).reshape(-1, 3)
     norm = np.linalg.norm(lines[:, :2], axis=1)
     if len(lines) < 2 or np.any(norm == 0):
         raise GeometryError("need at least two proper lines to intersect")
+    if weights is not None:
+        norm = norm / np.sqrt(np.asarray(weights, dtype=float).reshape(len(lines)))
     A = lines[:, :2] / norm[:, None]
     b = lines[:, 2] / norm
     sol, _, rank, _ = np.linalg.lstsq(A, -b, rcond=None)

@@ -19,6 +19,8 @@ from typing import Sequence
 import numpy as np
 
 from ..diamond import DiamondSpace, Peak
+from ..errors import GeometryError
+from ..manual_calibration import intersect_lines_lsq
 from .tracks import fit_lines
 
 
@@ -73,11 +75,10 @@ def robust_intersection(lines: np.ndarray, weights: np.ndarray | None = None, cu
     inl = ok.copy()
     point = None
     for _ in range(iterations):
-        sw = np.sqrt(w * inl)
-        A, b = L[:, :2] * sw[:, None], -L[:, 2] * sw
-        if np.linalg.matrix_rank(A) < 2:
+        try:
+            point = intersect_lines_lsq(L[inl], w[inl])
+        except GeometryError:  # the lines left are parallel
             return None
-        point = np.linalg.lstsq(A, b, rcond=None)[0]
         d = np.abs(L[:, :2] @ point + L[:, 2])
         scale = 1.4826 * np.median(d[inl]) + 1e-9
         new = ok & (d <= cutoff * scale)
