@@ -93,13 +93,17 @@ def reference_trajectories(scene: Path, camera: Camera, detector: str = "vehicle
     return [tr.reference_points()[0] for tr in tracks]
 
 
-def ratio_error(scene: Path, camera: Camera) -> float:
-    """Mean distance-ratio error of ``camera`` over the scene's segments as its own camera measures them."""
+def scene_segments(scene: Path):
+    """The scene's gt_data.pkl with its segments as the scene's own camera measures them (the ratio errors are
+    then those towards the rendering camera)."""
     from end_to_end import as_measured_by  # benchmarks/end_to_end.py
 
-    gt = load_gt_data(scene / "gt_data.pkl")
-    reference = load_calibration(scene / "calibration.json").camera
-    return evaluate_calibration(as_measured_by(gt, reference), camera).ratio_rel_pct.mean / 100
+    return as_measured_by(load_gt_data(scene / "gt_data.pkl"), load_calibration(scene / "calibration.json").camera)
+
+
+def ratio_error(segments, camera: Camera) -> float:
+    """Mean distance-ratio error of ``camera`` over :func:`scene_segments`."""
+    return evaluate_calibration(segments, camera).ratio_rel_pct.mean / 100
 
 
 def mean_speed_error(scene: Path, camera: Camera, out: Path) -> float | None:
@@ -129,13 +133,14 @@ def evaluate(scene: Path, e2e: Path | None, speeds: Path | None, share: float = 
     def vp_err(cam: Camera) -> float:
         return angle_between(homogeneous(cam.vp1), homogeneous(truth.vp1), truth.pp, truth.focal)
 
-    row.vp1_klt_deg, row.ratio_klt = vp_err(auto), ratio_error(scene, auto)
+    segments = scene_segments(scene)
+    row.vp1_klt_deg, row.ratio_klt = vp_err(auto), ratio_error(segments, auto)
     trajectories = reference_trajectories(scene, auto)
     peak = vp1_with_trajectory_votes(accumulator, trajectories, share) if accumulator is not None else None
     if peak is not None and peak.finite:
         try:
             votes = Camera(peak.xy, auto.vp2, auto.pp)
-            row.vp1_votes_deg, row.ratio_votes = vp_err(votes), ratio_error(scene, votes)
+            row.vp1_votes_deg, row.ratio_votes = vp_err(votes), ratio_error(segments, votes)
         except GeometryError:
             pass
     vp = vp1_from_trajectories(trajectories)
@@ -148,7 +153,7 @@ def evaluate(scene: Path, e2e: Path | None, speeds: Path | None, share: float = 
     except GeometryError as exc:
         row.note = f"no camera with the trajectories' VP1 ({exc})"
         return row
-    row.vp1_traj_deg, row.ratio_traj = vp_err(traj), ratio_error(scene, traj)
+    row.vp1_traj_deg, row.ratio_traj = vp_err(traj), ratio_error(segments, traj)
     if speeds is not None:
         row.speed_klt = mean_speed_error(scene, auto, speeds / scene.name / "klt")
         row.speed_traj = mean_speed_error(scene, traj, speeds / scene.name / "trajectories")

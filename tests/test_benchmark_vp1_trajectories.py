@@ -19,9 +19,10 @@ def test_trajectories_of_a_rendered_clip_meet_at_vp1(load_benchmark, cuboid_clip
     assert vp is not None and vp.inliers.sum() >= 5
     err = angle_between(homogeneous(vp.point), homogeneous(cam.vp1), cam.pp, cam.focal)
     assert err < 1.0, f"VP1 from trajectories {vp.point} vs {cam.vp1}: {err:.2f} degrees"
-    assert vt.ratio_error(cuboid_clip_dense, cam) < 1e-9
+    segments = vt.scene_segments(cuboid_clip_dense)
+    assert vt.ratio_error(segments, cam) < 1e-9
     moved = Camera(cam.vp1 + np.array([5.0, 5.0]), cam.vp2, cam.pp)
-    assert vt.ratio_error(cuboid_clip_dense, moved) > 0.01
+    assert vt.ratio_error(segments, moved) > 0.01
 
 
 def test_table_counts_the_scenes_each_vp1_wins(load_benchmark):
