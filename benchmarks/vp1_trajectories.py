@@ -9,7 +9,8 @@ own VP1 accumulator (``--share`` of its weight).  Reported per scene: VP1's erro
 and the distance-ratio error of the calibration (against the segments as the scene's own camera measures them: the
 error towards the rendering camera), with the calibrator's VP1 and with the trajectories' (VP2 and the principal
 point kept).  ``--speeds WORK`` also runs ``trafficcal run --calibration`` with each (bbscale
-finds λ) and reports the mean absolute speed error from its evaluation.
+finds λ; the votes' VP1 too when the calibrator runs here) and reports the mean absolute speed error from its
+evaluation.
 
     .venv/bin/python benchmarks/vp1_trajectories.py /tmp/replays_cat/session* --e2e /tmp/e2e [--speeds /tmp/vp1spd]
 """
@@ -53,6 +54,7 @@ class Row:
     speed_traj: float | None = None
     vp1_votes_deg: float | None = None  # the calibrator's accumulator with the trajectories voted in
     ratio_votes: float | None = None
+    speed_votes: float | None = None
     note: str = ""
 
 
@@ -137,12 +139,17 @@ def evaluate(scene: Path, e2e: Path | None, speeds: Path | None, share: float = 
     row.vp1_klt_deg, row.ratio_klt = vp_err(auto), ratio_error(segments, auto)
     trajectories = reference_trajectories(scene, auto)
     peak = vp1_with_trajectory_votes(accumulator, trajectories, share) if accumulator is not None else None
+    votes = None
     if peak is not None and peak.finite:
         try:
             votes = Camera(peak.xy, auto.vp2, auto.pp)
             row.vp1_votes_deg, row.ratio_votes = vp_err(votes), ratio_error(segments, votes)
         except GeometryError:
             pass
+    if speeds is not None:
+        row.speed_klt = mean_speed_error(scene, auto, speeds / scene.name / "klt")
+        if votes is not None:
+            row.speed_votes = mean_speed_error(scene, votes, speeds / scene.name / "votes")
     vp = vp1_from_trajectories(trajectories)
     if vp is None:
         row.note = "too few straight trajectories"
@@ -155,7 +162,6 @@ def evaluate(scene: Path, e2e: Path | None, speeds: Path | None, share: float = 
         return row
     row.vp1_traj_deg, row.ratio_traj = vp_err(traj), ratio_error(segments, traj)
     if speeds is not None:
-        row.speed_klt = mean_speed_error(scene, auto, speeds / scene.name / "klt")
         row.speed_traj = mean_speed_error(scene, traj, speeds / scene.name / "trajectories")
     return row
 
@@ -166,11 +172,12 @@ def _f(v, fmt: str = ".3f") -> str:
 
 def table(rows: list[Row]) -> str:
     out = ["| scene | trajectories (inliers) | VP1 err, calibrator → trajectories | ratio err | mean speed err km/h "
-           "| calibrator + trajectory votes: VP1 err, ratio err |", "|---|---|---|---|---|---|"]
+           "| calibrator + trajectory votes: VP1 err, ratio err, speed err |", "|---|---|---|---|---|---|"]
     for r in rows:
         out.append(f"| {r.scene} | {r.lines} ({r.inliers}) | {_f(r.vp1_klt_deg)}° → {_f(r.vp1_traj_deg)}° | "
                    f"{_f(r.ratio_klt)} → {_f(r.ratio_traj)} | {_f(r.speed_klt, '.2f')} → {_f(r.speed_traj, '.2f')} | "
-                   f"{_f(r.vp1_votes_deg)}°, {_f(r.ratio_votes)} |" + (f" {r.note}" if r.note else ""))
+                   f"{_f(r.vp1_votes_deg)}°, {_f(r.ratio_votes)}, {_f(r.speed_votes, '.2f')} |"
+                   + (f" {r.note}" if r.note else ""))
     both = [r for r in rows if r.vp1_traj_deg is not None]
     if both:
         def summary(a: str, b: str, fmt: str) -> str:
@@ -183,7 +190,8 @@ def table(rows: list[Row]) -> str:
                     f"median, better on {int(np.sum(y < x))} of {len(x)}")
         out.append(f"| **{len(both)} scenes** | | {summary('vp1_klt_deg', 'vp1_traj_deg', '.3f')} | "
                    f"{summary('ratio_klt', 'ratio_traj', '.3f')} | {summary('speed_klt', 'speed_traj', '.2f')} | "
-                   f"{summary('vp1_klt_deg', 'vp1_votes_deg', '.3f')}; {summary('ratio_klt', 'ratio_votes', '.3f')} |")
+                   f"{summary('vp1_klt_deg', 'vp1_votes_deg', '.3f')}; {summary('ratio_klt', 'ratio_votes', '.3f')}; "
+                   f"{summary('speed_klt', 'speed_votes', '.2f')} |")
     return "\n".join(out)
 
 
@@ -193,8 +201,9 @@ def main() -> None:
                                                          "gt_data.pkl)")
     ap.add_argument("--e2e", type=Path, help="an end_to_end.py --work folder: take each scene's fully automatic "
                                              "vanishing points from its auto/calibration.json")
-    ap.add_argument("--speeds", type=Path, help="also run trafficcal run with each VP1 into this folder and report "
-                                                "the mean absolute speed error (about a minute per scene and VP1)")
+    ap.add_argument("--speeds", type=Path, help="also run trafficcal run with each VP1 (the calibrator's, the "
+                                                "trajectories', the votes') into this folder and report the mean "
+                                                "absolute speed error (about a minute per scene and VP1)")
     ap.add_argument("--share", type=float, default=0.25, help="weight of the trajectory votes in the calibrator's "
                                                                   "accumulator, as a share of its own (default 0.25)")
     ap.add_argument("--json", type=Path, help="write the rows as JSON")
@@ -208,7 +217,7 @@ def main() -> None:
         r = rows[-1]
         print(f"{r.scene}: VP1 {_f(r.vp1_klt_deg)}° -> {_f(r.vp1_traj_deg)}°, ratio {_f(r.ratio_klt)} -> "
               f"{_f(r.ratio_traj)}, speed {_f(r.speed_klt, '.2f')} -> {_f(r.speed_traj, '.2f')} km/h; votes: VP1 "
-              f"{_f(r.vp1_votes_deg)}°, ratio {_f(r.ratio_votes)} {r.note}",
+              f"{_f(r.vp1_votes_deg)}°, ratio {_f(r.ratio_votes)}, speed {_f(r.speed_votes, '.2f')} km/h {r.note}",
               flush=True)
     print()
     print(table(rows))

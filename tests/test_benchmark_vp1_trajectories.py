@@ -31,5 +31,5 @@ def test_table_counts_the_scenes_each_vp1_wins(load_benchmark):
             vt.Row("b", 20, 20, 0.1, 0.3, 0.004, 0.008, 1.0, 1.5),
             vt.Row("c", note="the calibrator found no vanishing points")]
     text = vt.table(rows)
-    assert "| c | 0 (0) | –° → –° | – → – | – → – | –°, – | the calibrator found no vanishing points" in text
+    assert "| c | 0 (0) | –° → –° | – → – | – → – | –°, –, – | the calibrator found no vanishing points" in text
     assert "**2 scenes**" in text and text.count("better on 1 of 2") == 3
