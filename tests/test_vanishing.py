@@ -167,6 +167,26 @@ def test_calibrator_finds_both_vanishing_points_of_an_exact_scene(cuboid_frames)
     assert result.camera.scale is None
 
 
+def test_calibrator_moves_vp1_along_the_lanes_only_when_asked(cuboid_frames):
+    """The constant-speed step (vanishing/constant_speed.py) reports how far it moved VP1 and on how many tracks;
+    switched off, VP1 is the Diamond Space's peak."""
+    cam = scene_camera()
+    results = {}
+    for on in (True, False):
+        cal = VPCalibrator((W, H), _fast_config(vp1_constant_speed=on))
+        for i, f in enumerate(cuboid_frames):
+            cal.add(f, i / FPS)
+        results[on] = (cal.finish(), cal)
+    (with_speed, cal_on), (without, cal_off) = results[True], results[False]
+    assert with_speed.state == without.state == "vps"
+    assert with_speed.confidence["speed_tracks"] >= 100 and "vp1_along_px" in with_speed.confidence
+    assert "vp1_along_px" not in without.confidence and cal_off.along is None
+    assert np.allclose(without.camera.vp1, cal_off.vp1_diamond.xy)
+    moved = np.linalg.norm(with_speed.camera.vp1 - cal_on.vp1_diamond.xy)
+    assert abs(moved - abs(with_speed.confidence["vp1_along_px"])) < 0.05
+    assert np.linalg.norm(with_speed.camera.vp1 - cam.vp1) < 1.0
+
+
 def test_calibrator_on_static_and_tiny_inputs_says_why():
     static = render_scene(6.0, traffic=False)
     cal = VPCalibrator((W, H), _fast_config(min_duration=1.0))

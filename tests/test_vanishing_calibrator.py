@@ -156,3 +156,25 @@ def test_cli_errors_are_one_line(tmp_path):
     r = _cli("calibrate", str(static), "-o", str(tmp_path / "s.json"), "--no-progress", "--min-duration", "1")
     assert r.returncode == 1 and "no traffic" in r.stdout
     assert json.loads((tmp_path / "s.json").read_text())["state"] == "failed"
+
+
+def test_cli_constant_speed_switch(tmp_path):
+    """`trafficcal calibrate` moves VP1 along the lanes by default and says so in the calibration's confidence;
+    --no-constant-speed keeps the lines' meeting point."""
+    from .test_vanishing import FPS, H, W, cached_scene
+
+    clip = tmp_path / "cuboids.mp4"
+    writer = cv2.VideoWriter(str(clip), cv2.VideoWriter_fourcc(*"mp4v"), FPS, (W, H))
+    for f in cached_scene(24.0):
+        writer.write(cv2.cvtColor(f, cv2.COLOR_GRAY2BGR))
+    writer.release()
+    cals = {}
+    for flag in ("--constant-speed", "--no-constant-speed"):
+        out = tmp_path / f"{flag}.json"
+        r = _cli("calibrate", str(clip), "-o", str(out), "--min-duration", "8", "--no-progress", flag)
+        assert r.returncode == 0, r.stderr
+        cals[flag] = load_calibration(out)
+    on, off = cals["--constant-speed"], cals["--no-constant-speed"]
+    assert "vp1_along_px" in on.confidence and "vp1_along_px" not in off.confidence
+    assert np.linalg.norm(on.camera.vp1 - off.camera.vp1) == pytest.approx(abs(on.confidence["vp1_along_px"]),
+                                                                           abs=0.05)

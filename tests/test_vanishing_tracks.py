@@ -62,7 +62,7 @@ def test_tracks_of_objects_moving_towards_a_point_pass_through_it():
         alpha = cv2.warpAffine(alpha0, m, (640, 480))
         frame = np.clip(bg * (1 - alpha) + layer, 0, 255).astype(np.uint8)
         fg = (cv2.dilate(alpha, np.ones((9, 9), np.uint8)) > 0).astype(np.uint8) * 255
-        found, lengths = tracker.update(frame, fg)
+        found, lengths, _ = tracker.update(frame, fg)
         assert np.all(lengths >= 0)
         lines.append(found)
     lines = np.concatenate(lines)
@@ -80,5 +80,5 @@ def test_no_motion_no_tracks():
     tracker = MotionLines()
     fg = np.full_like(frame, 255)  # even with everything marked as moving
     for _ in range(30):
-        lines, _ = tracker.update(frame, fg)
+        lines, _, _ = tracker.update(frame, fg)
         assert len(lines) == 0

@@ -52,6 +52,22 @@ def test_learns_passes_frames_through_and_announces_each_state(frames, tmp_path)
     assert re.fullmatch(r"vpdetect\d+", msg.source) and msg.fields["focal"] > 0  # numbered per process
 
 
+def test_constant_speed_property_switches_the_move_of_vp1_along_the_lanes(frames):
+    """On (default), the calibration says how far VP1 moved along the lanes and on how many tracks (event fields
+    confidence_vp1_along_px / confidence_speed_tracks); off, VP1 is the tracks' lines' meeting point alone."""
+    finals = {}
+    for prop in ("", "constant-speed=false"):
+        run = run_pipeline(f"appsrc name=src ! vpdetect {FAST} {prop} ! appsink name=sink", frames, CAPS, fps=FPS)
+        finals[prop] = run.frames[-1].calibration
+        msg = [m for m in run.messages if m.name == "trafficcal-calibration"][-1]
+        assert ("confidence_vp1_along_px" in msg.fields) == (prop == "")
+    on, off = finals[""], finals["constant-speed=false"]
+    assert on.state == off.state == "vps"
+    assert on.confidence["speed_tracks"] >= 100
+    moved = np.linalg.norm(on.camera.vp1 - off.camera.vp1)
+    assert moved == pytest.approx(abs(on.confidence["vp1_along_px"]), abs=0.05)
+
+
 def test_loads_an_existing_file_without_learning(tmp_path):
     cam = Camera(np.array([300.0, -80.0]), np.array([-900.0, -20.0]), np.array([W / 2, H / 2]))
     path = save_calibration(Calibration(cam, (W, H), state="vps", source="test"), tmp_path / "c.json")
@@ -108,7 +124,8 @@ def test_gst_launch_documents_every_property():
     env["GST_REGISTRY"] = str(Path(tempfile.mkdtemp()) / "registry.bin")
     out = subprocess.run(["gst-inspect-1.0", "vpdetect"], env=env, capture_output=True, text=True, timeout=120)
     assert out.returncode == 0, out.stderr
-    for prop in ("calibration-file", "mode", "min-duration", "max-duration", "downscale", "focal-range", "horizon-max", "method"):
+    for prop in ("calibration-file", "mode", "min-duration", "max-duration", "downscale", "focal-range", "horizon-max",
+                 "method", "constant-speed"):
         assert prop in out.stdout
 
 

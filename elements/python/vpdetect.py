@@ -1,6 +1,7 @@
 """GStreamer element ``vpdetect``: fully automatic camera calibration (two vanishing points, paper §4.1).
 
-Frames pass through untouched.  The element learns VP1 from tracked vehicle motion and VP2 from edgelets
+Frames pass through untouched.  The element learns VP1 from tracked vehicle motion (the lines of the tracks,
+then how far along them from the tracks' perspective acceleration) and VP2 from edgelets
 (``gst_trafficcal.vanishing.calibrator.VPCalibrator``, working on the Y plane of YUV input at a reduced
 resolution and on a subset of frames), and announces every state change (learning -> vps, or failed with the
 reason) downstream as the sticky ``trafficcal-calibration`` event and on the bus as an element message.
@@ -41,6 +42,11 @@ class VpDetect(TrafficcalTransform):
                         1.0, 90.0, 30.0, _RW),
         "method": (str, "VP2 method", "edgelets (the paper) or gradient (orientation of image gradients, ITS15 "
                    "baseline)", "edgelets", _RW),
+        "constant-speed": (bool, "Constant speed", "Move VP1 along the lanes to where the tracked points' "
+                           "perspective acceleration puts it, taking vehicles to keep their speed for the second or "
+                           "two a point is tracked (the lane lines alone place VP1 poorly along the lanes, which "
+                           "stretches the road with distance); off where traffic keeps braking and accelerating",
+                           True, _RW),
     }
     PASSTHROUGH = True
 
@@ -92,6 +98,7 @@ class VpDetect(TrafficcalTransform):
             config = CalibratorConfig(min_duration=self.min_duration, max_duration=self.max_duration,
                                       focal_range=parse_focal_range(self.focal_range), method=self.method,
                                       horizon_max_deg=self.horizon_max,
+                                      vp1_constant_speed=self.constant_speed,
                                       track_width=round(width / d) if d else 960,
                                       edgelet_width=round(width / d) if d else 960)
             self._learner = VPCalibrator(self.frame_size, config)

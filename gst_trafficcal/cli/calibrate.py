@@ -43,6 +43,9 @@ def parse_focal_range(text: str | None) -> tuple[float, float] | None:
 @click.option("--focal-range", default="", help="MIN,MAX focal length in pixels [default: 0.3..6 x width].")
 @click.option("--horizon-max", default=30.0, show_default=True,
               help="Degrees: VP2 only where the horizon VP1-VP2 is this close to horizontal (90: no limit).")
+@click.option("--constant-speed/--no-constant-speed", default=True, show_default=True,
+              help="Move VP1 along the lanes to where the tracked points' perspective acceleration puts it "
+                   "(vehicles keep their speed for a second or two); off where traffic keeps braking.")
 @click.option("--whole/--stop-early", default=False, show_default=True,
               help="Read the whole video even after convergence.")
 @click.option("--progress/--no-progress", default=True, show_default=True, help="Show a progress bar.")
@@ -58,7 +61,7 @@ def parse_focal_range(text: str | None) -> tuple[float, float] | None:
 def command(video: Path, out_path: Path, png_path: Path | None, method: str, min_duration: float,
             max_duration: float, focal_range: str, horizon_max: float, whole: bool, progress: bool,
             with_scale: bool, scale_models: str, iou_threshold: float, min_vehicles: int,
-            regression_file: Path | None, detector: str) -> None:
+            regression_file: Path | None, detector: str, constant_speed: bool = True) -> None:
     import cv2
     from rich.console import Console
     from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
@@ -78,7 +81,8 @@ def command(video: Path, out_path: Path, png_path: Path | None, method: str, min
         regression = load_regression(regression_file) if regression_file is not None else None
         model = check_detector(detector)
     cfg = CalibratorConfig(method=method, min_duration=min_duration, max_duration=max_duration,
-                           focal_range=parse_focal_range(focal_range), horizon_max_deg=horizon_max)
+                           focal_range=parse_focal_range(focal_range), horizon_max_deg=horizon_max,
+                           vp1_constant_speed=constant_speed)
     console = Console(stderr=True)
     with Progress(TextColumn("[bold]calibrate"), BarColumn(), TextColumn("{task.completed}/{task.total} frames"),
                   TextColumn("{task.fields[info]}"), TimeElapsedColumn(), console=console,

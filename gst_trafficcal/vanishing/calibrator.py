@@ -7,7 +7,9 @@ through the background model and the KLT tracker (VP1 evidence), and some of tho
 (about three 960x540 frames a second), so small videos and sparse traffic are searched on more frames, at most
 every tracked frame (or every ``1 / edgelet_fps`` seconds when that is set).  Finished straight tracks are voted into a Diamond Space; every
 ``check_interval`` seconds the peak is located and VP1 is declared when it moved less than ``vp1_stable_deg``
-between two consecutive checks with at least ``min_tracks`` tracks.  Edgelets gathered before that are kept
+between two consecutive checks with at least ``min_tracks`` tracks; then (``vp1_constant_speed``) it is moved along
+the lanes to where the tracks' perspective acceleration puts it (``constant_speed.py``: the lines fix VP1 across
+the lanes, the speeds along them), again with all tracks when VP2 is declared.  Edgelets gathered before that are kept
 in a bounded buffer; once VP1 is known, those not pointing at it are voted into a second Diamond Space masked
 to VP2 candidates giving a real focal length in ``focal_range``; VP2 is declared the same way.  The result
 is a :class:`~gst_trafficcal.calibration.Calibration` with state ``vps`` (no scale: that is bbscale's job),
@@ -18,7 +20,7 @@ from __future__ import annotations
 
 import math
 from collections import deque
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import cv2
 import numpy as np
@@ -29,7 +31,10 @@ from ..errors import GeometryError, InputError
 from ..geometry import Camera
 from .edgelets import Edgelets, detect_edgelets, detect_gradient_edgels, towards
 from .foreground import RunningForeground
+from .constant_speed import AlongLanes, LaneMotion, vp1_along_lanes
 from .tracks import MotionLines, TrackParams
+
+MAX_MOTION_CHUNKS = 20_000  # analysed frames whose finished tracks' motion fits are kept (bounded memory)
 
 
 @dataclass
@@ -61,6 +66,8 @@ class CalibratorConfig:
     horizon_max_deg: float = 30.0   # VP2 only where the horizon VP1-VP2 is within this of horizontal (90: off)
     accumulator_size: int = 128
     edgelet_buffer: int = 400_000   # edgelets kept while VP1 is unknown
+    vp1_constant_speed: bool = True  # move VP1 along the lanes to where the tracks' perspective acceleration says
+    min_speed_tracks: int = 30      # ... when at least this many tracks have a motion fit
     track: TrackParams = field(default_factory=TrackParams)
 
 
@@ -116,6 +123,9 @@ class VPCalibrator:
         self.vp1: Peak | None = None
         self.vp2: Peak | None = None
         self.vp1_fixed = False
+        self.vp1_diamond: Peak | None = None  # the Diamond Space's VP1 before the move along the lanes
+        self.along: AlongLanes | None = None
+        self._motion: list[LaneMotion] = []  # motion fits of the finished tracks, image pixels
         self._prev1: Peak | None = None
         self._prev2: Peak | None = None
         self.state = "learning"
@@ -165,7 +175,9 @@ class VPCalibrator:
         self._fg = self.fg_model.apply(tiny)
         self.analysed += 1
         self.moving_fraction += (self.fg_model.fraction - self.moving_fraction) * 0.05
-        lines, lengths = self.tracker.update(small, self._fg)
+        lines, lengths, motion = self.tracker.update(small, self._fg, self.t)
+        if len(motion) and self.cfg.vp1_constant_speed and len(self._motion) < MAX_MOTION_CHUNKS:
+            self._motion.append(motion.scaled(1.0 / self.track_scale))
         if len(lines) and not self.vp1_fixed:
             # to image pixels: x_img = x / s, so a line l becomes (a, b, c / ... ) = (a s, b s, c) up to scale
             lines = lines * np.array([self.track_scale, self.track_scale, 1.0])
@@ -232,12 +244,26 @@ class VPCalibrator:
 
     # ------------------------------------------------------------------ decisions
     def _fix_vp1(self, peak: Peak) -> None:
-        self.vp1 = peak
+        self.vp1_diamond = peak
+        self.vp1 = self._along_lanes(peak)
         self.vp1_fixed = True
         for e in self.buffer:
             self._vote_edges(e)
         self.buffer.clear()
         self.buffered = 0
+
+    def _along_lanes(self, peak: Peak) -> Peak:
+        """``peak`` moved along the lanes by the tracks' constant-speed motion (``constant_speed.py``), when
+        enabled and the evidence says where; else ``peak``."""
+        if not (self.cfg.vp1_constant_speed and peak.finite):
+            return peak
+        fit = vp1_along_lanes(peak.xy, LaneMotion.concatenate(self._motion), self.image_size[0],
+                              min_tracks=self.cfg.min_speed_tracks)
+        if fit is None:
+            return peak
+        self.along = fit
+        point = np.append(fit.vp1, 1.0)
+        return replace(peak, point=point / np.linalg.norm(point))
 
     def _check(self, final: bool) -> bool:
         """Re-estimate the peaks; declare or fail when the evidence allows.  True when the state changed."""
@@ -281,6 +307,8 @@ class VPCalibrator:
         return None not in peaks and _angle(peaks[0].point, peaks[1].point, ds) < max_deg
 
     def _declare(self) -> bool:
+        if self.vp1_diamond is not None:  # the tracks finished since VP1 was fixed count too
+            self.vp1 = self._along_lanes(self.vp1_diamond)
         vp1, vp2 = _finite(self.vp1.point), _finite(self.vp2.point)
         try:
             cam = Camera(vp1, vp2, self.pp)
@@ -289,6 +317,9 @@ class VPCalibrator:
         self.state = "vps"
         conf = {"vp1": round(self.vp1.support, 4), "vp2": round(self.vp2.support, 4),
                 "tracks": float(self.n_tracks), "edgelets": float(self.n_edgelets), "seconds": round(self.t, 3)}
+        if self.along is not None:
+            conf["vp1_along_px"] = round(self.along.shift_px, 2)
+            conf["speed_tracks"] = float(self.along.tracks)
         self.calibration = Calibration(cam, self.image_size, state="vps", source="vpdetect", confidence=conf)
         return True
 

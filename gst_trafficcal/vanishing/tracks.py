@@ -2,16 +2,20 @@
 
 Shi–Tomasi corners are detected inside the foreground of a background model (``foreground.py``), followed with pyramidal
 KLT (forward-backward checked) on a reduced-resolution grey image, and every finished track that is long,
-moving and straight becomes one homogeneous line (total-least-squares fit of its positions).  Each track keeps
-only running sums (Σx, Σy, Σx², Σxy, Σy²), so memory and time do not grow with the track length.
+moving and straight becomes one homogeneous line (total-least-squares fit of its positions) and one projective
+motion fit (``constant_speed.py``: how far along that line its vanishing point is).  Each track keeps only
+running sums (Σx, Σy, Σx², Σxy, Σy² and the motion fit's), so memory and time do not grow with the track length.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import cv2
 import numpy as np
+
+from .constant_speed import N_SUMS, LaneMotion, fit_motion, motion_terms
 
 
 @dataclass
@@ -50,6 +54,14 @@ def fit_lines(sums: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return lines, np.sqrt(np.maximum(small, 0.0))
 
 
+class FinishedTracks(NamedTuple):
+    """The straight tracks finished by one :meth:`MotionLines.update` (analysis-scale pixels)."""
+
+    lines: np.ndarray     # (K, 3) homogeneous lines, unit normals
+    lengths: np.ndarray   # (K,) px between first and last point
+    motion: LaneMotion    # their projective motion fits (those that have one; not index-aligned with lines)
+
+
 class MotionLines:
     """Streaming KLT tracker producing one line per finished straight track (coordinates at analysis scale)."""
 
@@ -60,13 +72,17 @@ class MotionLines:
         self.pts = np.zeros((0, 2), np.float32)
         self.start = np.zeros((0, 2), np.float32)
         self.sums = np.zeros((0, 6))
+        self.t0 = np.zeros(0)                 # time of each track's first point
+        self.motion = np.zeros((0, N_SUMS))   # its motion sums (constant_speed.motion_terms)
 
-    def update(self, gray: np.ndarray, fg: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Feed the next analysed frame and its foreground mask (any size, 0/255);
-        returns (lines (K, 3), track lengths in px (K,)) of the tracks finished now."""
+    def update(self, gray: np.ndarray, fg: np.ndarray, t: float | None = None) -> FinishedTracks:
+        """Feed the next analysed frame, its foreground mask (any size, 0/255) and its time in seconds (None:
+        the frame count, for evenly spaced frames); returns the straight tracks finished now."""
         self.frames += 1
+        t = float(self.frames if t is None else t)
         out_lines: list[np.ndarray] = []
         out_len: list[np.ndarray] = []
+        out_motion: list[LaneMotion] = []
         if self.prev is not None and len(self.pts):
             nxt, st, _ = cv2.calcOpticalFlowPyrLK(self.prev, gray, self.pts.reshape(-1, 1, 2), None,
                                                   winSize=(15, 15), maxLevel=2)
@@ -79,33 +95,39 @@ class MotionLines:
                      & (nxt[:, 0] >= 0) & (nxt[:, 1] >= 0) & (nxt[:, 0] < w - 1) & (nxt[:, 1] < h - 1))
             x, y = nxt[:, 0].astype(np.float64), nxt[:, 1].astype(np.float64)
             self.sums[alive] += np.stack([np.ones_like(x), x, y, x * x, x * y, y * y], axis=1)[alive]
+            self.motion[alive] += motion_terms(t - self.t0, x - self.start[:, 0], y - self.start[:, 1])[alive]
             self.pts = nxt
             full = alive & (self.sums[:, 0] >= self.p.max_length)
             done = ~alive | full
             if done.any():
-                lines, lengths = self._accept(done)
+                lines, lengths, motion = self._accept(done)
                 out_lines.append(lines)
                 out_len.append(lengths)
+                out_motion.append(motion)
             keep = ~done
             self.pts, self.start, self.sums = self.pts[keep], self.start[keep], self.sums[keep]
+            self.t0, self.motion = self.t0[keep], self.motion[keep]
         if self.frames > self.p.warmup and self.frames % self.p.detect_every == 0:
-            self._detect(gray, fg)
+            self._detect(gray, fg, t)
         self.prev = gray.copy()
         if not out_lines:
-            return np.zeros((0, 3)), np.zeros(0)
-        return np.concatenate(out_lines), np.concatenate(out_len)
+            return FinishedTracks(np.zeros((0, 3)), np.zeros(0), LaneMotion.empty())
+        return FinishedTracks(np.concatenate(out_lines), np.concatenate(out_len), LaneMotion.concatenate(out_motion))
 
-    def _accept(self, idx: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def _accept(self, idx: np.ndarray) -> tuple[np.ndarray, np.ndarray, LaneMotion]:
+        """Lines, lengths and motion fits of the straight tracks among the finished ones (boolean mask)."""
         sums = self.sums[idx]
         motion = np.linalg.norm(self.pts[idx] - self.start[idx], axis=1)
         ok = (sums[:, 0] >= self.p.min_length) & (motion >= self.p.min_motion)
         if not ok.any():
-            return np.zeros((0, 3)), np.zeros(0)
+            return np.zeros((0, 3)), np.zeros(0), LaneMotion.empty()
         lines, resid = fit_lines(sums[ok])
         straight = resid <= self.p.max_residual
-        return lines[straight], motion[ok][straight]
+        sel = np.flatnonzero(idx)[ok][straight]
+        fits = fit_motion(self.motion[sel], self.sums[sel, 0], self.start[sel])
+        return lines[straight], motion[ok][straight], fits
 
-    def _detect(self, gray: np.ndarray, fg: np.ndarray) -> None:
+    def _detect(self, gray: np.ndarray, fg: np.ndarray, t: float = 0.0) -> None:
         room = self.p.max_corners - len(self.pts)
         if room <= 10 or not fg.any():
             return
@@ -129,3 +151,5 @@ class MotionLines:
         self.pts = np.concatenate([self.pts, c])
         self.start = np.concatenate([self.start, c])
         self.sums = np.concatenate([self.sums, np.stack([np.ones_like(x), x, y, x * x, x * y, y * y], axis=1)])
+        self.t0 = np.concatenate([self.t0, np.full(len(c), t)])
+        self.motion = np.concatenate([self.motion, np.zeros((len(c), N_SUMS))])  # the first point adds 0 (t = 0)
