@@ -173,6 +173,7 @@ def test_cli_constant_speed_switch(tmp_path):
         out = tmp_path / f"{flag}.json"
         r = _cli("calibrate", str(clip), "-o", str(out), "--min-duration", "8", "--no-progress", flag)
         assert r.returncode == 0, r.stderr
+        assert ("px along the lanes" in r.stdout) == (flag == "--constant-speed"), r.stdout
         cals[flag] = load_calibration(out)
     on, off = cals["--constant-speed"], cals["--no-constant-speed"]
     assert "vp1_along_px" in on.confidence and "vp1_along_px" not in off.confidence

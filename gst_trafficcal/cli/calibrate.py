@@ -116,6 +116,9 @@ def command(video: Path, out_path: Path, png_path: Path | None, method: str, min
               f"after {cal.confidence.get('seconds', 0):.1f} s of video ({result.frames_read} frames, "
               f"{fps:.0f} fps analysis)  confidence vp1 {cal.confidence.get('vp1', 0):.2f} "
               f"vp2 {cal.confidence.get('vp2', 0):.2f} -> {out_path}, {png}", markup=False)
+    if "vp1_along_px" in cal.confidence:
+        out.print(f"VP1 moved {cal.confidence['vp1_along_px']:+.1f} px along the lanes (away from the traffic: +) by "
+                  f"the constant-speed motion of {cal.confidence.get('speed_tracks', 0):.0f} tracks", markup=False)
 
 
 def _add_scale(video: Path, cal, models, iou_threshold: float, min_vehicles: int, regression, out, model: str = ""):
