@@ -37,6 +37,7 @@ STEP = 5  # frames between the two points of a travelled distance (the speedomet
 @dataclass
 class Row:
     scene: str
+    group: str = ""  # the scene folder's parent (e.g. the replays' and the synth renders' folders)
     speed_tracks: int = 0
     shift_px: float | None = None  # how far the step moved VP1 along the lanes
     vp1_px_off: float | None = None
@@ -80,7 +81,7 @@ def road_distance_error(pairs, camera: Camera, scale: float) -> float:
 
 
 def evaluate(scene: Path) -> Row:
-    row = Row(scene.name)
+    row = Row(scene.name, scene.resolve().parent.name)
     truth = load_calibration(scene / "calibration.json").camera
     pairs = reference_pairs(scene)
     if not len(pairs[2]):
@@ -119,15 +120,17 @@ def table(rows: list[Row]) -> str:
                    f"{_f(r.vp1_px_on, '.1f')} | {_f(r.vp1_deg_off, '.3f')} → {_f(r.vp1_deg_on, '.3f')} | "
                    f"{_f(r.dist_off, '+.2f')} → {_f(r.dist_on, '+.2f')} |" + (f" {r.note}" if r.note else ""))
     done = [r for r in rows if r.dist_on is not None and r.dist_off is not None]
-    if done:
+    groups = sorted({r.group for r in done})
+    for label, sel in ([(f"{g}/", [r for r in done if r.group == g]) for g in groups] if len(groups) > 1 else []) \
+            + ([("", done)] if done else []):
         def summary(a: str, b: str, fmt: str, absolute: bool = False) -> str:
-            x = np.array([getattr(r, a) for r in done], float)
-            y = np.array([getattr(r, b) for r in done], float)
+            x = np.array([getattr(r, a) for r in sel], float)
+            y = np.array([getattr(r, b) for r in sel], float)
             if absolute:
                 x, y = np.abs(x), np.abs(y)
             return (f"{np.mean(x):{fmt}} → {np.mean(y):{fmt}} mean, {np.median(x):{fmt}} → {np.median(y):{fmt}} "
                     f"median, better on {int(np.sum(y < x))} of {len(x)}")
-        out.append(f"| **{len(done)} scenes** | | | {summary('vp1_px_off', 'vp1_px_on', '.1f')} | "
+        out.append(f"| **{label}{len(sel)} scenes** | | | {summary('vp1_px_off', 'vp1_px_on', '.1f')} | "
                    f"{summary('vp1_deg_off', 'vp1_deg_on', '.3f')} | {summary('dist_off', 'dist_on', '.2f', True)}"
                    " (absolute) |")
     return "\n".join(out)
