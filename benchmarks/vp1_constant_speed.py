@@ -40,6 +40,7 @@ class Row:
     group: str = ""  # the scene folder's parent (e.g. the replays' and the synth renders' folders)
     speed_tracks: int = 0
     shift_px: float | None = None  # how far the step moved VP1 along the lanes
+    shift_rel: float | None = None  # ... as a share of VP1's distance from the tracks (refused above max_along)
     vp1_px_off: float | None = None
     vp1_px_on: float | None = None
     vp1_deg_off: float | None = None
@@ -101,8 +102,11 @@ def evaluate(scene: Path) -> Row:
             along = res.calibrator.along
             row.speed_tracks = along.tracks if along is not None else 0
             row.shift_px = along.shift_px if along is not None else None
+            row.shift_rel = along.relative if along is not None else None
             if along is None:
                 row.note = "the tracks did not place VP1 along the lanes (kept where the lines meet)"
+            elif "vp1_along_refused_px" in res.calibration.confidence:
+                row.note = f"move refused ({100 * along.relative:+.0f} % of VP1's distance; kept where the lines meet)"
         else:
             row.vp1_px_off, row.vp1_deg_off, row.dist_off = px, deg, dist
     return row
@@ -113,10 +117,11 @@ def _f(v, fmt: str = ".2f") -> str:
 
 
 def table(rows: list[Row]) -> str:
-    out = ["| scene | tracks | VP1 moved px | VP1 err px, off → on | VP1 err °, off → on | road distance err at true "
+    out = ["| scene | tracks | VP1 moved px (share of its distance) | VP1 err px, off → on | VP1 err °, off → on | road distance err at true "
            "scale %, off → on |", "|---|---|---|---|---|---|"]
     for r in rows:
-        out.append(f"| {r.scene} | {r.speed_tracks} | {_f(r.shift_px, '+.1f')} | {_f(r.vp1_px_off, '.1f')} → "
+        moved = _f(r.shift_px, '+.1f') + ("" if r.shift_rel is None else f" ({100 * r.shift_rel:+.1f} %)")
+        out.append(f"| {r.scene} | {r.speed_tracks} | {moved} | {_f(r.vp1_px_off, '.1f')} → "
                    f"{_f(r.vp1_px_on, '.1f')} | {_f(r.vp1_deg_off, '.3f')} → {_f(r.vp1_deg_on, '.3f')} | "
                    f"{_f(r.dist_off, '+.2f')} → {_f(r.dist_on, '+.2f')} |" + (f" {r.note}" if r.note else ""))
     done = [r for r in rows if r.dist_on is not None and r.dist_off is not None]

@@ -23,15 +23,15 @@ def test_road_distance_error_measures_vp1_along_the_lanes(load_benchmark, cuboid
 
 def test_table_summarises_the_scenes(load_benchmark):
     b = load_benchmark("vp1_constant_speed")
-    rows = [b.Row("a", "replays", 300, 12.0, 13.0, 1.0, 0.4, 0.05, -12.0, -1.0),
-            b.Row("b", "replays", 400, 5.0, 5.0, 6.0, 0.1, 0.12, 1.0, 2.0),
+    rows = [b.Row("a", "replays", 300, 12.0, 0.02, 13.0, 1.0, 0.4, 0.05, -12.0, -1.0),
+            b.Row("b", "replays", 400, 5.0, None, 5.0, 6.0, 0.1, 0.12, 1.0, 2.0),
             b.Row("c", "synth", note="no vanishing points (too short)")]
     text = b.table(rows)
-    assert "| a | 300 | +12.0 | 13.0 → 1.0 | 0.400 → 0.050 | -12.00 → -1.00 |" in text
+    assert "| a | 300 | +12.0 (+2.0 %) | 13.0 → 1.0 | 0.400 → 0.050 | -12.00 → -1.00 |" in text
     assert "| c | 0 | – | – → – | – → – | – → – | no vanishing points (too short)" in text
     assert "**2 scenes**" in text and "6.50 → 1.50 mean" in text and text.count("better on 1 of 2") == 3
     assert "replays/" not in text  # one folder among the scenes with results: no per-folder rows
-    rows.append(b.Row("d", "synth", 100, 1.0, 2.0, 1.0, 0.2, 0.1, 4.0, 1.0))
+    rows.append(b.Row("d", "synth", 100, 1.0, 0.01, 2.0, 1.0, 0.2, 0.1, 4.0, 1.0))
     text = b.table(rows)
     assert "**replays/2 scenes**" in text and "**synth/1 scenes**" in text and "**3 scenes**" in text
     assert "4.00 → 1.00 mean, 4.00 → 1.00 median, better on 1 of 1" in text

@@ -172,12 +172,18 @@ def test_calibrator_moves_vp1_along_the_lanes_only_when_asked(cuboid_frames):
     switched off, VP1 is the Diamond Space's peak."""
     cam = scene_camera()
     results = {}
-    for on in (True, False):
-        cal = VPCalibrator((W, H), _fast_config(vp1_constant_speed=on))
+    for key, kw in ((True, {}), (False, {"vp1_constant_speed": False}), ("capped", {"max_along": 1e-4})):
+        cal = VPCalibrator((W, H), _fast_config(**kw))
         for i, f in enumerate(cuboid_frames):
             cal.add(f, i / FPS)
-        results[on] = (cal.finish(), cal)
+        results[key] = (cal.finish(), cal)
     (with_speed, cal_on), (without, cal_off) = results[True], results[False]
+    # a move larger than max_along (a share of VP1's distance from the tracks) is refused and reported
+    capped, cal_capped = results["capped"]
+    assert "vp1_along_px" not in capped.confidence
+    assert capped.confidence["vp1_along_refused_px"] == with_speed.confidence["vp1_along_px"]
+    assert np.allclose(capped.camera.vp1, without.camera.vp1)
+    assert 0 < abs(cal_capped.along.relative) < 0.01
     assert with_speed.state == without.state == "vps"
     assert with_speed.confidence["speed_tracks"] >= 100 and "vp1_along_px" in with_speed.confidence
     assert "vp1_along_px" not in without.confidence and cal_off.along is None

@@ -84,6 +84,7 @@ def test_vp1_along_lanes_undoes_a_shift_along_the_lanes_despite_outliers():
         assert fit is not None
         assert abs((fit.vp1 - cam.vp1) @ along) < 1.0, (shift, fit)
         assert abs(fit.shift_px + shift) < 1.0
+        assert fit.relative == pytest.approx(fit.shift_px / np.linalg.norm(start - centre))
         assert 0.7 < fit.inliers < 0.9
     assert vp1_along_lanes(cam.vp1, LaneMotion(*(getattr(m, f)[:10] for f in ("points", "directions", "kappa",
                                                                               "variance"))), 640) is None

@@ -119,6 +119,10 @@ def command(video: Path, out_path: Path, png_path: Path | None, method: str, min
     if "vp1_along_px" in cal.confidence:
         out.print(f"VP1 moved {cal.confidence['vp1_along_px']:+.1f} px along the lanes (away from the traffic: +) by "
                   f"the constant-speed motion of {cal.confidence.get('speed_tracks', 0):.0f} tracks", markup=False)
+    elif "vp1_along_refused_px" in cal.confidence:
+        out.print(f"VP1 left where the tracks' lines meet: their speeds would move it "
+                  f"{cal.confidence['vp1_along_refused_px']:+.1f} px along the lanes, too far for traffic at constant "
+                  f"speed (braking or pulling away, e.g. before a junction?)", markup=False)
 
 
 def _add_scale(video: Path, cal, models, iou_threshold: float, min_vehicles: int, regression, out, model: str = ""):

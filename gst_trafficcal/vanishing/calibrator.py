@@ -9,7 +9,8 @@ every tracked frame (or every ``1 / edgelet_fps`` seconds when that is set).  Fi
 ``check_interval`` seconds the peak is located and VP1 is declared when it moved less than ``vp1_stable_deg``
 between two consecutive checks with at least ``min_tracks`` tracks; then (``vp1_constant_speed``) it is moved along
 the lanes to where the tracks' perspective acceleration puts it (``constant_speed.py``: the lines fix VP1 across
-the lanes, the speeds along them), again with all tracks when VP2 is declared.  Edgelets gathered before that are kept
+the lanes, the speeds along them), again with all tracks when VP2 is declared; a move of more than ``max_along`` of
+VP1's distance from the tracks is refused (traffic braking or pulling away as a whole, e.g. before a junction).  Edgelets gathered before that are kept
 in a bounded buffer; once VP1 is known, those not pointing at it are voted into a second Diamond Space masked
 to VP2 candidates giving a real focal length in ``focal_range``; VP2 is declared the same way.  The result
 is a :class:`~gst_trafficcal.calibration.Calibration` with state ``vps`` (no scale: that is bbscale's job),
@@ -68,6 +69,8 @@ class CalibratorConfig:
     edgelet_buffer: int = 400_000   # edgelets kept while VP1 is unknown
     vp1_constant_speed: bool = True  # move VP1 along the lanes to where the tracks' perspective acceleration says
     min_speed_tracks: int = 30      # ... when at least this many tracks have a motion fit
+    max_along: float = 0.1          # ... and the move is at most this share of VP1's distance from the tracks
+                                    # (larger: the traffic brakes or accelerates as a whole; VP1 is left as is)
     track: TrackParams = field(default_factory=TrackParams)
 
 
@@ -124,7 +127,7 @@ class VPCalibrator:
         self.vp2: Peak | None = None
         self.vp1_fixed = False
         self.vp1_diamond: Peak | None = None  # the Diamond Space's VP1 before the move along the lanes
-        self.along: AlongLanes | None = None
+        self.along: AlongLanes | None = None  # the move along the lanes the tracks asked for (made if ≤ max_along)
         self._motion: list[LaneMotion] = []  # motion fits of the finished tracks, image pixels
         self._prev1: Peak | None = None
         self._prev2: Peak | None = None
@@ -259,9 +262,9 @@ class VPCalibrator:
             return peak
         fit = vp1_along_lanes(peak.xy, LaneMotion.concatenate(self._motion), self.image_size[0],
                               min_tracks=self.cfg.min_speed_tracks)
-        if fit is None:
-            return peak
         self.along = fit
+        if fit is None or abs(fit.relative) > self.cfg.max_along:
+            return peak
         point = np.append(fit.vp1, 1.0)
         return replace(peak, point=point / np.linalg.norm(point))
 
@@ -318,7 +321,8 @@ class VPCalibrator:
         conf = {"vp1": round(self.vp1.support, 4), "vp2": round(self.vp2.support, 4),
                 "tracks": float(self.n_tracks), "edgelets": float(self.n_edgelets), "seconds": round(self.t, 3)}
         if self.along is not None:
-            conf["vp1_along_px"] = round(self.along.shift_px, 2)
+            moved = abs(self.along.relative) <= self.cfg.max_along
+            conf["vp1_along_px" if moved else "vp1_along_refused_px"] = round(self.along.shift_px, 2)
             conf["speed_tracks"] = float(self.along.tracks)
         self.calibration = Calibration(cam, self.image_size, state="vps", source="vpdetect", confidence=conf)
         return True

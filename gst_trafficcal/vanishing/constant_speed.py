@@ -144,6 +144,7 @@ class AlongLanes:
 
     vp1: np.ndarray        # (2,) pixels
     shift_px: float        # distance moved (positive: away from the tracks)
+    relative: float        # ... as a share of VP1's distance from the tracks' centroid before the move
     tracks: int            # tracks used
     inliers: float         # share of them within 3 robust σ of the fitted κ
 
@@ -196,4 +197,5 @@ def vp1_along_lanes(vp1: np.ndarray, motion: LaneMotion, image_width: float, min
     q = float(fine[int(np.argmin(cost))])
     new = c + e / q
     r = residuals(np.array([q]))[0] / scale
-    return AlongLanes(new, float(1.0 / q - dist), int(len(motion)), float(np.mean(np.abs(r) < 3.0)))
+    shift = float(1.0 / q - dist)
+    return AlongLanes(new, shift, shift / dist, int(len(motion)), float(np.mean(np.abs(r) < 3.0)))
