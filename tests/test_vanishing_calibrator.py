@@ -64,6 +64,20 @@ def test_kraten_vp1_is_where_the_lane_markings_meet(clip_results):
     assert np.all(np.abs(lines @ np.r_[vp1, 1.0]) < 25.0)
     assert cal.camera.scale is None and cal.source == "vpdetect"
     assert cal.confidence["vp1"] > 0.3 and cal.confidence["tracks"] >= 60
+    # its traffic brakes before a junction: the tracks' speeds ask for a move of VP1 along the lanes far larger than
+    # perspective gives on the highways (a fifth of its distance), which is refused and reported
+    along = clip_results["kraten_cars.mp4"].calibrator.along
+    assert along is not None and abs(along.relative) > 0.1
+    # (the dashes are equally spaced: by the same projective law, y_k (1 + β k) = A + B k, each divider's dashes
+    # put VP1 where the lines meet, y ≈ −41, not at the move's y ≈ −19)
+    for pts in KRATEN_DASHES.values():
+        y = np.asarray(pts)[::-1, 1]  # nearest dash first
+        k = np.arange(len(y), dtype=float)
+        a, b, beta = np.linalg.lstsq(np.c_[np.ones_like(k), k, -k * y], y, rcond=None)[0]
+        assert -50 < b / beta < -38, b / beta
+    assert along.vp1[1] > -25
+    assert cal.confidence["vp1_along_refused_px"] == pytest.approx(along.shift_px, abs=0.01)
+    assert "vp1_along_px" not in cal.confidence
 
 
 @pytest.mark.shared
