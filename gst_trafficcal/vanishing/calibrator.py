@@ -69,7 +69,7 @@ class CalibratorConfig:
     edgelet_buffer: int = 400_000   # edgelets kept while VP1 is unknown
     vp1_constant_speed: bool = True  # move VP1 along the lanes to where the tracks' perspective acceleration says
     min_speed_tracks: int = 30      # ... when at least this many tracks have a motion fit
-    max_along: float = 0.1          # ... and the move is at most this share of VP1's distance from the tracks
+    max_along: float = 0.15         # ... and the move is at most this share of VP1's distance from the tracks
                                     # (larger: the traffic brakes or accelerates as a whole; VP1 is left as is)
     track: TrackParams = field(default_factory=TrackParams)
 
