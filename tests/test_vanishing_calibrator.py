@@ -40,6 +40,14 @@ def _marking_lines() -> np.ndarray:
     return np.array(lines)
 
 
+def _dashes_vanish_at(y: np.ndarray) -> float:
+    """Image y where equally spaced marks at image heights ``y`` (nearest first) vanish: they follow the projective
+    law y_k (1 + β k) = A + B k, linear in (A, B, β), whose limit is B / β."""
+    k = np.arange(len(y), dtype=float)
+    _, b, beta = np.linalg.lstsq(np.c_[np.ones_like(k), k, -k * y], y, rcond=None)[0]
+    return float(b / beta)
+
+
 def _least_squares_intersection(lines: np.ndarray) -> np.ndarray:
     return np.linalg.lstsq(lines[:, :2], -lines[:, 2], rcond=None)[0]
 
@@ -71,10 +79,8 @@ def test_kraten_vp1_is_where_the_lane_markings_meet(clip_results):
     # (the dashes are equally spaced: by the same projective law, y_k (1 + β k) = A + B k, each divider's dashes
     # put VP1 where the lines meet, y ≈ −41, not at the move's y ≈ −19)
     for pts in KRATEN_DASHES.values():
-        y = np.asarray(pts)[::-1, 1]  # nearest dash first
-        k = np.arange(len(y), dtype=float)
-        a, b, beta = np.linalg.lstsq(np.c_[np.ones_like(k), k, -k * y], y, rcond=None)[0]
-        assert -50 < b / beta < -38, b / beta
+        vp_y = _dashes_vanish_at(np.asarray(pts)[::-1, 1])  # nearest dash first
+        assert -50 < vp_y < -38, vp_y
     assert along.vp1[1] > -25
     assert cal.confidence["vp1_along_refused_px"] == pytest.approx(along.shift_px, abs=0.01)
     assert "vp1_along_px" not in cal.confidence
@@ -90,10 +96,7 @@ def test_carshadow_vp1_moves_along_the_lanes_to_where_the_lane_dashes_put_it(cli
     """A real highway: the dashes are equally spaced, so by the projective law y_k (1 + β k) = A + B k they put VP1
     at y = B / β ≈ −56 along the lane; the KLT tracks' lines meet 19 px lower, and their constant-speed motion moves
     VP1 there (the clip is too short for VP2, the move is made when VP1 is fixed)."""
-    y = np.asarray(CARSHADOW_DASH_ENDS_Y)
-    k = np.arange(len(y), dtype=float)
-    a, b, beta = np.linalg.lstsq(np.c_[np.ones_like(k), k, -k * y], y, rcond=None)[0]
-    dashes = b / beta
+    dashes = _dashes_vanish_at(np.asarray(CARSHADOW_DASH_ENDS_Y))
     assert -60 < dashes < -52, dashes
     res = clip_results["carShadow_highway.avi"]
     lines = res.calibrator.vp1_diamond.xy
