@@ -64,6 +64,13 @@ def test_fit_motion_leaves_out_short_and_degenerate_tracks():
     m = fit_motion(np.array([short[0], static[0]]), np.array([short[1], static[1]]),
                    np.array([short[2], static[2]]))
     assert len(m) == 0
+    # points that only jitter (a parked car's corner): whatever comes out is finite, nothing raises
+    rng = np.random.default_rng(5)
+    jitter = [_track_sums(np.tile([[5.0, 5.0]], (20, 1)) + rng.normal(0, 0.3, (20, 2)), np.arange(20) / 10.0)
+              for _ in range(200)]
+    m = fit_motion(np.array([a for a, _, _ in jitter]), np.array([b for _, b, _ in jitter]),
+                   np.array([c for _, _, c in jitter]))
+    assert np.all(np.isfinite(m.kappa)) and np.all(m.variance > 0)
     assert len(LaneMotion.concatenate([])) == 0
 
 

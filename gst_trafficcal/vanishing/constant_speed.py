@@ -109,7 +109,7 @@ def fit_motion(sums: np.ndarray, counts: np.ndarray, origins: np.ndarray) -> Lan
                   np.stack([-Stx, -St2x, -Sty, -St2y, St2x2 + St2y2], -1)], axis=1)
     rhs = np.stack([z, Stx, z, Sty, -(Stx2 + Sty2)], axis=1)
     good = np.linalg.cond(M) < 1e12
-    M, rhs, n, tx, origins = M[good], rhs[good], n[good], tx[good], origins[good]
+    M, rhs, n, origins = M[good], rhs[good], n[good], origins[good]
     mean = np.stack([mx[good], my[good]], axis=1)
     St2, Sx2, Sy2 = St2[good], Sx2[good], Sy2[good]
     if not len(n):
@@ -120,6 +120,10 @@ def fit_motion(sums: np.ndarray, counts: np.ndarray, origins: np.ndarray) -> Lan
     # the β column holds t·x and t·y, noisy like the positions: their noise adds σ²Σt² (per coordinate) to its
     # normal-matrix entry, which pulls β (and κ) towards zero; take it out
     M[:, 4, 4] -= 2 * noise2 * St2
+    well = np.linalg.cond(M) < 1e12  # the correction can leave a noisy, barely moving track without a solution
+    M, rhs, n, mean, origins, noise2 = M[well], rhs[well], n[well], mean[well], origins[well], noise2[well]
+    if not len(n):
+        return LaneMotion.empty()
     sigma2 = np.maximum(noise2, NOISE_FLOOR_PX ** 2)
     Mi = np.linalg.inv(M)
     theta = np.einsum("kij,kj->ki", Mi, rhs)
