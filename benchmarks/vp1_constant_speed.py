@@ -31,6 +31,8 @@ from gst_trafficcal.diamond import angle_between  # noqa: E402
 from gst_trafficcal.geometry import Camera, homogeneous  # noqa: E402
 from gst_trafficcal.vanishing.calibrator import CalibratorConfig, calibrate_video  # noqa: E402
 
+from comparison import before_after, dash  # noqa: E402  (benchmarks/comparison.py)
+
 STEP = 5  # frames between the two points of a travelled distance (the speedometer's τ)
 
 
@@ -113,7 +115,7 @@ def evaluate(scene: Path) -> Row:
 
 
 def _f(v, fmt: str = ".2f") -> str:
-    return "–" if v is None else format(v, fmt)
+    return dash(v, fmt)
 
 
 def table(rows: list[Row]) -> str:
@@ -131,10 +133,7 @@ def table(rows: list[Row]) -> str:
         def summary(a: str, b: str, fmt: str, absolute: bool = False) -> str:
             x = np.array([getattr(r, a) for r in sel], float)
             y = np.array([getattr(r, b) for r in sel], float)
-            if absolute:
-                x, y = np.abs(x), np.abs(y)
-            return (f"{np.mean(x):{fmt}} → {np.mean(y):{fmt}} mean, {np.median(x):{fmt}} → {np.median(y):{fmt}} "
-                    f"median, better on {int(np.sum(y < x))} of {len(x)}")
+            return before_after(np.abs(x), np.abs(y), fmt) if absolute else before_after(x, y, fmt)
         out.append(f"| **{label}{len(sel)} scenes** | | | {summary('vp1_px_off', 'vp1_px_on', '.1f')} | "
                    f"{summary('vp1_deg_off', 'vp1_deg_on', '.3f')} | {summary('dist_off', 'dist_on', '.2f', True)}"
                    " (absolute) |")

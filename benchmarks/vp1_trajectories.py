@@ -38,6 +38,8 @@ from gst_trafficcal.evaluation import evaluate_calibration  # noqa: E402
 from gst_trafficcal.geometry import Camera, homogeneous  # noqa: E402
 from gst_trafficcal.vanishing.trajectories import vp1_from_trajectories, vp1_with_trajectory_votes  # noqa: E402
 
+from comparison import before_after, dash  # noqa: E402  (benchmarks/comparison.py)
+
 TRAFFICCAL = [sys.executable, "-m", "gst_trafficcal"]
 
 
@@ -167,7 +169,7 @@ def evaluate(scene: Path, e2e: Path | None, speeds: Path | None, share: float = 
 
 
 def _f(v, fmt: str = ".3f") -> str:
-    return "–" if v is None else format(v, fmt)
+    return dash(v, fmt)
 
 
 def table(rows: list[Row]) -> str:
@@ -186,8 +188,7 @@ def table(rows: list[Row]) -> str:
             if not pairs:
                 return "–"
             x, y = np.array(pairs).T
-            return (f"{np.mean(x):{fmt}} → {np.mean(y):{fmt}} mean, {np.median(x):{fmt}} → {np.median(y):{fmt}} "
-                    f"median, better on {int(np.sum(y < x))} of {len(x)}")
+            return before_after(x, y, fmt)
         out.append(f"| **{len(both)} scenes** | | {summary('vp1_klt_deg', 'vp1_traj_deg', '.3f')} | "
                    f"{summary('ratio_klt', 'ratio_traj', '.3f')} | {summary('speed_klt', 'speed_traj', '.2f')} | "
                    f"{summary('vp1_klt_deg', 'vp1_votes_deg', '.3f')}; {summary('ratio_klt', 'ratio_votes', '.3f')}; "
