@@ -263,10 +263,14 @@ class VPCalibrator:
         fit = vp1_along_lanes(peak.xy, LaneMotion.concatenate(self._motion), self.image_size[0],
                               min_tracks=self.cfg.min_speed_tracks)
         self.along = fit
-        if fit is None or abs(fit.relative) > self.cfg.max_along:
+        if not self._along_accepted():
             return peak
         point = np.append(fit.vp1, 1.0)
         return replace(peak, point=point / np.linalg.norm(point))
+
+    def _along_accepted(self) -> bool:
+        """Whether the move along the lanes the tracks asked for is made (at most ``max_along``)."""
+        return self.along is not None and abs(self.along.relative) <= self.cfg.max_along
 
     def _check(self, final: bool) -> bool:
         """Re-estimate the peaks; declare or fail when the evidence allows.  True when the state changed."""
@@ -321,8 +325,8 @@ class VPCalibrator:
         conf = {"vp1": round(self.vp1.support, 4), "vp2": round(self.vp2.support, 4),
                 "tracks": float(self.n_tracks), "edgelets": float(self.n_edgelets), "seconds": round(self.t, 3)}
         if self.along is not None:
-            moved = abs(self.along.relative) <= self.cfg.max_along
-            conf["vp1_along_px" if moved else "vp1_along_refused_px"] = round(self.along.shift_px, 2)
+            key = "vp1_along_px" if self._along_accepted() else "vp1_along_refused_px"
+            conf[key] = round(self.along.shift_px, 2)
             conf["speed_tracks"] = float(self.along.tracks)
         self.calibration = Calibration(cam, self.image_size, state="vps", source="vpdetect", confidence=conf)
         return True
