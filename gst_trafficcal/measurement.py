@@ -94,7 +94,7 @@ class LiveSpeed:
     """Current estimate for a vehicle still in view (for the per-frame ``"speed"`` ROI structure)."""
 
     speed_kmh: float
-    confidence: float  # share of pairwise speeds that agree with the median within 10 %
+    confidence: float  # share of τ-pair speeds within 10 % of the vehicle's own motion (speed.vehicle_speed)
     n_samples: int
 
 
