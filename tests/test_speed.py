@@ -135,6 +135,25 @@ def test_a_vehicle_changing_speed_agrees_with_its_own_motion(v0_kmh, accel):
     assert np.mean(np.abs(v - m.speed_kmh) <= 0.1 * m.speed_kmh) < 0.6  # the old test against the median fails
 
 
+def test_slow_vehicle_pairs_span_enough_road_for_the_noise():
+    """A vehicle at 12 km/h with 0.2 m of reference-point noise (a 640x360 town camera): τ = 5 observations are
+    0.67 m of road, the noise makes those samples scatter by tens of per cent and their median ~8 % fast; pairs
+    spanning ``min_pair_m`` (4 m) measure it within 2 %."""
+    cam = _camera()
+    times = np.arange(150) / 25.0  # 6 s, 20 m
+    rng = np.random.default_rng(4)
+    x = 20.0 + 12.0 / 3.6 * times + rng.normal(0.0, 0.2, len(times))
+    y = rng.normal(0.0, 0.2, len(times))
+    pts = cam.world_to_image(np.stack([x, y, np.zeros_like(x)], axis=1))
+    paper = track_speed(cam, pts, times).speed_kmh  # every τ = 5 pair
+    assert paper > 12.0 * 1.05
+    m = vehicle_speed(cam, pts, times)
+    assert m.measured, m.reason
+    assert m.speed_kmh == pytest.approx(12.0, rel=0.02)
+    old = vehicle_speed(cam, pts, times, checks=SpeedChecks(min_pair_m=0.0))  # the paper's τ for the samples too
+    assert not old.measured and "disagree" in old.reason
+
+
 def test_speed_trend_is_robust_and_bounded():
     """The τ-pair speeds' trend: exact on a constant change of speed, unmoved by a fifth of wild samples, the median
     when the trend is steeper than a road vehicle's or there are too few samples."""
