@@ -60,7 +60,8 @@ class Speedometer(TrafficcalTransform):
         "scale-regression-file": (str, "Scale regression file", "With no bbscale upstream and no scale given: "
                                   "scale-correction regression JSON for its own scale stage (as bbscale's)", "",
                                   _RW),
-        "tau": (int, "Tau", "Observations between the two points of each speed sample", 1, 1000, 5, _RW),
+        "tau": (int, "Tau", "Observations between the two points of each speed sample (more for a vehicle that "
+                "covers less than 4 m of road in tau observations)", 1, 1000, 5, _RW),
         "min-track-length": (int, "Minimum track length", "Reference points a vehicle needs to be measured "
                              "(at least tau + 1)", 2, 100000, 10, _RW),
         "vehicle-timeout": (float, "Vehicle timeout", "Seconds without a sighting after which a vehicle has "
