@@ -195,13 +195,14 @@ def consistent_chain(world: np.ndarray, times: np.ndarray, tolerance_m: np.ndarr
 
 def pair_step(camera: Camera, points_px: np.ndarray, tau: int, checks: SpeedChecks) -> int:
     """How many observations apart a vehicle's speed pairs are: τ, or more when τ observations span less road than
-    ``checks.min_pair_m`` (a slow vehicle), keeping at least ``checks.min_pairs`` pairs."""
+    ``checks.min_pair_m`` (a slow vehicle) — but never more than half the track (as many pairs as the spacing,
+    so a short track or live window keeps its samples) nor so far that fewer than ``checks.min_pairs`` remain."""
     n = len(points_px)
     step = camera.distance(points_px[tau:], points_px[:-tau])
     step = float(np.median(step[np.isfinite(step)])) / tau if np.isfinite(step).any() else 0.0
     if step <= 0 or step * tau >= checks.min_pair_m:
         return tau
-    return int(max(tau, min(np.ceil(checks.min_pair_m / step), n - checks.min_pairs)))
+    return int(max(tau, min(np.ceil(checks.min_pair_m / step), (n - 1) // 2, n - checks.min_pairs)))
 
 
 def vehicle_speed(camera: Camera | None, points_px: np.ndarray, times_s: np.ndarray, tau: int = DEFAULT_TAU,
