@@ -29,19 +29,27 @@ class SpeedMeasurement:
         return self.speed_kmh is not None
 
 
-def pairwise_speeds(camera: Camera, points_px: np.ndarray, times_s: np.ndarray, tau: int = DEFAULT_TAU) -> np.ndarray:
-    """Speeds in km/h between observations i and i+τ of one track (points (N, 2) pixels, times (N,) seconds)."""
+def pair_samples(camera: Camera, points_px: np.ndarray, times_s: np.ndarray, tau: int = DEFAULT_TAU
+                 ) -> tuple[np.ndarray, np.ndarray]:
+    """Speeds in km/h between observations i and i+τ of one track (points (N, 2) pixels, times (N,) seconds) and
+    each pair's mid-time (s); pairs without a finite speed are left out."""
     points_px = np.asarray(points_px, dtype=np.float64)
     times_s = np.asarray(times_s, dtype=np.float64)
     if len(points_px) != len(times_s):
         raise ValueError(f"track has {len(points_px)} points but {len(times_s)} timestamps")
     if len(points_px) <= tau:
-        return np.empty(0)
+        return np.empty(0), np.empty(0)
     metres = camera.distance(points_px[tau:], points_px[:-tau])
     dt = np.abs(times_s[tau:] - times_s[:-tau])
     with np.errstate(divide="ignore", invalid="ignore"):
         v = metres / dt * 3.6
-    return v[np.isfinite(v)]
+    ok = np.isfinite(v)
+    return v[ok], ((times_s[tau:] + times_s[:-tau]) / 2)[ok]
+
+
+def pairwise_speeds(camera: Camera, points_px: np.ndarray, times_s: np.ndarray, tau: int = DEFAULT_TAU) -> np.ndarray:
+    """Speeds in km/h between observations i and i+τ of one track (points (N, 2) pixels, times (N,) seconds)."""
+    return pair_samples(camera, points_px, times_s, tau)[0]
 
 
 def track_speed(camera: Camera | None, points_px: np.ndarray, times_s: np.ndarray,
@@ -237,15 +245,9 @@ def vehicle_speed(camera: Camera | None, points_px: np.ndarray, times_s: np.ndar
     if span < checks.min_distance_m:
         return VehicleSpeed(None, 0, f"track too short on the road ({span:.1f} m, needs "
                             f"{checks.min_distance_m:g} m)", keep)
-    tau = pair_step(camera, px[k], tau, checks)
-    metres = camera.distance(px[k][tau:], px[k][:-tau])
-    dt = np.abs(times[k][tau:] - times[k][:-tau])
-    with np.errstate(divide="ignore", invalid="ignore"):
-        v = metres / dt * 3.6
-    ok = np.isfinite(v)
-    if not ok.any():
+    v, mid = pair_samples(camera, px[k], times[k], pair_step(camera, px[k], tau, checks))
+    if v.size == 0:
         return VehicleSpeed(None, 0, "no usable point pairs (equal timestamps)", keep)
-    v, mid = v[ok], ((times[k][tau:] + times[k][:-tau]) / 2)[ok]
     med = float(np.median(v))
     # the samples agree with one constant speed (their median) or with a constant change of speed (their trend)
     agree = float(np.mean(np.abs(v - med) <= AGREEMENT * med)) if med > 0 else 0.0
