@@ -29,10 +29,11 @@ class SpeedMeasurement:
         return self.speed_kmh is not None
 
 
-def pair_samples(camera: Camera, points_px: np.ndarray, times_s: np.ndarray, tau: int = DEFAULT_TAU
-                 ) -> tuple[np.ndarray, np.ndarray]:
+def pair_samples(camera: Camera, points_px: np.ndarray, times_s: np.ndarray, tau: int = DEFAULT_TAU,
+                 checks: SpeedChecks | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Speeds in km/h between observations i and i+τ of one track (points (N, 2) pixels, times (N,) seconds) and
-    each pair's mid-time (s); pairs without a finite speed are left out."""
+    each pair's mid-time (s); pairs without a finite speed are left out.  With ``checks`` the pairs of a vehicle
+    that covers less than ``checks.min_pair_m`` in τ observations are taken further apart (:func:`pair_step`)."""
     points_px = np.asarray(points_px, dtype=np.float64)
     times_s = np.asarray(times_s, dtype=np.float64)
     if len(points_px) != len(times_s):
@@ -40,6 +41,9 @@ def pair_samples(camera: Camera, points_px: np.ndarray, times_s: np.ndarray, tau
     if len(points_px) <= tau:
         return np.empty(0), np.empty(0)
     metres = camera.distance(points_px[tau:], points_px[:-tau])
+    if checks is not None and (wider := pair_step(metres, len(points_px), tau, checks)) != tau:
+        tau = wider
+        metres = camera.distance(points_px[tau:], points_px[:-tau])
     dt = np.abs(times_s[tau:] - times_s[:-tau])
     with np.errstate(divide="ignore", invalid="ignore"):
         v = metres / dt * 3.6
@@ -201,13 +205,13 @@ def consistent_chain(world: np.ndarray, times: np.ndarray, tolerance_m: np.ndarr
     return keep
 
 
-def pair_step(camera: Camera, points_px: np.ndarray, tau: int, checks: SpeedChecks) -> int:
-    """How many observations apart a vehicle's speed pairs are: τ, or more when τ observations span less road than
-    ``checks.min_pair_m`` (a slow vehicle) — but never more than half the track (as many pairs as the spacing,
-    so a short track or live window keeps its samples) nor so far that fewer than ``checks.min_pairs`` remain."""
-    n = len(points_px)
-    step = camera.distance(points_px[tau:], points_px[:-tau])
-    step = float(np.median(step[np.isfinite(step)])) / tau if np.isfinite(step).any() else 0.0
+def pair_step(metres: np.ndarray, n: int, tau: int, checks: SpeedChecks) -> int:
+    """How many observations apart the speed pairs of a track of ``n`` points are, given the road distances (m) of
+    its τ-pairs: τ, or more when τ observations span less road than ``checks.min_pair_m`` (a slow vehicle) — but
+    never more than half the track (as many pairs as the spacing, so a short track or live window keeps its
+    samples) nor so far that fewer than ``checks.min_pairs`` remain."""
+    finite = metres[np.isfinite(metres)]
+    step = float(np.median(finite)) / tau if len(finite) else 0.0
     if step <= 0 or step * tau >= checks.min_pair_m:
         return tau
     return int(max(tau, min(np.ceil(checks.min_pair_m / step), (n - 1) // 2, n - checks.min_pairs)))
@@ -245,7 +249,7 @@ def vehicle_speed(camera: Camera | None, points_px: np.ndarray, times_s: np.ndar
     if span < checks.min_distance_m:
         return VehicleSpeed(None, 0, f"track too short on the road ({span:.1f} m, needs "
                             f"{checks.min_distance_m:g} m)", keep)
-    v, mid = pair_samples(camera, px[k], times[k], pair_step(camera, px[k], tau, checks))
+    v, mid = pair_samples(camera, px[k], times[k], tau, checks)
     if v.size == 0:
         return VehicleSpeed(None, 0, "no usable point pairs (equal timestamps)", keep)
     med = float(np.median(v))
