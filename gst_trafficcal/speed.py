@@ -92,7 +92,8 @@ class SpeedChecks:
     * ``min_pair_m``: a τ-pair spans at least this much road — for a vehicle slower than that in τ observations
       the pairs are taken further apart.  A reference point's own noise (0.1–0.3 m) is then a few per cent of a
       sample instead of tens of per cent, and it no longer biases the median up (a noisy pair's length grows in
-      quadrature: at 12 km/h and 25 fps, τ = 5 spans 0.67 m and 0.2 m of noise makes the median ~8 % fast).
+      quadrature: at 12 km/h and 25 fps, τ = 5 spans 0.67 m and 0.2 m of noise per coordinate adds ~8 % to a
+      pair's expected length; the simulated vehicle of tests/test_speed.py comes out 14 % fast).
       Vehicles faster than ``min_pair_m`` per τ observations (on the replays' motorways nearly all) are measured
       with the paper's τ as before.
     * ``min_agreement``: share of the τ-pair speeds within 10 % of the vehicle's own motion at their time: of one
