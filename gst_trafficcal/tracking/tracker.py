@@ -259,7 +259,7 @@ class Tracker:
                 _coast_on_road(self.camera, tr, t, min_span=cfg.coast_min_span)
         pred = np.array([tr.kf.box for tr in self.tracks]).reshape(-1, 4)
         completed = complete_boxes(det_boxes, cut, pred)  # (T, N, 4): det_boxes where nothing is cut
-        pairs = self._associate(pred, completed, det_boxes, cut.any(axis=1))
+        pairs = self._associate(self._visible(pred), completed, det_boxes, cut.any(axis=1))
 
         track_ids = np.zeros(n, np.int64)
         matched_tracks: set[int] = set()
@@ -422,6 +422,16 @@ class Tracker:
             if np.all(below & np.isfinite(d)):
                 return -d
         return bottom[:, 1]
+
+    def _visible(self, pred: np.ndarray) -> np.ndarray:
+        """The predicted boxes cut to the image: a vehicle leaving the frame is detected by its part still in view,
+        so a box that runs past the border is compared with that part (its size and overlap), not with the whole
+        vehicle the filter predicts; otherwise the size gate refuses the shrinking part and it starts a new track
+        — the same vehicle counted again as a 1-3 frame fragment."""
+        if self.image_size is None or len(pred) == 0:
+            return pred
+        W, H = self.image_size
+        return np.clip(pred, 0.0, [W, H, W, H])
 
     def _associate(self, pred: np.ndarray, meas: np.ndarray, det: np.ndarray | None = None,
                    cut: np.ndarray | None = None) -> list[tuple[int, int]]:
