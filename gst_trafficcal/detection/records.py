@@ -147,15 +147,21 @@ class Detections:
 
     def clipped(self, width: int, height: int) -> "Detections":
         """Boxes clipped to a width x height image; boxes left empty are dropped."""
-        boxes = self.boxes.copy()
-        boxes[:, [0, 2]] = boxes[:, [0, 2]].clip(0, width)
-        boxes[:, [1, 3]] = boxes[:, [1, 3]].clip(0, height)
+        boxes = clip_boxes(self.boxes, width, height)
         keep = (boxes[:, 2] > boxes[:, 0]) & (boxes[:, 3] > boxes[:, 1])
         hulls = None
         if self.hulls is not None:
             lo, hi = np.array([-0.5, -0.5]), np.array([width - 0.5, height - 0.5])
             hulls = [None if h is None else h.clip(lo, hi) for h in self.hulls[keep]]
         return Detections(boxes[keep], self.scores[keep], self.class_ids[keep], self.labels[keep], hulls)
+
+
+def clip_boxes(boxes: np.ndarray, width: float, height: float) -> np.ndarray:
+    """Nx4 xyxy boxes cut to a width x height image (a copy, same dtype; a box wholly outside becomes empty)."""
+    out = np.array(boxes, copy=True)
+    out[:, [0, 2]] = out[:, [0, 2]].clip(0, width)
+    out[:, [1, 3]] = out[:, [1, 3]].clip(0, height)
+    return out
 
 
 def box_iou(a: np.ndarray, b: np.ndarray) -> np.ndarray:

@@ -32,7 +32,7 @@ from enum import Enum
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
-from ..detection.records import Detections, box_iou
+from ..detection.records import Detections, box_iou, clip_boxes
 from ..errors import InputError
 from ..geometry import Camera
 from .box3d import (CORNER_BITS, TypicalHeight, _boxes, _pad_hulls, fit_shapes, pixels_to_road, track_choice,
@@ -428,10 +428,7 @@ class Tracker:
         so a box that runs past the border is compared with that part (its size and overlap), not with the whole
         vehicle the filter predicts; otherwise the size gate refuses the shrinking part and it starts a new track
         — the same vehicle counted again as a 1-3 frame fragment."""
-        if self.image_size is None or len(pred) == 0:
-            return pred
-        W, H = self.image_size
-        return np.clip(pred, 0.0, [W, H, W, H])
+        return pred if self.image_size is None else clip_boxes(pred, *self.image_size)
 
     def _associate(self, pred: np.ndarray, meas: np.ndarray, det: np.ndarray | None = None,
                    cut: np.ndarray | None = None) -> list[tuple[int, int]]:
