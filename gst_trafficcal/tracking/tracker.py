@@ -156,6 +156,10 @@ class TrackerConfig:
     # track's predicted size, and its fragments start no tracks, so a vehicle keeps one track behind a pole
     occluders: bool = True
     fragment_margin: float = 0.2  # a cut detection must lie mostly inside a track's predicted box grown by this
+    # a detection lying inside the predicted box of a vehicle at least this many times its area, whose own detection
+    # is missing this frame, is a piece of it (a bus's uniform roof breaks up into a few boxes as it drives out of
+    # the image): it starts no track
+    piece_area: float = 4.0
     # with a calibration, a track without a measured box this frame (lost, or cut by an occluder) is predicted on the
     # road (its last 3D box moved at its road velocity) instead of at constant image velocity (_coast_on_road)
     coast_on_road: bool = True
@@ -259,7 +263,8 @@ class Tracker:
                 _coast_on_road(self.camera, tr, t, min_span=cfg.coast_min_span)
         pred = np.array([tr.kf.box for tr in self.tracks]).reshape(-1, 4)
         completed = complete_boxes(det_boxes, cut, pred)  # (T, N, 4): det_boxes where nothing is cut
-        pairs = self._associate(self._visible(pred), completed, det_boxes, cut.any(axis=1))
+        visible = self._visible(pred)
+        pairs = self._associate(visible, completed, det_boxes, cut.any(axis=1))
 
         track_ids = np.zeros(n, np.int64)
         matched_tracks: set[int] = set()
@@ -281,6 +286,9 @@ class Tracker:
             matched_det.add(i)
             new_obs.append((tr, obs, i))
 
+        missing = [ti for ti, tr in enumerate(self.tracks) if ti not in matched_tracks and tr.ever_confirmed]
+        pieces = self._pieces(det_boxes, visible[missing])
+
         # unmatched tracks: tentative ones survive tentative_lost seconds, confirmed ones coast for max_lost
         survivors = []
         for ti, tr in enumerate(self.tracks):
@@ -298,11 +306,12 @@ class Tracker:
         self.tracks = survivors
 
         # unmatched detections start tentative tracks (unless they duplicate a matched vehicle, or are a fragment
-        # of one: cut by a static occluder and inside the box it was matched with, completed across the occluder)
+        # of one: cut by a static occluder and inside the box it was matched with, completed across the occluder;
+        # or a piece of a big vehicle whose own detection is missing)
         taken = det_boxes[sorted(matched_det)] if matched_det else np.zeros((0, 4))
         hosts = completed[tuple(np.array(pairs).T)] if pairs else np.zeros((0, 4))
         for i in range(n):
-            if i in matched_det or occluded[i]:
+            if i in matched_det or occluded[i] or pieces[i]:
                 continue
             if len(taken) and box_iou(det_boxes[i:i + 1], taken).max() > cfg.duplicate_iou:
                 continue
@@ -429,6 +438,20 @@ class Tracker:
         vehicle the filter predicts; otherwise the size gate refuses the shrinking part and it starts a new track
         — the same vehicle counted again as a 1-3 frame fragment."""
         return pred if self.image_size is None else clip_boxes(pred, *self.image_size)
+
+    def _pieces(self, boxes: np.ndarray, hosts: np.ndarray) -> np.ndarray:
+        """(N,) whether each detection is a piece of one of ``hosts`` (the visible predicted boxes of vehicles not
+        detected this frame): nearly all of it (90 %) inside a host at least ``piece_area`` times its area.  A large
+        uniform vehicle near the camera — a bus's roof as it drives out at the bottom — can come out of the detector
+        as a few small boxes instead of one; each started a track, the same vehicle reported again as short
+        vehicles without a reference point.  A vehicle still detected is no host, so a car emerging from behind a
+        truck starts its track as before."""
+        if len(hosts) == 0 or len(boxes) == 0:
+            return np.zeros(len(boxes), bool)
+        area = np.prod(boxes[:, 2:] - boxes[:, :2], axis=1)
+        host_area = np.prod(hosts[:, 2:] - hosts[:, :2], axis=1)
+        big = host_area[:, None] >= self.config.piece_area * area[None, :]
+        return np.any((_inside(boxes, hosts) >= 0.9) & big, axis=0)
 
     def _associate(self, pred: np.ndarray, meas: np.ndarray, det: np.ndarray | None = None,
                    cut: np.ndarray | None = None) -> list[tuple[int, int]]:
