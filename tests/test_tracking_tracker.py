@@ -174,18 +174,19 @@ def test_a_vehicle_leaving_at_the_bottom_keeps_its_track():
 
 
 def bus_breaking_up(tracker: Tracker, still_detected: bool = False) -> set[int]:
-    """A bus driving towards the camera, detected whole for 20 frames, then (its uniform roof filling the view) as
-    three small boxes inside where it is, for 8 frames — with ``still_detected`` its own box is there as well (a car
-    emerging beside it).  Returns every confirmed track id reported."""
+    """A bus driving out of a 1080p image at the bottom, detected whole for 20 frames, then (its uniform roof filling
+    the view) as three small boxes inside where it was, for 8 frames — with ``still_detected`` its own box is there
+    as well (a car emerging beside it).  Returns every confirmed track id reported."""
     ids, t = set(), 0.0
     for k in range(28):
-        y0 = 300 + 12 * k
-        bus = np.array([700.0, y0, 1200.0, y0 + 500.0])
+        y0 = 400 + 12 * k
+        bus = np.array([700.0, y0, 1200.0, min(y0 + 700.0, 1080.0)])
         if k < 20:
             boxes = bus[None]
         else:
             pieces = np.array([[760.0, y0 + 60, 840.0, y0 + 200], [950.0, y0 + 150, 1030.0, y0 + 260],
                                [1080.0, y0 + 300, 1150.0, y0 + 420]])
+            pieces[:, 3] = np.minimum(pieces[:, 3], 1080.0)
             boxes = np.vstack([bus[None], pieces]) if still_detected else pieces
         res = tracker.update(t, Detections(boxes, [0.9] * len(boxes), [2] * len(boxes), ["car"] * len(boxes)))
         ids |= {int(i) for i in res.track_ids if i}
@@ -196,8 +197,8 @@ def bus_breaking_up(tracker: Tracker, still_detected: bool = False) -> set[int]:
 def test_pieces_of_a_bus_whose_detection_broke_up_start_no_tracks():
     """A bus near the camera came out of vehicleseg as a few small boxes inside it for its last frames (replay
     session2_center, a bus driving out at the bottom): each piece started a track, the bus reported again as
-    vehicles without a reference point.  Pieces inside a big vehicle whose own detection is missing start none; the
-    bus coasts."""
+    vehicles without a reference point.  Pieces inside the last box of a big vehicle whose own detection is missing
+    start none; the bus coasts."""
     assert len(bus_breaking_up(Tracker(TrackerConfig(), image_size=(1920, 1080)))) == 1
     # the rule is what keeps them out: without it the pieces become vehicles of their own
     assert len(bus_breaking_up(Tracker(TrackerConfig(piece_area=np.inf), image_size=(1920, 1080)))) == 4

@@ -156,10 +156,11 @@ class TrackerConfig:
     # track's predicted size, and its fragments start no tracks, so a vehicle keeps one track behind a pole
     occluders: bool = True
     fragment_margin: float = 0.2  # a cut detection must lie mostly inside a track's predicted box grown by this
-    # a detection lying inside the predicted box of a vehicle at least this many times its area, whose own detection
-    # is missing this frame, is a piece of it (a bus's uniform roof breaks up into a few boxes as it drives out of
-    # the image): it starts no track
+    # a detection lying inside the last detected box of a vehicle at least this many times its area, whose own
+    # detection is missing this frame, is a piece of it (a bus's uniform roof breaks up into a few boxes as it drives
+    # out of the image): it starts no track
     piece_area: float = 4.0
+    piece_lost: float = 0.5  # ... when that last detection is at most this old (seconds)
     # with a calibration, a track without a measured box this frame (lost, or cut by an occluder) is predicted on the
     # road (its last 3D box moved at its road velocity) instead of at constant image velocity (_coast_on_road)
     coast_on_road: bool = True
@@ -286,8 +287,9 @@ class Tracker:
             matched_det.add(i)
             new_obs.append((tr, obs, i))
 
-        missing = [ti for ti, tr in enumerate(self.tracks) if ti not in matched_tracks and tr.ever_confirmed]
-        pieces = self._pieces(det_boxes, visible[missing])
+        missing = [tr.observations[-1].det_box for ti, tr in enumerate(self.tracks)
+                   if ti not in matched_tracks and tr.ever_confirmed and t - tr.last_t <= cfg.piece_lost]
+        pieces = self._pieces(det_boxes, np.array(missing, np.float64).reshape(-1, 4))
 
         # unmatched tracks: tentative ones survive tentative_lost seconds, confirmed ones coast for max_lost
         survivors = []
@@ -440,12 +442,13 @@ class Tracker:
         return pred if self.image_size is None else clip_boxes(pred, *self.image_size)
 
     def _pieces(self, boxes: np.ndarray, hosts: np.ndarray) -> np.ndarray:
-        """(N,) whether each detection is a piece of one of ``hosts`` (the visible predicted boxes of vehicles not
-        detected this frame): nearly all of it (90 %) inside a host at least ``piece_area`` times its area.  A large
-        uniform vehicle near the camera — a bus's roof as it drives out at the bottom — can come out of the detector
-        as a few small boxes instead of one; each started a track, the same vehicle reported again as short
-        vehicles without a reference point.  A vehicle still detected is no host, so a car emerging from behind a
-        truck starts its track as before."""
+        """(N,) whether each detection is a piece of one of ``hosts`` (the last detected boxes of vehicles not
+        detected this frame, lost for at most ``piece_lost``): nearly all of it (90 %) inside a host at least
+        ``piece_area`` times its area.  A large uniform vehicle near the camera — a bus's roof as it drives out at
+        the bottom — can come out of the detector as a few small boxes instead of one; each started a track, the
+        same vehicle reported again as short vehicles without a reference point.  A vehicle still detected is no
+        host, so a car emerging from behind a truck starts its track as before; nor is a track's *predicted* box,
+        which, for a vehicle leaving the image, can cover the whole frame and the far vehicles in it."""
         if len(hosts) == 0 or len(boxes) == 0:
             return np.zeros(len(boxes), bool)
         area = np.prod(boxes[:, 2:] - boxes[:, :2], axis=1)
