@@ -173,42 +173,52 @@ def test_a_vehicle_leaving_at_the_bottom_keeps_its_track():
     assert len(finished) == 1 and len(finished[0].observations) == n
 
 
-def bus_breaking_up(tracker: Tracker, still_detected: bool = False) -> set[int]:
+def bus_breaking_up(tracker: Tracker, gap: int = 0) -> tuple[set[int], list]:
     """A bus driving out of a 1080p image at the bottom, detected whole for 20 frames, then (its uniform roof filling
-    the view) as three small boxes inside where it was, for 8 frames — with ``still_detected`` its own box is there
-    as well (a car emerging beside it).  Returns every confirmed track id reported."""
-    ids, t = set(), 0.0
-    for k in range(28):
+    the view) as three small boxes inside where it was, for 8 frames, after ``gap`` frames with no detection at all;
+    a car emerges from behind its top edge meanwhile.  Returns every confirmed track id reported and each frame's
+    result."""
+    ids, results, t = set(), [], 0.0
+    for k in range(28 + gap):
         y0 = 400 + 12 * k
         bus = np.array([700.0, y0, 1200.0, min(y0 + 700.0, 1080.0)])
         if k < 20:
             boxes = bus[None]
+        elif k < 20 + gap:
+            boxes = np.zeros((0, 4))
         else:
             pieces = np.array([[760.0, y0 + 60, 840.0, y0 + 200], [950.0, y0 + 150, 1030.0, y0 + 260],
                                [1080.0, y0 + 300, 1150.0, y0 + 420]])
             pieces[:, 3] = np.minimum(pieces[:, 3], 1080.0)
-            boxes = np.vstack([bus[None], pieces]) if still_detected else pieces
-        res = tracker.update(t, Detections(boxes, [0.9] * len(boxes), [2] * len(boxes), ["car"] * len(boxes)))
+            car = np.array([[860.0, 560.0 + 4 * (k - 20), 1000.0, 660.0 + 6 * (k - 20)]])  # top of a car behind it
+            boxes = np.vstack([pieces, car])
+        n = len(boxes)
+        res = tracker.update(t, Detections(boxes, [0.9] * n, [2] * n, ["car"] * n))
         ids |= {int(i) for i in res.track_ids if i}
+        results.append(res)
         t += 0.04
-    return ids
+    return ids, results
 
 
-def test_pieces_of_a_bus_whose_detection_broke_up_start_no_tracks():
-    """A bus near the camera came out of vehicleseg as a few small boxes inside it for its last frames (replay
-    session2_center, a bus driving out at the bottom): each piece started a track, the bus reported again as
-    vehicles without a reference point.  Pieces inside the last box of a big vehicle whose own detection is missing
-    start none; the bus coasts."""
-    assert len(bus_breaking_up(Tracker(TrackerConfig(), image_size=(1920, 1080)))) == 1
-    # the rule is what keeps them out: without it the pieces become vehicles of their own
-    assert len(bus_breaking_up(Tracker(TrackerConfig(piece_area=np.inf), image_size=(1920, 1080)))) == 4
+def test_a_big_vehicle_missing_from_the_detections_still_occludes():
+    """A bus near the camera came out of vehicleseg as a few small boxes on its roof for its last frames (replay
+    session2_center, a bus driving out at the bottom), with the top of a car emerging from behind it: the pieces
+    started tracks (the bus reported again) and the car's track began on its visible top, whose bottom edge is the
+    bus's roof.  The bus's last box still occludes for ``lost_occludes`` seconds: the pieces and the car are occluded
+    (not measured, no new tracks), the bus coasts."""
+    ids, results = bus_breaking_up(Tracker(TrackerConfig(), image_size=(1920, 1080)))
+    assert len(ids) == 1
+    assert all(r.occluded.all() for r in results[20:])
+    # the rule is what keeps them out: without it the pieces and the car become vehicles of their own
+    ids, results = bus_breaking_up(Tracker(TrackerConfig(big_occluder=np.inf), image_size=(1920, 1080)))
+    assert len(ids) == 5 and not any(r.occluded.any() for r in results[20:])
 
 
-def test_boxes_inside_a_vehicle_still_detected_are_not_pieces_of_it():
-    """While the big vehicle is still detected, a smaller box inside its box is another vehicle (partly hidden by
-    it: the paper's occlusion heuristic decides), so the piece rule leaves it alone."""
-    tracker = Tracker(TrackerConfig(drop_occluded=False), image_size=(1920, 1080))
-    assert len(bus_breaking_up(tracker, still_detected=True)) == 4
+def test_a_vehicle_missing_for_longer_no_longer_occludes():
+    """After ``lost_occludes`` seconds without a detection the bus's old box is no longer an occluder: what is
+    seen there then is tracked."""
+    ids, results = bus_breaking_up(Tracker(TrackerConfig(lost_occludes=0.5), image_size=(1920, 1080)), gap=14)
+    assert len(ids) == 5 and not any(r.occluded.any() for r in results[34:])
 
 
 def test_track_states_and_bad_input():
