@@ -150,8 +150,9 @@ def test_occlusion_heuristic_drops_the_farther_detection():
 
 def test_a_vehicle_leaving_at_the_bottom_keeps_its_track():
     """A car driving out of the image at the bottom edge (growing and speeding up as it nears the camera, as on the
-    BrnoCompSpeed views): the detector sees only its part still in view, which shrinks every frame.  Against the whole box the filter predicts, that part failed the size gate and started a new
-    track, confirmed after three frames: the same vehicle reported twice (on the replays, 7 of session1_center's
+    BrnoCompSpeed views): the detector sees only its part still in view, which shrinks every frame.  Against the
+    whole box the filter predicts, that part failed the size gate and started a new track, confirmed after three
+    frames: the same vehicle reported twice (on the replays, 7 of session1_center's
     33 vehicles were such 1-3 frame fragments).  Compared with the predicted box cut to the image, it stays one
     track to the end."""
     W, H = 1920, 1080

@@ -441,8 +441,8 @@ class Tracker:
 
     def _behind_lost(self, boxes: np.ndarray, matched: set[int], t: float) -> np.ndarray:
         """(N,) detections occluded by a big vehicle not detected this frame: the last detected box of a confirmed
-        track lost for at most ``lost_occludes`` seconds, not farther from the camera, at least ``big_occluder`` times the
-        detection's area, covering more than ``occlusion_overlap`` of it.
+        track lost for at most ``lost_occludes`` seconds, not farther from the camera, at least ``big_occluder``
+        times the detection's area, covering more than ``occlusion_overlap`` of it.
 
         Near the camera a bus or truck can drop out of the detector for a few frames (its uniform roof filling the
         view as it drives out of the image), leaving a few small boxes on it and, behind it, the top of a car
