@@ -265,8 +265,7 @@ class Tracker:
                 _coast_on_road(self.camera, tr, t, min_span=cfg.coast_min_span)
         pred = np.array([tr.kf.box for tr in self.tracks]).reshape(-1, 4)
         completed = complete_boxes(det_boxes, cut, pred)  # (T, N, 4): det_boxes where nothing is cut
-        visible = self._visible(pred)
-        pairs = self._associate(visible, completed, det_boxes, cut.any(axis=1))
+        pairs = self._associate(self._visible(pred), completed, det_boxes, cut.any(axis=1))
         if cfg.drop_occluded:
             occluded |= self._behind_lost(det_boxes, {ti for ti, _ in pairs}, t)
 
