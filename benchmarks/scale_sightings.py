@@ -13,6 +13,7 @@ box or the exact base swapped in, to separate the error of the boxes, of the bas
     .venv/bin/python benchmarks/scale_sightings.py replay /tmp/sightings/*.pkl --variant chain --estimator iou_threshold=0.9
     .venv/bin/python benchmarks/scale_sightings.py replay /tmp/sightings/*.pkl --variant chain --until 60,120
     .venv/bin/python benchmarks/scale_sightings.py replay /tmp/sightings/*.pkl --variant chain,shifted_box --halves
+    .venv/bin/python benchmarks/scale_sightings.py replay /tmp/sightings/*.pkl --variant exact_sides,exact_ends,true_type,exact_box_true_type
 """
 
 from __future__ import annotations
@@ -117,14 +118,20 @@ def variant_sightings(records: list[Record], variant: str) -> list[tuple[int, fl
     """(frame, t, sighting) with what ``variant`` swaps in: chain (as seen), exact_box (renderer's 2D box),
     exact_base (renderer's 3D-box base centre), exact (both), hull (the tracker's hull box), shifted_box (every
     detector box moved by the scene's median renderer − detector offset of its left, top and right edges: an
-    oracle per-scene correction, the best any one correction per scene can do)."""
+    oracle per-scene correction, the best any one correction per scene can do), true_type and exact_box_true_type
+    (a perfect classifier: each sighting's type probabilities one-hot on the renderer's model, so only vehicles of a
+    catalogue type are aligned, each with its own model — what a fine-grained classifier could give at best),
+    exact_sides / exact_ends (the renderer's left and right edges / top and bottom edges only, the detector's
+    other two: which pair of edges the error comes from)."""
     shift = scene_edge_shift(records) if variant == "shifted_box" else None
     out = []
     for r in records:
         s = r.sighting
         if shift is not None:
             s = replace(s, box=tuple(float(v) for v in np.add(s.box, shift)))
-        if variant in ("exact_box", "exact"):
+        if variant.endswith("true_type"):
+            s = replace(s, type_probs={r.true_model or "?": 1.0})
+        if variant in ("exact_box", "exact", "exact_box_true_type"):
             if r.true_box is None:
                 continue
             s = replace(s, box=tuple(float(v) for v in r.true_box))
@@ -132,6 +139,14 @@ def variant_sightings(records: list[Record], variant: str) -> list[tuple[int, fl
             if r.true_corners is None or s.base is None:
                 continue
             s = replace(s, base=_exact_base(r), corners=r.true_corners)
+        if variant in ("exact_sides", "exact_ends"):
+            if r.true_box is None:
+                continue
+            keep = (0, 2) if variant == "exact_sides" else (1, 3)
+            box = list(s.box)
+            for k in keep:
+                box[k] = float(r.true_box[k])
+            s = replace(s, box=tuple(box))
         if variant == "hull" and r.hull_box is not None:
             s = replace(s, box=tuple(float(v) for v in r.hull_box))
         out.append((r.frame, float(s.t), s))

@@ -24,12 +24,14 @@ def scene(cam, load_benchmark):
     """A dump of 12 catalogue vehicles whose detector boxes all carry the same halo, with the exact boxes as truth."""
     mod = load_benchmark("scale_sightings")
     models = load_align_models("skoda_octavia_mk1_liftback,skoda_octavia_mk1_combi,skoda_fabia_mk1_hatchback")
+    names = list(models)
     frames = vehicle_sightings(cam, models, np.random.default_rng(3), 12)
     records = []
     for n, sightings in enumerate(frames):
-        for s in sightings:
+        for s in sightings:  # vehicle_sightings gives track k + 1 the type names[k % 3]
             records.append(mod.Record(n, replace(s, box=tuple(np.add(s.box, HALO))), None, true_id=s.track_id,
-                                      true_box=s.box, true_visible=1.0))
+                                      true_box=s.box, true_model=names[(s.track_id - 1) % len(names)],
+                                      true_visible=1.0))
     return mod, {"scene": "halo", "camera": cam, "true": TRUE_SCALE, "records": records}
 
 
@@ -47,6 +49,32 @@ def test_the_oracle_shift_removes_a_halo_the_chain_scales_by(scene):
     shifted = mod.replay(data, "shifted_box", min_vehicles=4)
     assert chain["error"] is not None and abs(chain["error"]) > 2.0  # the halo biases λ*
     assert abs(shifted["error"]) < 1.0
+
+
+def test_exact_sides_and_exact_ends_swap_in_one_pair_of_edges(scene):
+    mod, data = scene
+    sides = [s.box for _, _, s in mod.variant_sightings(data["records"], "exact_sides")]
+    ends = [s.box for _, _, s in mod.variant_sightings(data["records"], "exact_ends")]
+    for rec, a, b in zip(data["records"], sides, ends):
+        true, det = np.asarray(rec.true_box), np.asarray(rec.sighting.box)
+        assert np.allclose(np.asarray(a)[[0, 2]], true[[0, 2]]) and np.allclose(np.asarray(a)[[1, 3]], det[[1, 3]])
+        assert np.allclose(np.asarray(b)[[1, 3]], true[[1, 3]]) and np.allclose(np.asarray(b)[[0, 2]], det[[0, 2]])
+    # the halo's sides (4 px each) are most of its bias: the true sides alone bring λ* close
+    chain = mod.replay(data, "chain", min_vehicles=4)["error"]
+    assert abs(mod.replay(data, "exact_sides", min_vehicles=4)["error"]) < abs(chain) / 2
+
+
+def test_true_type_aligns_each_vehicle_with_its_own_model_only(scene):
+    mod, data = scene
+    res = mod.replay(data, "true_type", min_vehicles=4)
+    truth = {r.true_id: r.true_model for r in data["records"]}
+    assert res["matches"] and all(m.model == truth[m.track_id] for m in res["matches"])
+    # a vehicle of no catalogue type (true model unknown) is not aligned at all
+    unknown = [replace(r, true_model="generic_sedan") if r.true_id == 1 else r for r in data["records"]]
+    res = mod.replay({**data, "records": unknown}, "true_type", min_vehicles=4)
+    assert 1 not in {m.track_id for m in res["matches"]} and len(res["matches"]) >= 4
+    exact = mod.replay(data, "exact_box_true_type", min_vehicles=4)
+    assert abs(exact["error"]) < 0.5  # exact boxes and the true types: the estimator's own error only
 
 
 def test_both_halves_of_a_biased_scene_share_its_bias(scene):
