@@ -13,7 +13,7 @@ box or the exact base swapped in, to separate the error of the boxes, of the bas
     .venv/bin/python benchmarks/scale_sightings.py replay /tmp/sightings/*.pkl --variant chain --estimator iou_threshold=0.9
     .venv/bin/python benchmarks/scale_sightings.py replay /tmp/sightings/*.pkl --variant chain --until 60,120
     .venv/bin/python benchmarks/scale_sightings.py replay /tmp/sightings/*.pkl --variant chain,shifted_box --halves
-    .venv/bin/python benchmarks/scale_sightings.py replay /tmp/sightings/*.pkl --variant exact_sides,exact_ends,true_type,exact_box_true_type
+    .venv/bin/python benchmarks/scale_sightings.py replay /tmp/sightings/*.pkl --variant exact_sides,exact_box_true_type
 """
 
 from __future__ import annotations
