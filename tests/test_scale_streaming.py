@@ -207,6 +207,31 @@ def test_classifier_probabilities_from_an_onnx_graph(tmp_path, fixed_batch):
     assert sum(p[0].values()) == pytest.approx(1.0, abs=1e-5)
 
 
+def test_types_that_fit_about_as_well_as_the_best_pool_their_matches(cam, models):
+    """Without a classifier the best-fitting type names the track; the matches of every shortlisted type whose mean
+    peak IoU is within ``type_margin`` of it enter the track's λ too (a car of unknown make fits several similar
+    types about equally; taking one alone jumps between their lengths)."""
+    frames = vehicle_sightings(cam, models, np.random.default_rng(2), 6)
+    matches = {}
+    for margin in (0.0, 1.0):
+        est = ScaleEstimator(models, min_vehicles=4, refine_base=False, type_margin=margin)
+        est.set_camera(cam)
+        run(est, frames)
+        assert est.result().converged
+        matches[margin] = {m.track_id: m for m in est._matches}
+    assert matches[0.0].keys() == matches[1.0].keys()
+    for tid, alone in matches[0.0].items():
+        pooled = matches[1.0][tid]
+        assert pooled.model == alone.model  # the track's type is still the best-fitting one
+        assert len(pooled.lambdas) >= len(alone.lambdas)
+    # the three types are all shortlisted and all fit above the IoU threshold: every track pools more matches
+    assert all(len(matches[1.0][t].lambdas) > len(m.lambdas) for t, m in matches[0.0].items())
+    est = ScaleEstimator(models, min_vehicles=4, refine_base=False)  # the default margin keeps exact geometry exact
+    est.set_camera(cam)
+    run(est, frames)
+    assert est.result().raw_scale == pytest.approx(TRUE_SCALE, rel=0.01)
+
+
 def test_classifier_probabilities_steer_the_types(cam, models):
     """Track-mean probabilities: only the named type is aligned, and its matches carry the weight."""
     est = ScaleEstimator(models, min_vehicles=2, refine_base=False)

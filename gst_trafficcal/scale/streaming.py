@@ -8,7 +8,10 @@ visible, unoccluded sightings with a 3D box; when the track ends (not seen for `
 
 * without classifier probabilities every type is tried (a cheap single pass over all of them on the largest
   sighting, then the ``shortlist`` best in full on every chosen sighting) and the type with the best mean peak
-  IoU over the track's sightings is the track's type — the match quality decides;
+  IoU over the track's sightings is the track's type — the match quality decides; the matches of every type
+  within ``type_margin`` (0.02) of that mean peak IoU are pooled into the track's λ (a car of unknown make fits
+  several similar types about equally, and one of them alone jumps between their lengths; measured at stop 29,
+  docs/bbscale_streaming.md);
 * with them (:mod:`.classifier`, track-mean probabilities) each type with probability > 0 contributes its
   matches weighted by IoU x probability, as the paper does.
 
@@ -174,7 +177,7 @@ class ScaleEstimator:
                  track_timeout: float = 1.0, min_box: float = 24.0, shortlist: int = 3, agreement: float = 0.08,
                  refine_base: bool = True, bandwidth: float = 0.05,
                  shape_range: tuple[float, float] | None = (0.8, 3.5), shape_tolerance: float | None = None,
-                 min_peak: float = 0.0, loose=None, select: str = "largest"):
+                 min_peak: float = 0.0, loose=None, select: str = "largest", type_margin: float = 0.02):
         if not 0.0 < iou_threshold < 1.0:
             raise InputError(f"iou-threshold must be between 0 and 1, got {iou_threshold:g}")
         if min_vehicles < 1:
@@ -192,6 +195,7 @@ class ScaleEstimator:
         self.bandwidth = float(bandwidth)
         self.shape_range, self.shape_tolerance = shape_range, shape_tolerance
         self.min_peak = float(min_peak)
+        self.type_margin = float(type_margin)
         self.loose = tuple(int(np.sign(v)) for v in loose) if loose is not None else None
         if select not in SELECTIONS:
             raise InputError(f"sighting selection must be one of {', '.join(SELECTIONS)}, got {select!r}")
@@ -415,10 +419,12 @@ class ScaleEstimator:
                     wts.append(a.iou[k] * probs[n])
             model = max(per_type, key=lambda n: probs[n])
         else:
-            model = max(per_type, key=lambda n: np.mean([a.iou.max() for a in per_type[n]]))
-            ks = [a.kept(self.iou_threshold) for a in per_type[model]]
-            lams = [a.lambda_ij[k] for a, k in zip(per_type[model], ks)]
-            wts = [a.iou[k] for a, k in zip(per_type[model], ks)]
+            quality = {n: float(np.mean([a.iou.max() for a in per_type[n]])) for n in per_type}
+            model = max(quality, key=quality.get)
+            pooled = [a for n in per_type if quality[n] >= quality[model] - self.type_margin for a in per_type[n]]
+            ks = [a.kept(self.iou_threshold) for a in pooled]
+            lams = [a.lambda_ij[k] for a, k in zip(pooled, ks)]
+            wts = [a.iou[k] for a, k in zip(pooled, ks)]
         lam, w = np.concatenate(lams), np.concatenate(wts)
         ok = np.isfinite(lam) & (lam > 0) & (w > 0)
         if not ok.any() or np.mean([a.iou.max() for a in per_type[model]]) < self.min_peak:
