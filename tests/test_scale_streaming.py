@@ -150,6 +150,8 @@ def test_bad_model_names_and_parameters(models):
         ScaleEstimator(models, min_vehicles=0)
     with pytest.raises(InputError, match="sighting selection must be one of largest, spread"):
         ScaleEstimator(models, select="smallest")
+    with pytest.raises(InputError, match="type margin"):
+        ScaleEstimator(models, type_margin=-0.01)
 
 
 def test_sightings_chosen_largest_or_spread_over_the_size_range(models):

@@ -195,6 +195,8 @@ class ScaleEstimator:
         self.bandwidth = float(bandwidth)
         self.shape_range, self.shape_tolerance = shape_range, shape_tolerance
         self.min_peak = float(min_peak)
+        if not type_margin >= 0.0:
+            raise InputError(f"type margin is an IoU difference, 0 or more, got {type_margin:g}")
         self.type_margin = float(type_margin)
         self.loose = tuple(int(np.sign(v)) for v in loose) if loose is not None else None
         if select not in SELECTIONS:
