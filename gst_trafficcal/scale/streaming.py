@@ -412,24 +412,22 @@ class ScaleEstimator:
                 per_type[n] = aligned
         if not per_type:
             return False
-        if probs:
-            lams, wts = [], []
-            for n, aligned in per_type.items():
-                for a in aligned:
-                    k = a.kept(self.iou_threshold)
-                    lams.append(a.lambda_ij[k])
-                    wts.append(a.iou[k] * probs[n])
+        quality = {n: float(np.mean([a.iou.max() for a in aligned])) for n, aligned in per_type.items()}
+        if probs:  # every named type, its matches weighted by the track-mean probability (the paper)
             model = max(per_type, key=lambda n: probs[n])
-        else:
-            quality = {n: float(np.mean([a.iou.max() for a in per_type[n]])) for n in per_type}
+            weight = {n: probs[n] for n in per_type}
+        else:  # the best-fitting type names the track; the types within type_margin of it are pooled
             model = max(quality, key=quality.get)
-            pooled = [a for n in per_type if quality[n] >= quality[model] - self.type_margin for a in per_type[n]]
-            ks = [a.kept(self.iou_threshold) for a in pooled]
-            lams = [a.lambda_ij[k] for a, k in zip(pooled, ks)]
-            wts = [a.iou[k] for a, k in zip(pooled, ks)]
+            weight = {n: 1.0 for n in per_type if quality[n] >= quality[model] - self.type_margin}
+        lams, wts = [], []
+        for n, p in weight.items():
+            for a in per_type[n]:
+                k = a.kept(self.iou_threshold)
+                lams.append(a.lambda_ij[k])
+                wts.append(a.iou[k] * p)
         lam, w = np.concatenate(lams), np.concatenate(wts)
         ok = np.isfinite(lam) & (lam > 0) & (w > 0)
-        if not ok.any() or np.mean([a.iou.max() for a in per_type[model]]) < self.min_peak:
+        if not ok.any() or quality[model] < self.min_peak:
             return True  # aligned but unmatched: the status counts it
         lam, w = lam[ok], w[ok]
         peaks = np.array([a.lambda_ij[a.best] for a in per_type[model] if a.iou.max() > self.iou_threshold])

@@ -598,7 +598,7 @@ def _rect(box: np.ndarray) -> np.ndarray:
 
 def _inside(boxes: np.ndarray, hosts: np.ndarray) -> np.ndarray:
     """(M, N): the fraction of each of ``boxes``' (N, 4) area inside each of ``hosts`` (M, 4) — whether a fragment
-    cut by a static occluder belongs to a vehicle's box."""
+    cut by a static occluder belongs to a vehicle's box, and how much of a detection a lost big vehicle covers."""
     lt = np.maximum(hosts[:, None, :2], boxes[None, :, :2])
     rb = np.minimum(hosts[:, None, 2:], boxes[None, :, 2:])
     inter = np.prod((rb - lt).clip(min=0), axis=2)
