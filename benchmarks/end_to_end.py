@@ -88,6 +88,7 @@ class Row:
     ratio_err_scene: float | None = None  # same, the segments' lengths as the scene's camera measures them
     reference_ratio_err: float | None = None  # same for the scene's true / rendering camera
     scale_err_pct: float | None = None  # λ / λ_scene − 1
+    road_err_pct: float | None = None  # the run's VPs' road distances at λ_scene against the truth (vp_road_error)
     vehicles: int = 0
     measured: int = 0
     unmeasured: dict[str, int] = field(default_factory=dict)
@@ -268,6 +269,7 @@ def run_scene(scene: Scene, mode: str, work: Path, fresh: bool = False, detector
         return row
     row.ratio_err = evaluate_calibration(gt, cam).ratio_rel_pct.mean / 100
     row.ratio_err_scene = evaluate_calibration(as_measured_by(gt, reference.camera), cam).ratio_rel_pct.mean / 100
+    row.road_err_pct = vp_road_error(scene.folder, cam, reference.camera.scale)
     if not row.has_scale or not (out / "system.json").is_file():
         return row
     if reference.camera.scale:
@@ -278,6 +280,20 @@ def run_scene(scene: Scene, mode: str, work: Path, fresh: bool = False, detector
     row.errors_kmh = [float(v) for v in sp.errors_abs_kmh]
     row.recall, row.false_positives, row.matched_valid = sp.recall, sp.false_positives, sp.matched_valid
     return row
+
+
+def vp_road_error(folder: Path, camera, true_scale: float | None) -> float | None:
+    """How much the run's vanishing points alone stretch the road (%): the distances the rendered vehicles'
+    reference points travel in five frames, measured with ``camera``'s VPs at the scene's true λ, against the
+    renderer's (``benchmarks/vp1_constant_speed.py``'s "road distance error at the true scale"). With the λ error
+    beside it, it splits a fully automatic run's speed error into its two parts: the speeds are off by about
+    (1 + λ err)(1 + road err) − 1.  None without per-frame truth (frames.jsonl) or a true scale."""
+    from vp1_constant_speed import reference_pairs, road_distance_error
+
+    if not true_scale or not (folder / "frames.jsonl").is_file():
+        return None
+    pairs = reference_pairs(folder)
+    return road_distance_error(pairs, camera, true_scale) if len(pairs[2]) else None
 
 
 def as_measured_by(gt, camera):
@@ -343,9 +359,10 @@ def _why(warnings: list[str], element: str) -> str:
 
 
 def scene_table(rows: list[Row]) -> str:
-    lines = ["| scene | mode | calibration | ratio err vs segments / vs scene camera (scene camera's) | λ err % | vehicles (measured) | "
-             "mean / median / p95 km/h | recall | FP | every measured vehicle: n, mean / p95 km/h | fps wall / CPU |",
-             "|---|---|---|---|---|---|---|---|---|---|---|"]
+    lines = ["| scene | mode | calibration | ratio err vs segments / vs scene camera (scene camera's) | λ err % | "
+             "road err % at true λ | vehicles (measured) | mean / median / p95 km/h | recall | FP | "
+             "every measured vehicle: n, mean / p95 km/h | fps wall / CPU |",
+             "|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
         if r.failure and not r.vehicles:
             cal = f"run failed: {r.failure}"
@@ -358,7 +375,8 @@ def scene_table(rows: list[Row]) -> str:
         lines.append(
             f"| {r.scene} | {r.mode} | {cal} | {_f(r.ratio_err, '.3f')} / {_f(r.ratio_err_scene, '.3f')} "
             f"({_f(r.reference_ratio_err, '.3f')}) | "
-            f"{_f(r.scale_err_pct, '+.1f')} | {r.vehicles} ({r.measured}) | {_f(r.stat('mean'))} / "
+            f"{_f(r.scale_err_pct, '+.1f')} | {_f(r.road_err_pct, '+.1f')} | {r.vehicles} ({r.measured}) | "
+            f"{_f(r.stat('mean'))} / "
             f"{_f(r.stat('median'))} / {_f(r.stat('p95'))} | {_f(r.recall, '.3f')} "
             f"({r.matched_valid}/{r.gt_valid}) | {_f(r.false_positives, 'd')} | {len(r.truth_errors_kmh)}, "
             f"{_f(_stat(np.abs(r.truth_errors_kmh), 'mean'))} / {_f(_stat(np.abs(r.truth_errors_kmh), 'p95'))} | "
@@ -385,8 +403,15 @@ def pooled(rows: list[Row]) -> dict:
             "fp_per_min": (sum(r.false_positives or 0 for r in conv) / (sum(r.seconds for r in conv) / 60)
                            if conv and sum(r.seconds for r in conv) else None),
             "ratio_err_mean": float(np.mean(ratios)) if ratios else None,
+            "scale_err_mean_abs_pct": _mean_abs([r.scale_err_pct for r in rows]),
+            "road_err_mean_abs_pct": _mean_abs([r.road_err_pct for r in rows]),
             "fps_wall": frames / sum(r.wall_s for r in rows) if rows and sum(r.wall_s for r in rows) else None,
             "fps_cpu": frames / sum(r.cpu_s for r in rows) if rows and sum(r.cpu_s for r in rows) else None}
+
+
+def _mean_abs(values: list) -> float | None:
+    v = [abs(x) for x in values if x is not None]
+    return float(np.mean(v)) if v else None
 
 
 def _reason_kind(reason: str) -> str:
@@ -567,7 +592,10 @@ def main() -> None:
             "its reference points follow (frames.jsonl). Distance-ratio error: mean relative, against the "
             "ground-truth segments / against the same segments as the scene's camera measures them (in brackets: "
             "the scene camera's own error against the segments; on replays the recording's real measurements). "
-            "λ err: scale against the scene camera's. fps: wall clock on the shared machine / per CPU-second. "
+            "λ err: scale against the scene camera's. road err at true λ: how much the run's vanishing points alone "
+            "stretch the road — the distances the rendered vehicles' reference points travel in five frames, measured "
+            "with the run's VPs and the scene camera's λ, against the renderer's (median); the speeds are off by "
+            "about (1 + λ err)(1 + road err) − 1. fps: wall clock on the shared machine / per CPU-second. "
             "Recall in the pooled table counts the cars of scenes without a scale as missed (in brackets: over "
             "scenes with a scale only); the paper reports the 99th percentile, not the 95th.\n\n"
             "## Per scene\n\n" + per_scene + "\n\n## Pooled\n\n" + table + "\n\n## Vehicles without a speed\n\n"
