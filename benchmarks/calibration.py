@@ -3,6 +3,7 @@
 Usage:
   .venv/bin/python benchmarks/calibration.py [--presets highway_day,vp2_far,...] [--duration 120]
          [--work out/bench_calib] [--methods edgelets,gradient] [--json out.json] [--boxes]
+         [--scenes DIR,DIR...] [--config FIELD=VALUE ...]
 
 Each preset is rendered once into ``--work/<preset>`` with `trafficcal synth` (reused when present) and
 calibrated with both VP2 methods.  Per scene and method: VP1 / VP2 angular error (degrees between the 3D
@@ -17,6 +18,11 @@ calibration (the recipe and the busiest windows of benchmarks/scale.py, reused f
 /tmp/replays).  They are scored twice: against the recording's measured segments (its gt_data.pkl; the
 rendering camera itself is not exact against them, its own error is printed as ``render cam``) and against the
 rendering camera (the distances it gives for the same segments: what a perfect vpdetect would reach).
+
+``--scenes`` scores folders rendered earlier (any with video.mp4, calibration.json and gt_data.pkl, e.g. the
+end-to-end benchmark's renders) as they are; ``--config FIELD=VALUE`` (repeatable) sets a field of
+``CalibratorConfig`` for every run, e.g. ``--config min_duration=55`` (declare later, on more evidence) or
+``--config edgelet_width=1920``.  The focal error is printed signed (+: too long, VP2 too far out).
 """
 
 from __future__ import annotations
@@ -50,10 +56,12 @@ def render(preset: str, duration: float, out: Path, boxes: bool) -> Path:
     return out
 
 
-def score(scene: Path, method: str, max_duration: float) -> dict:
-    """Calibrate one rendered scene and compare with its exact calibration."""
+def score(scene: Path, method: str, max_duration: float, config: dict | None = None) -> dict:
+    """Calibrate one rendered scene and compare with its exact calibration; ``config``: more
+    ``CalibratorConfig`` fields."""
     truth = load_calibration(scene / "calibration.json").camera
-    res = calibrate_video(scene / "video.mp4", CalibratorConfig(method=method, max_duration=max_duration))
+    res = calibrate_video(scene / "video.mp4", CalibratorConfig(**{"method": method, "max_duration": max_duration,
+                                                                   **(config or {})}))
     row: dict = {"scene": scene.name, "method": method, "state": res.calibration.state,
                  "reason": res.calibration.reason, "fps": res.frames_read / max(res.seconds_processing, 1e-9)}
     cam = res.calibration.camera
@@ -65,6 +73,7 @@ def score(scene: Path, method: str, max_duration: float) -> dict:
         vp1_deg=angle_between(homogeneous(cam.vp1), homogeneous(truth.vp1), truth.pp, f),
         vp2_deg=angle_between(homogeneous(cam.vp2), homogeneous(truth.vp2), truth.pp, f),
         focal_err=abs(cam.focal - f) / f,
+        focal_signed=(cam.focal - f) / f,
         seconds=res.calibration.confidence.get("seconds", math.nan),
     )
     rep = evaluate_calibration(load_gt_data(scene / "gt_data.pkl"), cam)
@@ -82,11 +91,11 @@ def _scale_bench():
     return mod
 
 
-def score_replay(scene: Path, method: str, max_duration: float) -> dict:
+def score_replay(scene: Path, method: str, max_duration: float, config: dict | None = None) -> dict:
     """:func:`score` on a replay, plus the ratio errors against the rendering camera and of that camera."""
     import dataclasses
 
-    row = score(scene, method, max_duration)
+    row = score(scene, method, max_duration, config)
     gt = load_gt_data(scene / "gt_data.pkl")
     truth = load_calibration(scene / "calibration.json").camera
     own = evaluate_calibration(gt, truth)
@@ -141,16 +150,23 @@ def main() -> None:
     ap.add_argument("--replay-work", type=Path, default=Path("out/replays"), help="replay renders (reused)")
     ap.add_argument("--json", type=Path, default=None)
     ap.add_argument("--speed", action="store_true", help="also measure fps on 1080p frames (first preset)")
+    ap.add_argument("--scenes", default="", help="rendered scene folders to score as they are (comma-separated)")
+    ap.add_argument("--config", action="append", default=[], metavar="FIELD=VALUE",
+                    help="a CalibratorConfig field for every run (repeatable), e.g. --config min_duration=55")
     args = ap.parse_args()
+    from options import field_overrides
+
+    config = field_overrides(CalibratorConfig(), args.config)
     methods = args.methods.split(",")
     rows = []
-    for preset in [p for p in args.presets.split(",") if p]:
-        scene = render(preset, args.duration, args.work / preset, args.boxes)
+    scenes = [render(p, args.duration, args.work / p, args.boxes) for p in args.presets.split(",") if p]
+    scenes += [Path(d) for d in args.scenes.split(",") if d]
+    for scene in scenes:
         for method in methods:
-            row = score(scene, method, args.max_duration)
+            row = score(scene, method, args.max_duration, config)
             rows.append(row)
             print(_fmt(row), flush=True)
-    _summary([r for r in rows if "render_mean" not in r], methods, "synth presets")
+    _summary([r for r in rows if "render_mean" not in r], methods, "synth presets" if not args.scenes else "scenes")
     if args.replays:
         sb = _scale_bench()
         names = list(sb.REPLAY_STARTS) if args.replays == "all" else args.replays.split(",")
@@ -158,7 +174,7 @@ def main() -> None:
         for name in names:
             scene = sb.render_replay(name, args.replay_work)
             for method in methods:
-                row = score_replay(scene, method, args.max_duration)
+                row = score_replay(scene, method, args.max_duration, config)
                 replay_rows.append(row)
                 print(_fmt(row), flush=True)
         _summary(replay_rows, methods, "replays, vs recording", "ratio_mean")
@@ -193,7 +209,7 @@ def _fmt(r: dict) -> str:
     if "ratio_mean" not in r:
         return f"{r['scene']:18s} {r['method']:9s} {r['state']:7s} {r['reason']}  ({r['fps']:.0f} fps)"
     text = (f"{r['scene']:18s} {r['method']:9s} VP1 {r['vp1_deg']:6.2f} deg  VP2 {r['vp2_deg']:6.2f} deg  "
-            f"focal {r['focal_err']:6.3f}  ratio mean {r['ratio_mean']:.4f} median {r['ratio_median']:.4f}  "
+            f"focal {r['focal_signed']:+7.3f}  ratio mean {r['ratio_mean']:.4f} median {r['ratio_median']:.4f}  "
             f"after {r['seconds']:5.1f} s  {r['fps']:5.0f} fps")
     if "vs_render_mean" in r:
         text += (f"  | vs render cam {r['vs_render_mean']:.4f} / {r['vs_render_median']:.4f}"
