@@ -5,7 +5,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from gst_trafficcal.vanishing.edgelets import (Edgelets, detect_edgelets, detect_gradient_edgels, seeds,
+from gst_trafficcal.vanishing.edgelets import (Edgelets, detect_edgelets, detect_gradient_edgels, interior, seeds,
                                                towards)
 
 
@@ -115,3 +115,26 @@ def test_long_orientation_window_removes_pixel_locking_of_jagged_near_horizontal
         assert abs(long_) < 0.5 * abs(short), (theta, short, long_)
     # and the long window does not hurt steeper edges
     assert abs(np.median(_signed_errors(17.0, along=8))) < 0.3
+
+
+def test_interior_edgelets_are_those_with_a_changed_image_on_both_sides():
+    """A dark car body on a mid-grey road with a light window band across it: the body's outline has the road on
+    one side, the band's two edges have the body and the window — both unlike the road — on theirs."""
+    road = np.full((120, 200), 100, np.uint8)
+    frame = road.copy()
+    frame[40:90, 50:150] = 40  # body
+    frame[58:68, 50:150] = 160  # window band across the whole body
+    frame = cv2.GaussianBlur(frame, (0, 0), 0.8)
+    e = detect_edgelets(frame, threshold=6.0, max_seeds=5000)
+    e = e.subset(e.quality >= 2.5)
+    x, y = e.points[:, 0], e.points[:, 1]
+    inside_x = (x > 60) & (x < 140)
+    on_band = inside_x & ((np.abs(y - 57.5) < 1.5) | (np.abs(y - 67.5) < 1.5))
+    on_outline = inside_x & ((np.abs(y - 39.5) < 1.5) | (np.abs(y - 89.5) < 1.5))
+    assert on_band.sum() > 20 and on_outline.sum() > 20
+    half = cv2.resize(road, (100, 60), interpolation=cv2.INTER_AREA).astype(np.float32)  # a coarser background
+    keep = interior(e, frame, half, 0.5, threshold=15.0)
+    assert keep[on_band].all() and not keep[on_outline].any()
+    # the same image as its own background: nothing changed, nothing is interior
+    assert not interior(e, frame, frame.astype(np.float32), 1.0, threshold=15.0).any()
+    assert interior(e.subset(np.zeros(len(e), bool)), frame, half, 0.5, 15.0).shape == (0,)

@@ -30,7 +30,7 @@ from ..calibration import Calibration
 from ..diamond import DiamondSpace, Peak, all_of, focal_mask, horizon_mask, rasterise
 from ..errors import GeometryError, InputError
 from ..geometry import Camera
-from .edgelets import Edgelets, detect_edgelets, detect_gradient_edgels, towards
+from .edgelets import Edgelets, detect_edgelets, detect_gradient_edgels, interior, towards
 from .foreground import RunningForeground
 from .constant_speed import AlongLanes, LaneMotion, vp1_along_lanes
 from .tracks import MotionLines, TrackParams
@@ -56,13 +56,16 @@ class CalibratorConfig:
     max_duration: float = 180.0     # give up (state failed) when not converged after this much video
     check_interval: float = 5.0     # peaks are re-estimated this often
     min_tracks: int = 60
-    min_edgelets: int = 3000
+    min_edgelets: int = 2000         # voted edgelets for VP2 (interior ones: about half of all; 3000 of all until stop 30)
     min_vp1_support: float = 0.15   # share of the track weight through VP1
     vp1_stable_deg: float = 0.5     # movement of VP1 between checks (viewing-sphere degrees)
     vp2_stable_deg: float = 1.0
     vp1_exclusion_deg: float = 12.0  # edgelets whose line passes this close to VP1 are dropped
     vp1_near_fraction: float = 0.3  # edgelets closer to VP1 than this x width get proportionally less weight
     min_quality: float = 2.5        # edgelet quality (singular value ratio) to keep
+    interior_edges: float = 15.0    # VP2 only from edgelets inside vehicles: both sides of the edge differ from the
+                                    # background by more than this (grey levels); outline edges of rounded bodies
+                                    # tilt with the view (vp2_far: f -11 % -> -1 %); 0: every edgelet
     focal_range: tuple[float, float] | None = None  # px; default (0.3, 6) x image width
     horizon_max_deg: float = 30.0   # VP2 only where the horizon VP1-VP2 is within this of horizontal (90: off)
     accumulator_size: int = 128
@@ -220,6 +223,9 @@ class VPCalibrator:
             e = detect_gradient_edgels(small, self._fg)
         if self.cfg.method == "edgelets":
             e = e.subset(e.quality >= self.cfg.min_quality)
+            if self.cfg.interior_edges > 0 and self.fg_model.bg is not None:
+                e = e.subset(interior(e, small, self.fg_model.bg, self.fg_scale / self.edge_scale,
+                                      self.cfg.interior_edges))
         e = e.scaled(1.0 / self.edge_scale)
         if not len(e):
             return

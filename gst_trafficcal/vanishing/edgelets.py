@@ -229,6 +229,32 @@ def detect_gradient_edgels(gray: np.ndarray, mask: np.ndarray | None = None, thr
     return Edgelets(np.stack([xs + x0, ys + y0], axis=1).astype(np.float64), d, m, m)
 
 
+def interior(e: Edgelets, image: np.ndarray, background: np.ndarray, bg_scale: float, threshold: float,
+             offset: float = 3.0) -> np.ndarray:
+    """Bool (N,): edgelets inside a vehicle — the image ``offset`` pixels to either side of the edge (along its
+    normal) differs from the background by more than ``threshold`` grey levels on *both* sides — rather than on
+    its outline against the road.  Creases, windows, lights and bumper lines are straight 3D edges across the
+    vehicle; the outline of a rounded body (and its shadow) is not, and tilts with the viewing angle, which moves
+    a far VP2 by degrees (docs/vpdetect.md, stop 30).  ``image``: the grey image the edgelets were found in;
+    ``background``: a background model of it at ``bg_scale`` of its size (e.g. the calibrator's foreground
+    model)."""
+    from scipy.ndimage import map_coordinates
+
+    if not len(e):
+        return np.zeros(0, bool)
+    img = image.astype(np.float32)
+    bg = np.asarray(background, np.float32)
+    normal = np.stack([-e.directions[:, 1], e.directions[:, 0]], axis=1)
+    least = np.full(len(e), np.inf)
+    for side in (1.0, -1.0):
+        q = e.points + side * offset * normal
+        a = map_coordinates(img, [q[:, 1], q[:, 0]], order=1, mode="nearest")
+        qb = (q + 0.5) * bg_scale - 0.5  # pixel centres at integers in both images
+        b = map_coordinates(bg, [qb[:, 1], qb[:, 0]], order=1, mode="nearest")
+        least = np.minimum(least, np.abs(a - b))
+    return least > threshold
+
+
 def towards(e: Edgelets, vp: np.ndarray, max_angle_deg: float) -> np.ndarray:
     """Bool (N,): edgelets whose line passes within ``max_angle_deg`` of the homogeneous point ``vp``."""
     vp = np.asarray(vp, dtype=np.float64)
