@@ -291,7 +291,41 @@ class DiamondSpace:
                 p = q
                 if done:
                     break
+        return _polish_angular(p, w, residual, mask, self.points_to_pixels)
+
+
+def _polish_angular(p: np.ndarray, w: np.ndarray, residual, mask: Mask | None, to_pixels,
+                    near: float = np.radians(3.0), scale: float = np.radians(0.5)) -> np.ndarray:
+    """A last pseudo-Huber (soft-L1) fit of the angular residuals of the lines within ``near`` of p, scale
+    ``scale``: the Welsch kernel before it settles on the densest mode of the residuals, which for a far VP2 sits
+    off their centre when the edges' directions drift across the image (measured on stop 30's renders: vp2_far focal
+    error −6.9 → −2.3 %, session0_right +4.6 → +1.8 %, six others within 0.3 %).  p unchanged when too few lines
+    are near or the fit leaves the mask."""
+    from scipy.optimize import least_squares
+
+    r0, _ = residual(p)
+    keep = np.abs(r0) < np.sin(near)
+    if keep.sum() < 10:
         return p
+    e1, e2 = _tangent_basis(p)
+    sw = np.sqrt(w[keep])
+
+    def on_sphere(t: np.ndarray) -> np.ndarray:
+        q = p + t[0] * e1 + t[1] * e2
+        return q / np.linalg.norm(q)
+
+    def f(t: np.ndarray) -> np.ndarray:
+        return residual(on_sphere(t))[0][keep] * sw
+
+    try:
+        sol = least_squares(f, np.zeros(2), loss="soft_l1", f_scale=np.sin(scale), x_scale=1e-3)
+    except (ValueError, np.linalg.LinAlgError):
+        return p
+    q = on_sphere(sol.x)
+    q = q if q @ p >= 0 else -q
+    if not np.all(np.isfinite(q)) or (mask is not None and not _passes(mask, to_pixels(q))):
+        return p
+    return q
 
 
 def _line_spread(residuals: np.ndarray, near: float) -> float:
