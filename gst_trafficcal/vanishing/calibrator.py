@@ -56,7 +56,7 @@ class CalibratorConfig:
     max_duration: float = 180.0     # give up (state failed) when not converged after this much video
     check_interval: float = 5.0     # peaks are re-estimated this often
     min_tracks: int = 60
-    min_edgelets: int = 2000         # voted edgelets for VP2 (interior ones: about half of all; 3000 of all until stop 30)
+    min_edgelets: int = 2000        # voted edgelets for VP2 (interior ones, about half of all; 3000 before)
     min_vp1_support: float = 0.15   # share of the track weight through VP1
     vp1_stable_deg: float = 0.5     # movement of VP1 between checks (viewing-sphere degrees)
     vp2_stable_deg: float = 1.0
@@ -65,7 +65,7 @@ class CalibratorConfig:
     min_quality: float = 2.5        # edgelet quality (singular value ratio) to keep
     interior_edges: float = 15.0    # VP2 only from edgelets inside vehicles: both sides of the edge differ from the
                                     # background by more than this (grey levels); outline edges of rounded bodies
-                                    # tilt with the view (vp2_far: f -11 % -> -1 %); 0: every edgelet
+                                    # tilt with the view (vp2_far focal error -12.4 -> -6.9 %); 0: every edgelet
     focal_range: tuple[float, float] | None = None  # px; default (0.3, 6) x image width
     horizon_max_deg: float = 30.0   # VP2 only where the horizon VP1-VP2 is within this of horizontal (90: off)
     accumulator_size: int = 128
