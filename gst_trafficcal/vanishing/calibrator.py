@@ -11,7 +11,8 @@ between two consecutive checks with at least ``min_tracks`` tracks; then (``vp1_
 the lanes to where the tracks' perspective acceleration puts it (``constant_speed.py``: the lines fix VP1 across
 the lanes, the speeds along them), again with all tracks when VP2 is declared; a move of more than ``max_along`` of
 VP1's distance from the tracks is refused (traffic braking or pulling away as a whole, e.g. before a junction).  Edgelets gathered before that are kept
-in a bounded buffer; once VP1 is known, those not pointing at it are voted into a second Diamond Space masked
+in a bounded buffer (only those inside a vehicle, ``interior_edges``: not on its outline against the road);
+once VP1 is known, those not pointing at it are voted into a second Diamond Space masked
 to VP2 candidates giving a real focal length in ``focal_range``; VP2 is declared the same way.  The result
 is a :class:`~gst_trafficcal.calibration.Calibration` with state ``vps`` (no scale: that is bbscale's job),
 or, when it cannot converge, state ``failed`` with the reason (no traffic, no dominant direction, too short...).
