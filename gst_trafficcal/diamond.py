@@ -297,8 +297,8 @@ class DiamondSpace:
 def _polish_angular(p: np.ndarray, w: np.ndarray, residual, mask: Mask | None, to_pixels,
                     near: float = np.radians(3.0), scale: float = np.radians(0.5)) -> np.ndarray:
     """A last pseudo-Huber (soft-L1) fit of the angular residuals of the lines within ``near`` of p, scale
-    ``scale``.  The Welsch kernel before it settles on the densest mode of the residuals, which for a far VP2 lies
-    off their centre when the edges' directions drift across the image (stop 30's renders: vp2_far focal error
+    ``scale``.  The Welsch refinement run before it settles on the densest mode of the residuals, which for a far
+    VP2 lies off their centre when the edges' directions drift across the image (stop 30's renders: vp2_far focal error
     −6.9 → −2.3 %, session0_right +4.6 → +1.9 %; docs/vpdetect.md).  p unchanged when fewer than ten lines are
     near or the fit leaves the mask."""
     from scipy.optimize import least_squares

@@ -224,7 +224,7 @@ class VPCalibrator:
             e = detect_gradient_edgels(small, self._fg)
         if self.cfg.method == "edgelets":
             e = e.subset(e.quality >= self.cfg.min_quality)
-            if self.cfg.interior_edges > 0 and self.fg_model.bg is not None:
+            if self.cfg.interior_edges > 0:  # the foreground model is ready here, so its background exists
                 e = e.subset(interior(e, small, self.fg_model.bg, self.fg_scale / self.edge_scale,
                                       self.cfg.interior_edges))
         e = e.scaled(1.0 / self.edge_scale)

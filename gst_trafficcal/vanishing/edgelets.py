@@ -242,13 +242,13 @@ def interior(e: Edgelets, image: np.ndarray, background: np.ndarray, bg_scale: f
 
     if not len(e):
         return np.zeros(0, bool)
-    img = image.astype(np.float32)
     bg = np.asarray(background, np.float32)
     normal = np.stack([-e.directions[:, 1], e.directions[:, 0]], axis=1)
     least = np.full(len(e), np.inf)
     for side in (1.0, -1.0):
         q = e.points + side * offset * normal
-        a = map_coordinates(img, [q[:, 1], q[:, 0]], order=1, mode="nearest")
+        # sampled straight into float: no float copy of the whole frame per searched frame
+        a = map_coordinates(image, [q[:, 1], q[:, 0]], order=1, mode="nearest", output=np.float32)
         qb = (q + 0.5) * bg_scale - 0.5  # pixel centres at integers in both images
         b = map_coordinates(bg, [qb[:, 1], qb[:, 0]], order=1, mode="nearest")
         least = np.minimum(least, np.abs(a - b))
