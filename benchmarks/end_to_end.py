@@ -414,13 +414,10 @@ def _mean_abs(values: list) -> float | None:
     return float(np.mean(v)) if v else None
 
 
-def _reason_kind(reason: str) -> str:
-    """A reason without its numbers (the text before the first bracket or colon)."""
-    return reason.split("(")[0].split(":")[0].strip()
-
-
 def unmeasured_table(rows: list[Row]) -> str:
     """Per group (synth/replay, mode): the vehicles reported without a speed, by reason."""
+    from gst_trafficcal.outputs import reason_kind
+
     lines = ["| scenes | mode | vehicles | measured | unmeasured, by reason |", "|---|---|---|---|---|"]
     for kind in ("synth", "replay"):
         for mode in MODES:
@@ -430,7 +427,7 @@ def unmeasured_table(rows: list[Row]) -> str:
             reasons = Counter()
             for r in sel:
                 for reason, n in r.unmeasured.items():
-                    reasons[_reason_kind(reason)] += n
+                    reasons[reason_kind(reason)] += n
             lines.append(f"| {kind} ({len(sel)}) | {mode} | {sum(r.vehicles for r in sel)} | "
                          f"{sum(r.measured for r in sel)} | "
                          + "; ".join(f"{k}: {n}" for k, n in reasons.most_common()) + " |")

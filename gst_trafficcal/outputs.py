@@ -23,6 +23,7 @@ import io
 import json
 import math
 import os
+from collections import Counter
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -120,6 +121,17 @@ class VehicleEvent:
             return cls(**kwargs)
         except (TypeError, ValueError) as exc:
             raise InputError(f"{where}: bad vehicle event ({exc})") from None
+
+
+def reason_kind(reason: str) -> str:
+    """A reason without its numbers: the text before the first bracket or colon ("track too short (4 reference
+    points, needs 10)" -> "track too short"), so vehicles left unmeasured for the same cause count together."""
+    return reason.split("(")[0].split(":")[0].strip()
+
+
+def unmeasured_by_kind(events: Iterable[VehicleEvent]) -> list[tuple[str, int]]:
+    """(reason kind, vehicles) of the unmeasured ``events``, most frequent first (ties in first-seen order)."""
+    return Counter(reason_kind(e.reason) for e in events if not e.measured).most_common()
 
 
 # --------------------------------------------------------------------------- line-at-a-time files

@@ -26,7 +26,7 @@ from .errors import InputError
 from .fileio import atomic_write_text
 from .geometry import Camera
 from .evaluation import ErrorStats, Evaluation, plot_cumulative_errors
-from .outputs import AWAY_FROM_VP1, TOWARDS_VP1, VehicleEvent
+from .outputs import AWAY_FROM_VP1, TOWARDS_VP1, VehicleEvent, unmeasured_by_kind
 
 MAX_LISTED = 1000
 """At most this many vehicles are listed one per row (all are counted)."""
@@ -209,9 +209,9 @@ def _vehicles_section(events: Sequence[VehicleEvent]) -> str:
     dirs = Counter(e.direction for e in events)
     tables.append("<h3>Per direction</h3>" + _table(["direction", "vehicles"],
                                                     [[_direction_label(d), n] for d, n in dirs.most_common()]))
-    reasons = Counter(e.reason for e in events if not e.measured)
-    if reasons:
-        tables.append("<h3>Not measured</h3>" + _table(["reason", "vehicles"], reasons.most_common()))
+    reasons = unmeasured_by_kind(events)
+    if reasons:  # by kind; each vehicle's own reason, with its figures, is in the list below
+        tables.append("<h3>Not measured</h3>" + _table(["reason", "vehicles"], reasons))
     blocks.append("<div>" + "".join(tables) + "</div>")
     out.append('<div class="grid">' + "".join(blocks) + "</div>")
     listed = events[:MAX_LISTED]

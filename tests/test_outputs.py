@@ -19,7 +19,7 @@ from gst_trafficcal.evaluation import median_speeds
 from gst_trafficcal.geometry import Camera
 from gst_trafficcal.outputs import (
     EVENT_FIELDS, BrnoResultsWriter, CsvEventWriter, EventWriters, JsonlEventWriter, VehicleEvent,
-    frames_from_times, read_events, read_events_csv,
+    frames_from_times, read_events, read_events_csv, reason_kind, unmeasured_by_kind,
 )
 from gst_trafficcal.speed import track_speed
 
@@ -63,6 +63,19 @@ def test_jsonl_and_csv_round_trip(tmp_path: Path) -> None:
     assert read_events_csv(tmp_path / "sub" / "v.csv") == events
     header = (tmp_path / "sub" / "v.csv").read_text().splitlines()[0]
     assert header == ",".join(EVENT_FIELDS)
+
+
+def test_unmeasured_vehicles_count_by_the_kind_of_reason() -> None:
+    """Reasons that differ only in their figures count together; measured vehicles are not counted."""
+    reasons = ["track too short (4 reference points, needs 10)", "speed samples disagree (only 21 % within 10 % "
+               "of the vehicle's own motion, median 9.0 km/h, needs 60 %)", "track too short (9 reference points, "
+               "needs 10)", "no reference point (no 3D box: never fully visible, nor cut by the top edge alone)",
+               "track too short (1 reference points, needs 10)", "", "no calibration: VP2 not found"]
+    events = [VehicleEvent(i, "car", 0.0, 1.0, None if r else 80.0, reason=r) for i, r in enumerate(reasons)]
+    assert reason_kind(reasons[3]) == "no reference point" and reason_kind("stale") == "stale"
+    assert unmeasured_by_kind(events) == [("track too short", 3), ("speed samples disagree", 1),
+                                          ("no reference point", 1), ("no calibration", 1)]
+    assert unmeasured_by_kind(events[5:6]) == []
 
 
 def test_each_event_is_on_disk_before_the_next_is_written(tmp_path: Path) -> None:

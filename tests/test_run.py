@@ -93,6 +93,7 @@ def test_stream_ending_before_calibration_converges(clip, tmp_path):
     events = read_events(tmp_path / "vehicles.jsonl").events
     assert len(events) >= 5
     assert all(not e.measured and e.reason.startswith("no calibration") for e in events), events
+    assert f"not measured: {len(events)} x no calibration\n" in proc.stdout  # one line for one cause
     assert not (tmp_path / "overlay.mp4").exists()
     assert "did not converge" in proc.stderr and cal.reason in " ".join(proc.stderr.split())
     assert "no calibration" in (tmp_path / "report.html").read_text()

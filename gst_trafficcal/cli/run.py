@@ -238,6 +238,8 @@ def print_vehicles(console, events: list) -> None:
     """Counts per lane and direction and why vehicles were not measured."""
     from rich.table import Table
 
+    from ..outputs import unmeasured_by_kind
+
     measured = [e for e in events if e.measured]
     table = Table(title=f"{len(events)} vehicles, {len(measured)} measured")
     for col in ("lane", "direction", "vehicles", "measured", "mean km/h"):
@@ -249,8 +251,11 @@ def print_vehicles(console, events: list) -> None:
         table.add_row("?" if lane is None else str(lane), direction or "?", str(n), str(len(speeds)),
                       f"{sum(speeds) / len(speeds):.1f}" if speeds else "–")
     console.print(table)
-    for reason, n in Counter(e.reason for e in events if not e.measured).most_common():
-        console.print(f"  not measured: {n} x {reason}")
+    kinds = unmeasured_by_kind(events)
+    for kind, n in kinds:
+        console.print(f"  not measured: {n} x {kind}")
+    if kinds:
+        console.print("  (each vehicle's reason, with its figures: vehicles.jsonl, report.html)")
 
 
 @click.command(name="run")
