@@ -40,8 +40,10 @@ from .geometry import Camera
 from .lanes import LaneModel, lateral_offset
 from .outputs import AWAY_FROM_VP1, TOWARDS_VP1, VehicleEvent
 from .speed import DEFAULT_TAU, SpeedChecks, VehicleSpeed, _median_velocity, metres_per_pixel, vehicle_speed
-from .tracking.box3d import TypicalHeight, corners_fit_hulls, pixels_to_road
-from .tracking.tracker import Observation, Track, TrackerConfig, TrackState, rebuild_boxes
+from .tracking.box3d import TypicalHeight, box_heights, corners_fit_hulls, pixels_to_road
+from .tracking.tracker import Observation, Track, TrackerConfig, TrackState, measured_boxes, rebuild_boxes
+from .tracking.tracker import track_dimensions
+from .vehicles.classify import classify_dimensions, refined_label
 from .tracking.tracker import _set_references, _update_direction  # the tracker's own finishing step
 
 DEFAULT_MIN_TRACK_LENGTH = 10
@@ -96,6 +98,7 @@ class LiveSpeed:
     speed_kmh: float
     confidence: float  # share of τ-pair speeds within 10 % of the vehicle's own motion (speed.vehicle_speed)
     n_samples: int
+    label: str = ""  # the class its 3D boxes give so far (vehicles.classify.refined_label of the detector's)
 
 
 @dataclass(frozen=True)
@@ -288,11 +291,11 @@ class SpeedMeter:
         """The current estimate, from the last LIVE_WINDOW observations (bounded cost per frame, also for a
         vehicle standing in a queue for minutes; equal to the final speed for shorter tracks): none while the
         vehicle would be reported unmeasured."""
-        times, px, _ = self._reference_points(rec, self.camera, last=LIVE_WINDOW)
+        times, px, track = self._reference_points(rec, self.camera, last=LIVE_WINDOW)
         m = self._speed(px, times)
         if not m.measured:
             return None
-        return LiveSpeed(m.speed_kmh, m.agreement, m.n_pairs)
+        return LiveSpeed(m.speed_kmh, m.agreement, m.n_pairs, self._label(track)[0])
 
     def _speed(self, px: np.ndarray, times: np.ndarray) -> VehicleSpeed:
         """:func:`~gst_trafficcal.speed.vehicle_speed` with the meter's minimum track length (reference points
@@ -313,11 +316,32 @@ class SpeedMeter:
         if len(px) == 0:
             return self._unmeasured(rec, "no reference point (no 3D box: never fully visible, nor cut by the top edge alone)", cal)
         m = self._speed(px, times)
-        return self._finish(rec, track.label, m.speed_kmh, m.reason, times, px, cal, m.n_pairs, m.kept)
+        label, dims = self._label(track)
+        return self._finish(rec, label, m.speed_kmh, m.reason, times, px, cal, m.n_pairs, m.kept, dims)
+
+    def _label(self, track: Track) -> tuple[str, np.ndarray | None]:
+        """(label, dimensions in metres or None): the detector's label, refined by the vehicle's measured size
+        when the detector gave no class of its own (:mod:`gst_trafficcal.vehicles.classify`)."""
+        dims = self._dimensions(track)
+        return refined_label(track.label, None if dims is None else classify_dimensions(dims)[0]), dims
+
+    def _dimensions(self, track: Track) -> np.ndarray | None:
+        """Length, width and height (metres) of a vehicle whose reference points were just set: length and width
+        from the views where each is well conditioned (:func:`~gst_trafficcal.tracking.tracker.track_dimensions`),
+        height the median over its measured 3D boxes; None without a scale or a 3D box."""
+        cam = self.camera
+        if cam is None or cam.scale is None:
+            return None
+        lw = track_dimensions(track)
+        corners = [o.corners_px for o in measured_boxes(track) if o.corners_px is not None]
+        if lw is None or not corners:
+            return None
+        dims = np.array([lw[0], lw[1], float(np.median(box_heights(cam, np.array(corners))))]) * cam.scale
+        return dims if bool(np.all(np.isfinite(dims) & (dims > 0))) else None
 
     def _finish(self, rec: _Record, label: str, speed: float | None, reason: str, times: np.ndarray,
                 px: np.ndarray, cal: Calibration | None, n_pairs: int,
-                kept: np.ndarray | None = None) -> MeasuredVehicle:
+                kept: np.ndarray | None = None, dims: np.ndarray | None = None) -> MeasuredVehicle:
         """The vehicle's event; its reference points (for the BrnoCompSpeed results) only when it was measured,
         and then the ones its speed came from."""
         cam = cal.camera if cal is not None else None
@@ -330,7 +354,9 @@ class SpeedMeter:
         ts = [o.t for o in rec.observations]
         event = VehicleEvent(id=rec.id, label=label, first_timestamp_s=min(ts), last_timestamp_s=max(ts),
                              speed_kmh=speed, reason=reason, lane=lane, direction=direction,
-                             calibration_id=cal.id if cal is not None else None, n_samples=n_pairs)
+                             calibration_id=cal.id if cal is not None else None, n_samples=n_pairs,
+                             **({} if dims is None else dict(zip(("length_m", "width_m", "height_m"),
+                                                                 np.round(dims, 2).tolist()))))
         if speed is None:
             return MeasuredVehicle(event, np.zeros(0), np.zeros((0, 2)))
         if kept is not None:

@@ -38,7 +38,7 @@ from .fileio import atomic_write
 
 EVENT_FIELDS: tuple[str, ...] = (
     "id", "label", "first_timestamp_s", "last_timestamp_s", "speed_kmh", "reason", "lane", "direction",
-    "calibration_id", "n_samples",
+    "calibration_id", "n_samples", "length_m", "width_m", "height_m",
 )
 
 TOWARDS_VP1 = "towards_vp1"
@@ -84,11 +84,14 @@ class VehicleEvent:
     direction: str | None = None  # TOWARDS_VP1 / AWAY_FROM_VP1 / None (unknown)
     calibration_id: str | None = None
     n_samples: int = 0  # speed samples (point pairs) behind the median
+    length_m: float | None = None  # median 3D-box dimensions (metres), when a calibration with a scale gave them
+    width_m: float | None = None
+    height_m: float | None = None
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "id", int(self.id))
         object.__setattr__(self, "label", str(self.label))
-        for name in ("first_timestamp_s", "last_timestamp_s", "speed_kmh"):
+        for name in ("first_timestamp_s", "last_timestamp_s", "speed_kmh", "length_m", "width_m", "height_m"):
             object.__setattr__(self, name, _opt_float(getattr(self, name)))
         object.__setattr__(self, "lane", _opt_int(self.lane))
         object.__setattr__(self, "direction", direction_name(self.direction))

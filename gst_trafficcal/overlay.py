@@ -421,7 +421,8 @@ def marks_from_params(box: Sequence[float], label: str, object_id: int | None,
 
     Reads, all optional: ``"trafficcal-vehicle"`` as the tracker writes it (``box3d``: 8 corner pairs in pixels,
     ``ref_x``/``ref_y`` the reference point, ``direction`` +1/-1/0, see ``tracking.vehicle_meta``; also accepted:
-    ``ref_point`` [x, y], ``lane``) and ``"speed"`` {``speed_kmh``, optional ``lane``}.
+    ``ref_point`` [x, y], ``lane``) and ``"speed"`` {``speed_kmh``, optional ``lane``, optional ``label``: the
+    class the speedometer gives the vehicle, shown instead of the detector's ``label``}.
     """
     tv = params.get("trafficcal-vehicle", {})
     sp = params.get("speed", {})
@@ -444,7 +445,8 @@ def marks_from_params(box: Sequence[float], label: str, object_id: int | None,
     speed = sp.get("speed_kmh")
     if speed is not None and not (isinstance(speed, (int, float)) and np.isfinite(speed)):
         speed = None
-    return VehicleMark(box=tuple(float(v) for v in box), track_id=object_id, label=label,
+    label = sp.get("label") or label
+    return VehicleMark(box=tuple(float(v) for v in box), track_id=object_id, label=str(label),
                        speed_kmh=None if speed is None else float(speed), corners=corners, ref_point=ref,
                        direction=direction,
                        lane=int(lane) if isinstance(lane, (int, float)) and lane >= 0 else None)

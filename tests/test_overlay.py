@@ -211,7 +211,10 @@ def test_marks_from_the_tracker_structure() -> None:
                                                        "speed": {"speed_kmh": 71.5, "lane": 2}})
     np.testing.assert_allclose(m.corners, corners)
     assert m.ref_point == (33.0, 70.0) and m.direction == "away_from_vp1" and m.speed_kmh == 71.5
-    assert m.lane == 2 and m.track_id == 5
+    assert m.lane == 2 and m.track_id == 5 and m.label == "car"
+    # the speedometer's class (from the vehicle's measured size) replaces the detector's label
+    van = marks_from_params((10, 20, 60, 80), "car", 5, {"speed": {"speed_kmh": 71.5, "label": "van"}})
+    assert van.label == "van" and mark_label(van, OverlayOptions()) == ["#5 van 71.5 km/h"]
     # a plain detection, and a vehicle not yet in 3D
     plain = marks_from_params((1, 2, 3, 4), "bus", None, {"detection": {"label": "bus"}})
     assert plain.corners is None and plain.direction is None and plain.speed_kmh is None

@@ -217,7 +217,7 @@ class Speedometer(TrafficcalTransform):
         for roi, s in labelled:
             live = out.speeds.get(s.id)
             if live is not None:
-                update_roi_params(buffer, roi.meta_id, "speed", speed_params(live, s.label))
+                update_roi_params(buffer, roi.meta_id, "speed", speed_params(live, live.label or s.label))
         if not self._emit(out.finished):
             return Gst.FlowReturn.ERROR
         if self._frames is not None and labelled and not self._write_frame(buffer, t):

@@ -118,6 +118,18 @@ def pixels_to_road(camera: Camera, points: np.ndarray) -> np.ndarray:
     return w[..., :2] * s[..., None]
 
 
+def box_heights(camera: Camera, corners_px: np.ndarray) -> np.ndarray:
+    """Heights (N,) in plane units of 3D boxes given by their image corners (N, 8, 2; order :data:`CORNER_BITS`):
+    per vertical edge the point of the top corner's viewing ray nearest the vertical through the bottom corner's
+    road point (camera at (0, 0, 1)), the median over the four edges (the image keeps no box parameters)."""
+    c = np.asarray(corners_px, np.float64).reshape(-1, 8, 2)
+    bottom = pixels_to_road(camera, c[:, :4])  # (N, 4, 2) road points of the bottom corners
+    w = world_rays(camera, c[:, 4:])  # (N, 4, 3) rays through the top corners (same x, y bits + 4)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        s = np.sum(bottom * w[..., :2], axis=-1) / np.sum(w[..., :2] ** 2, axis=-1)
+        return np.nanmedian(1.0 + s * w[..., 2], axis=1) if len(c) else np.zeros(0)
+
+
 def _pad_hulls(hulls: Sequence[np.ndarray]) -> np.ndarray:
     """List of (K_i, 2) hulls -> (N, K, 2), padded by repeating each hull's first point."""
     k = max(len(h) for h in hulls)
