@@ -206,6 +206,12 @@ def _vehicles_section(events: Sequence[VehicleEvent]) -> str:
         lane_rows.append(["unknown" if lane is None else f"lane {lane}", lanes[lane], lane_meas[lane],
                           _num(float(np.mean(v))) if len(v) else "–"])
     tables.append("<h3>Per lane</h3>" + _table(["lane", "vehicles", "measured", "mean speed [km/h]"], lane_rows))
+    classes = Counter(e.label or "unknown" for e in events)
+    class_rows = []
+    for label, n in classes.most_common():
+        v = np.array([e.speed_kmh for e in measured if (e.label or "unknown") == label], float)
+        class_rows.append([label, n, len(v), _num(float(np.mean(v))) if len(v) else "–"])
+    tables.append("<h3>Per class</h3>" + _table(["class", "vehicles", "measured", "mean speed [km/h]"], class_rows))
     dirs = Counter(e.direction for e in events)
     tables.append("<h3>Per direction</h3>" + _table(["direction", "vehicles"],
                                                     [[_direction_label(d), n] for d, n in dirs.most_common()]))

@@ -136,6 +136,9 @@ def test_report_without_ground_truth() -> None:
     assert stats[1][:3] == ["all", str(len(measured)), f"{np.mean([e.speed_kmh for e in measured]):.2f}"]
     reasons = {r[0]: int(r[1]) for r in _table_after(page, "reason")[1:]}
     assert reasons == dict(Counter(e.reason for e in events if not e.measured))
+    classes = {r[0]: (int(r[1]), int(r[2])) for r in _table_after(page, "class")[1:]}
+    assert classes == {c: (sum(e.label == c for e in events), sum(e.label == c for e in measured))
+                       for c in ("car", "truck")}
     directions = {r[0]: int(r[1]) for r in _table_after(page, "direction")[1:]}
     assert directions == {"towards VP1": sum(e.direction == "towards_vp1" for e in events),
                           "away from VP1": sum(e.direction == "away_from_vp1" for e in events)}

@@ -251,6 +251,9 @@ def print_vehicles(console, events: list) -> None:
         table.add_row("?" if lane is None else str(lane), direction or "?", str(n), str(len(speeds)),
                       f"{sum(speeds) / len(speeds):.1f}" if speeds else "–")
     console.print(table)
+    classes = Counter(e.label or "unknown" for e in events)
+    if classes:
+        console.print("  classes: " + ", ".join(f"{label} {n}" for label, n in classes.most_common()))
     kinds = unmeasured_by_kind(events)
     for kind, n in kinds:
         console.print(f"  not measured: {n} x {kind}")
