@@ -94,6 +94,7 @@ class Row:
     unmeasured: dict[str, int] = field(default_factory=dict)
     errors_kmh: list[float] = field(default_factory=list)  # matched valid cars
     truth_errors_kmh: list[float] = field(default_factory=list)  # signed, every measured vehicle vs the rendering
+    classes: list[tuple[str, str]] = field(default_factory=list)  # (rendered class, reported label) of the same
     recall: float | None = None
     false_positives: int | None = None
     matched_valid: int = 0
@@ -275,7 +276,9 @@ def run_scene(scene: Scene, mode: str, work: Path, fresh: bool = False, detector
     if reference.camera.scale:
         row.scale_err_pct = 100 * (cam.scale / reference.camera.scale - 1)
     prepared = prepare_tracks(load_results(out / "system.json"), gt, width=size[0], height=size[1])
-    row.truth_errors_kmh = truth_errors(scene.folder / "frames.jsonl", events, out / "system.json", size)
+    matches = truth_matches(scene.folder / "frames.jsonl", events, out / "system.json", size)
+    row.truth_errors_kmh = [m[0] for m in matches]
+    row.classes = [(m[1], m[2]) for m in matches]
     sp = evaluate_speeds(gt, prepared, cam)
     row.errors_kmh = [float(v) for v in sp.errors_abs_kmh]
     row.recall, row.false_positives, row.matched_valid = sp.recall, sp.false_positives, sp.matched_valid
@@ -306,8 +309,11 @@ def as_measured_by(gt, camera):
     return replace(gt, distances=tuple(replace(d, distance=float(v)) for d, v in zip(gt.distances, plane)))
 
 
-def truth_errors(frames_jsonl: Path, events: list, results_json: Path, size: tuple[int, int]) -> list[float]:
-    """Signed speed error of every measured vehicle against the rendered vehicle its reference points follow.
+def truth_matches(frames_jsonl: Path, events: list, results_json: Path, size: tuple[int, int]
+                  ) -> list[tuple[float, str, str]]:
+    """(signed speed error, the rendered vehicle's class, the reported label) of every measured vehicle against
+    the rendered vehicle its reference points follow; classes as :data:`vehicles.classify.LABEL_OF_STYLE` names
+    the renderer's body styles.
 
     The renders' per-frame truth (frames.jsonl: reference point and speed of each vehicle) scores every measured
     vehicle, not only those BrnoCompSpeed's matching keeps (a car must be tracked between its measurement lines,
@@ -318,12 +324,15 @@ def truth_errors(frames_jsonl: Path, events: list, results_json: Path, size: tup
     """
     from gst_trafficcal.brnocompspeed import load_results
     from gst_trafficcal.synth.groundtruth import read_jsonl
+    from gst_trafficcal.vehicles.classify import LABEL_OF_STYLE
 
     if not frames_jsonl.is_file():
         return []
     truth: dict[int, dict[int, tuple[float, float, float]]] = {}
+    classes: dict[int, str] = {}
     for r in read_jsonl(frames_jsonl):
         truth.setdefault(int(r["id"]), {})[int(r["frame"])] = (*r["ref"], float(r["speed_kmh"]))
+        classes[int(r["id"])] = LABEL_OF_STYLE.get(str(r.get("class", "")), str(r.get("class", "")))
     tracks = {t.id: t for t in load_results(results_json).cars}
     out = []
     for e in events:
@@ -331,17 +340,17 @@ def truth_errors(frames_jsonl: Path, events: list, results_json: Path, size: tup
         if not e.measured or tr is None:
             continue
         frames = np.round(tr.frames).astype(int)
-        best = (0.05 * size[0], None)
-        for recs in truth.values():
+        best = (0.05 * size[0], None, "")
+        for vid, recs in truth.items():
             common = [(k, f) for k, f in enumerate(frames) if f in recs]
             if len(common) < max(2, len(frames) // 2):
                 continue
             ref = np.array([recs[f] for _, f in common])
             d = float(np.median(np.hypot(*(ref[:, :2] - tr.pos[[k for k, _ in common]]).T)))
             if d < best[0]:
-                best = (d, float(np.median(ref[:, 2])))
+                best = (d, float(np.median(ref[:, 2])), classes[vid])
         if best[1] is not None:
-            out.append(e.speed_kmh - best[1])
+            out.append((e.speed_kmh - best[1], best[2], e.label))
     return out
 
 
@@ -396,6 +405,7 @@ def pooled(rows: list[Row]) -> dict:
     return {"scenes": len(rows), "with_scale": len(conv), "with_vps": sum(r.has_vps for r in rows),
             "cars": int(e.size), **{k: _stat(e, k) for k in ("mean", "median", "p95", "p99")},
             "truth": {"vehicles": int(te.size), **{k: _stat(te, k) for k in ("mean", "median", "p95")}},
+            "class_accuracy": _class_accuracy([p for r in rows for p in r.classes]),
             "recall": sum(r.matched_valid for r in rows) / gt_valid if gt_valid else None,
             "recall_converged": (sum(r.matched_valid for r in conv) / max(1, sum(r.gt_valid for r in conv))
                                  if conv else None),
@@ -409,9 +419,37 @@ def pooled(rows: list[Row]) -> dict:
             "fps_cpu": frames / sum(r.cpu_s for r in rows) if rows and sum(r.cpu_s for r in rows) else None}
 
 
+def _class_accuracy(pairs: list[tuple[str, str]]) -> float | None:
+    return sum(t == label for t, label in pairs) / len(pairs) if pairs else None
+
+
 def _mean_abs(values: list) -> float | None:
     v = [abs(x) for x in values if x is not None]
     return float(np.mean(v)) if v else None
+
+
+CLASSES = ("car", "van", "bus", "truck", "motorcycle")
+
+
+def class_table(rows: list[Row]) -> str:
+    """Per group (synth/replay, mode): the labels of the measured vehicles against the rendered vehicles' classes
+    (right / rendered per class, the wrong labels in brackets)."""
+    lines = ["| scenes | mode | vehicles | labelled right | " + " | ".join(CLASSES) + " |",
+             "|---|---|---|---|" + "---|" * len(CLASSES)]
+    for kind in ("synth", "replay"):
+        for mode in MODES:
+            pairs = [p for r in rows if r.kind == kind and r.mode == mode for p in r.classes]
+            if not pairs:
+                continue
+            cells = []
+            for c in CLASSES:
+                got = Counter(label for true, label in pairs if true == c)
+                wrong = ", ".join(f"{k} {n}" for k, n in got.most_common() if k != c)
+                cells.append(f"{got[c]}/{sum(got.values())}" + (f" ({wrong})" if wrong else "") if got else "–")
+            right = sum(t == label for t, label in pairs)
+            lines.append(f"| {kind} ({sum(r.kind == kind and r.mode == mode for r in rows)}) | {mode} | {len(pairs)} | "
+                         f"{right / len(pairs):.3f} | " + " | ".join(cells) + " |")
+    return "\n".join(lines)
 
 
 def unmeasured_table(rows: list[Row]) -> str:
@@ -576,7 +614,8 @@ def main() -> None:
     per_scene = scene_table(rows)
     table, pooled_figs = summary_table(rows)
     reasons = unmeasured_table(rows)
-    print(per_scene + "\n\n" + table + "\n\n" + reasons)
+    classes = class_table(rows)
+    print(per_scene + "\n\n" + table + "\n\n" + reasons + "\n\n" + classes)
     if a.write:
         cmd = shlex.join(["benchmarks/end_to_end.py", *sys.argv[1:]])
         a.write.parent.mkdir(parents=True, exist_ok=True)
@@ -599,7 +638,10 @@ def main() -> None:
             "Every vehicle the product saw is reported; these got no speed, with the reason it gives (a vehicle "
             "whose reference points do not follow one vehicle, whose speed samples disagree or that was seen too "
             "briefly is not published with a guessed speed, and is not in the BrnoCompSpeed results file).\n\n"
-            + reasons + "\n")
+            + reasons + "\n\n## Vehicle classes\n\nThe label each measured vehicle is reported with (with the default "
+            "detector, which calls every vehicle a car: the class its measured 3D boxes give, `vehicles.classify`) "
+            "against the class of the rendered vehicle its reference points follow (as 'every measured vehicle'); "
+            "per rendered class: labelled right / measured, the other labels given in brackets.\n\n" + classes + "\n")
     if a.json:
         a.json.parent.mkdir(parents=True, exist_ok=True)
         a.json.write_text(json.dumps({"command": shlex.join(sys.argv), "rows": [asdict(r) for r in rows],

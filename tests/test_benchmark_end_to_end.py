@@ -40,3 +40,39 @@ def test_scene_table_shows_both_parts(load_benchmark):
     assert text.splitlines()[3].split("|")[header.index(" road err % at true λ ")] == " – "
     figs = b.pooled([row, no_vps])
     assert figs["scale_err_mean_abs_pct"] == 2.3 and np.isclose(figs["road_err_mean_abs_pct"], 5.86)
+
+
+def test_reported_labels_are_scored_against_the_rendered_classes(load_benchmark, tmp_path):
+    """Each measured vehicle is matched to the rendered vehicle its reference points follow; its label is scored
+    against that vehicle's class (body styles named as the classifier's labels)."""
+    import json
+
+    from gst_trafficcal.calibration import Calibration
+    from gst_trafficcal.outputs import BrnoResultsWriter, VehicleEvent
+    from gst_trafficcal.tracking.simulate import default_camera
+
+    b = load_benchmark("end_to_end")
+    size = (960, 540)
+    frames = tmp_path / "frames.jsonl"
+    with open(frames, "w") as fh:
+        for f in range(10):
+            for vid, cls, x in ((7, "bus", 100.0), (8, "estate", 600.0)):
+                fh.write(json.dumps({"frame": f, "id": vid, "class": cls, "ref": [x, 300.0 + 5 * f],
+                                     "speed_kmh": 80.0 if vid == 7 else 60.0}) + "\n")
+    writer = BrnoResultsWriter(tmp_path / "system.json", fps=25.0)
+    times = np.arange(10) / 25.0
+    writer.add(1, times, [[101.0, 300.0 + 5 * f] for f in range(10)])  # follows the bus
+    writer.add(2, times, [[599.0, 300.0 + 5 * f] for f in range(10)])  # follows the estate
+    writer.write(Calibration(default_camera(size), size, source="test"))
+    events = [VehicleEvent(1, "truck", 0.0, 0.36, 81.0), VehicleEvent(2, "car", 0.0, 0.36, 59.5),
+              VehicleEvent(3, "car", 0.0, 0.36, None, reason="track too short")]
+    got = b.truth_matches(frames, events, tmp_path / "system.json", size)
+    assert got == [(1.0, "bus", "truck"), (-0.5, "car", "car")]
+    rows = [b.Row("s", "synth", "auto", classes=[(t, label) for _, t, label in got] + [("bus", "bus")])]
+    text = b.class_table(rows)
+    cells = text.splitlines()[2].split("|")
+    header = text.splitlines()[0].split("|")
+    assert cells[header.index(" labelled right ")] == " 0.667 "
+    assert cells[header.index(" bus ")] == " 1/2 (truck 1) " and cells[header.index(" car ")] == " 1/1 "
+    assert cells[header.index(" van ")] == " – "
+    assert np.isclose(b.pooled(rows)["class_accuracy"], 2 / 3)
