@@ -95,6 +95,7 @@ class Row:
     errors_kmh: list[float] = field(default_factory=list)  # matched valid cars
     truth_errors_kmh: list[float] = field(default_factory=list)  # signed, every measured vehicle vs the rendering
     classes: list[tuple[str, str]] = field(default_factory=list)  # (rendered class, reported label) of the same
+    dims_log_ratio: list[list[float]] = field(default_factory=list)  # log(reported / rendered length, width, height)
     recall: float | None = None
     false_positives: int | None = None
     matched_valid: int = 0
@@ -279,6 +280,7 @@ def run_scene(scene: Scene, mode: str, work: Path, fresh: bool = False, detector
     matches = truth_matches(scene.folder / "frames.jsonl", events, out / "system.json", size)
     row.truth_errors_kmh = [m[0] for m in matches]
     row.classes = [(m[1], m[2]) for m in matches]
+    row.dims_log_ratio = [np.log(np.divide(m[4], m[3])).tolist() for m in matches if m[4] is not None]
     sp = evaluate_speeds(gt, prepared, cam)
     row.errors_kmh = [float(v) for v in sp.errors_abs_kmh]
     row.recall, row.false_positives, row.matched_valid = sp.recall, sp.false_positives, sp.matched_valid
@@ -310,10 +312,10 @@ def as_measured_by(gt, camera):
 
 
 def truth_matches(frames_jsonl: Path, events: list, results_json: Path, size: tuple[int, int]
-                  ) -> list[tuple[float, str, str]]:
-    """(signed speed error, the rendered vehicle's class, the reported label) of every measured vehicle against
-    the rendered vehicle its reference points follow; classes as :data:`vehicles.classify.LABEL_OF_STYLE` names
-    the renderer's body styles.
+                  ) -> list[tuple[float, str, str, tuple, tuple | None]]:
+    """(signed speed error, the rendered vehicle's class, the reported label, its rendered size (length, width,
+    height m), the reported one or None) of every measured vehicle against the rendered vehicle its reference
+    points follow; classes as :data:`vehicles.classify.LABEL_OF_STYLE` names the renderer's body styles.
 
     The renders' per-frame truth (frames.jsonl: reference point and speed of each vehicle) scores every measured
     vehicle, not only those BrnoCompSpeed's matching keeps (a car must be tracked between its measurement lines,
@@ -329,10 +331,11 @@ def truth_matches(frames_jsonl: Path, events: list, results_json: Path, size: tu
     if not frames_jsonl.is_file():
         return []
     truth: dict[int, dict[int, tuple[float, float, float]]] = {}
-    classes: dict[int, str] = {}
+    classes: dict[int, tuple[str, tuple]] = {}
     for r in read_jsonl(frames_jsonl):
         truth.setdefault(int(r["id"]), {})[int(r["frame"])] = (*r["ref"], float(r["speed_kmh"]))
-        classes[int(r["id"])] = LABEL_OF_STYLE.get(str(r.get("class", "")), str(r.get("class", "")))
+        cls = str(r.get("class", ""))
+        classes[int(r["id"])] = (LABEL_OF_STYLE.get(cls, cls), tuple(float(v) for v in r.get("size", (np.nan,) * 3)))
     tracks = {t.id: t for t in load_results(results_json).cars}
     out = []
     for e in events:
@@ -340,7 +343,7 @@ def truth_matches(frames_jsonl: Path, events: list, results_json: Path, size: tu
         if not e.measured or tr is None:
             continue
         frames = np.round(tr.frames).astype(int)
-        best = (0.05 * size[0], None, "")
+        best = (0.05 * size[0], None, ("", ()))
         for vid, recs in truth.items():
             common = [(k, f) for k, f in enumerate(frames) if f in recs]
             if len(common) < max(2, len(frames) // 2):
@@ -350,7 +353,9 @@ def truth_matches(frames_jsonl: Path, events: list, results_json: Path, size: tu
             if d < best[0]:
                 best = (d, float(np.median(ref[:, 2])), classes[vid])
         if best[1] is not None:
-            out.append((e.speed_kmh - best[1], best[2], e.label))
+            dims = (e.length_m, e.width_m, e.height_m)
+            out.append((e.speed_kmh - best[1], best[2][0], e.label, best[2][1],
+                        None if any(v is None for v in dims) else dims))
     return out
 
 
@@ -406,6 +411,7 @@ def pooled(rows: list[Row]) -> dict:
             "cars": int(e.size), **{k: _stat(e, k) for k in ("mean", "median", "p95", "p99")},
             "truth": {"vehicles": int(te.size), **{k: _stat(te, k) for k in ("mean", "median", "p95")}},
             "class_accuracy": _class_accuracy([p for r in rows for p in r.classes]),
+            "dimensions": _dimension_errors([d for r in rows for d in r.dims_log_ratio]),
             "recall": sum(r.matched_valid for r in rows) / gt_valid if gt_valid else None,
             "recall_converged": (sum(r.matched_valid for r in conv) / max(1, sum(r.gt_valid for r in conv))
                                  if conv else None),
@@ -423,6 +429,16 @@ def _class_accuracy(pairs: list[tuple[str, str]]) -> float | None:
     return sum(t == label for t, label in pairs) / len(pairs) if pairs else None
 
 
+def _dimension_errors(log_ratios: list[list[float]]) -> dict | None:
+    """Median and robust spread (1.4826 MAD) of log(reported / rendered) length, width and height."""
+    if not log_ratios:
+        return None
+    d = np.asarray(log_ratios, np.float64)
+    med = np.median(d, axis=0)
+    return {"vehicles": len(d), "median": med.round(3).tolist(),
+            "robust_std": (1.4826 * np.median(np.abs(d - med), axis=0)).round(3).tolist()}
+
+
 def _mean_abs(values: list) -> float | None:
     v = [abs(x) for x in values if x is not None]
     return float(np.mean(v)) if v else None
@@ -434,6 +450,7 @@ CLASSES = ("car", "van", "bus", "truck", "motorcycle")
 def class_table(rows: list[Row]) -> str:
     """Per group (synth/replay, mode): the labels of the measured vehicles against the rendered vehicles' classes
     (right / rendered per class, the wrong labels in brackets)."""
+    notes = []
     lines = ["| scenes | mode | vehicles | labelled right | " + " | ".join(CLASSES) + " |",
              "|---|---|---|---|" + "---|" * len(CLASSES)]
     for kind in ("synth", "replay"):
@@ -449,7 +466,11 @@ def class_table(rows: list[Row]) -> str:
             right = sum(t == label for t, label in pairs)
             lines.append(f"| {kind} ({sum(r.kind == kind and r.mode == mode for r in rows)}) | {mode} | {len(pairs)} | "
                          f"{right / len(pairs):.3f} | " + " | ".join(cells) + " |")
-    return "\n".join(lines)
+            dims = _dimension_errors([d for r in rows if r.kind == kind and r.mode == mode for d in r.dims_log_ratio])
+            if dims:
+                notes.append(f"{kind}, {mode}: {dims['vehicles']} vehicles, log(reported / rendered) length, width, "
+                             f"height median {dims['median']}, robust spread {dims['robust_std']}")
+    return "\n".join(lines) + ("\n\nMeasured dimensions: " + "; ".join(notes) + "." if notes else "")
 
 
 def unmeasured_table(rows: list[Row]) -> str:

@@ -58,17 +58,20 @@ def test_reported_labels_are_scored_against_the_rendered_classes(load_benchmark,
         for f in range(10):
             for vid, cls, x in ((7, "bus", 100.0), (8, "estate", 600.0)):
                 fh.write(json.dumps({"frame": f, "id": vid, "class": cls, "ref": [x, 300.0 + 5 * f],
+                                     "size": [12.0, 2.5, 3.2] if vid == 7 else [4.6, 1.8, 1.5],
                                      "speed_kmh": 80.0 if vid == 7 else 60.0}) + "\n")
     writer = BrnoResultsWriter(tmp_path / "system.json", fps=25.0)
     times = np.arange(10) / 25.0
     writer.add(1, times, [[101.0, 300.0 + 5 * f] for f in range(10)])  # follows the bus
     writer.add(2, times, [[599.0, 300.0 + 5 * f] for f in range(10)])  # follows the estate
     writer.write(Calibration(default_camera(size), size, source="test"))
-    events = [VehicleEvent(1, "truck", 0.0, 0.36, 81.0), VehicleEvent(2, "car", 0.0, 0.36, 59.5),
+    events = [VehicleEvent(1, "truck", 0.0, 0.36, 81.0, length_m=13.2, width_m=2.5, height_m=3.2),
+              VehicleEvent(2, "car", 0.0, 0.36, 59.5),
               VehicleEvent(3, "car", 0.0, 0.36, None, reason="track too short")]
     got = b.truth_matches(frames, events, tmp_path / "system.json", size)
-    assert got == [(1.0, "bus", "truck"), (-0.5, "car", "car")]
-    rows = [b.Row("s", "synth", "auto", classes=[(t, label) for _, t, label in got] + [("bus", "bus")])]
+    assert got == [(1.0, "bus", "truck", (12.0, 2.5, 3.2), (13.2, 2.5, 3.2)), (-0.5, "car", "car", (4.6, 1.8, 1.5), None)]
+    rows = [b.Row("s", "synth", "auto", classes=[(m[1], m[2]) for m in got] + [("bus", "bus")],
+                  dims_log_ratio=[np.log(np.divide(got[0][4], got[0][3])).tolist()])]
     text = b.class_table(rows)
     cells = text.splitlines()[2].split("|")
     header = text.splitlines()[0].split("|")
@@ -76,3 +79,5 @@ def test_reported_labels_are_scored_against_the_rendered_classes(load_benchmark,
     assert cells[header.index(" bus ")] == " 1/2 (truck 1) " and cells[header.index(" car ")] == " 1/1 "
     assert cells[header.index(" van ")] == " – "
     assert np.isclose(b.pooled(rows)["class_accuracy"], 2 / 3)
+    assert b.pooled(rows)["dimensions"] == {"vehicles": 1, "median": [0.095, 0.0, 0.0], "robust_std": [0.0, 0.0, 0.0]}
+    assert "log(reported / rendered) length, width, height median [0.095, 0.0, 0.0]" in text
