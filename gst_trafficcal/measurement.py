@@ -43,7 +43,7 @@ from .speed import DEFAULT_TAU, SpeedChecks, VehicleSpeed, _median_velocity, met
 from .tracking.box3d import TypicalHeight, box_heights, corners_fit_hulls, pixels_to_road
 from .tracking.tracker import Observation, Track, TrackerConfig, TrackState, measured_boxes, rebuild_boxes
 from .tracking.tracker import track_dimensions
-from .vehicles.classify import classify_dimensions, refined_label
+from .vehicles.classify import MAX_Z, classify_dimensions, refined_label
 from .tracking.tracker import _set_references, _update_direction  # the tracker's own finishing step
 
 DEFAULT_MIN_TRACK_LENGTH = 10
@@ -321,9 +321,13 @@ class SpeedMeter:
 
     def _label(self, track: Track) -> tuple[str, np.ndarray | None]:
         """(label, dimensions in metres or None): the detector's label, refined by the vehicle's measured size
-        when the detector gave no class of its own (:mod:`gst_trafficcal.vehicles.classify`)."""
+        when the detector gave no class of its own (:mod:`gst_trafficcal.vehicles.classify`); dimensions no class
+        explains (a flat or broken 3D box: a car 12 m long and half a metre tall) are not reported."""
         dims = self._dimensions(track)
-        return refined_label(track.label, None if dims is None else classify_dimensions(dims)[0]), dims
+        size = None if dims is None else classify_dimensions(dims)[0]
+        if size is not None and size.worst_z > MAX_Z:  # no vehicle is that shape: a degenerate 3D box, not reported
+            return track.label, None
+        return refined_label(track.label, size), dims
 
     def _dimensions(self, track: Track) -> np.ndarray | None:
         """Length, width and height (metres) of a vehicle whose reference points were just set: length and width
