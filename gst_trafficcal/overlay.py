@@ -99,8 +99,9 @@ class Canvas:
             cv2.polylines(t.array, pts, False, self._color(t, color), self._thick(t, thickness),
                           cv2.LINE_AA if t.factor == 1 else cv2.LINE_8, _SHIFT)
 
-    def rectangles(self, boxes: np.ndarray, color: Sequence[int], thickness: int = 1) -> None:
-        """Axis-aligned boxes (N, 4) = x0, y0, x1, y1 pixels; ``thickness < 0`` fills them."""
+    def rectangles(self, boxes: np.ndarray, color: Sequence[int], thickness: int = 1, alpha: float = 1.0) -> None:
+        """Axis-aligned boxes (N, 4) = x0, y0, x1, y1 pixels; ``thickness < 0`` fills them, with ``alpha`` < 1
+        blended over the picture (the video stays visible under a panel)."""
         boxes = np.asarray(boxes, np.float64).reshape(-1, 4)
         if not len(boxes):
             return
@@ -117,7 +118,11 @@ class Canvas:
             c = self._color(t, color)
             f = t.factor
             for x0, y0, x1, y1 in b:  # few boxes (labels): plain slicing is the fastest fill
-                t.array[y0 // f:-(-y1 // f), x0 // f:-(-x1 // f)] = c
+                region = t.array[y0 // f:-(-y1 // f), x0 // f:-(-x1 // f)]
+                if alpha >= 1.0:
+                    region[...] = c
+                else:
+                    region[...] = region * (1.0 - alpha) + np.asarray(c, np.float64) * alpha + 0.5
 
     def text(self, org: tuple[float, float], text: str, color: Sequence[int], scale: float = 0.5,
              thickness: int = 1) -> None:
@@ -128,9 +133,10 @@ class Canvas:
                             scale, self._color(t, color), thickness, cv2.LINE_AA)
 
     def label(self, anchor: tuple[float, float], lines: Sequence[str], scale: float = 0.5, thickness: int = 1,
-              fg: Sequence[int] = (255, 255, 255), bg: Sequence[int] = (0, 0, 0), above: bool = True) -> None:
-        """Lines of text on a filled box whose bottom-left (``above``) or top-left corner is ``anchor``,
-        kept inside the frame."""
+              fg: Sequence[int] = (255, 255, 255), bg: Sequence[int] = (0, 0, 0), above: bool = True,
+              alpha: float = 1.0) -> None:
+        """Lines of text on a filled box (opacity ``alpha``) whose bottom-left (``above``) or top-left corner is
+        ``anchor``, kept inside the frame."""
         if not lines:
             return
         sizes = [cv2.getTextSize(s, cv2.FONT_HERSHEY_SIMPLEX, scale, thickness) for s in lines]
@@ -143,7 +149,7 @@ class Canvas:
         y0 = float(np.clip(y0, 0, max(0, h - height)))
         x0, y0 = 2 * int(x0 // 2), 2 * int(y0 // 2)  # even: the box covers whole chroma samples
         width, height = width + width % 2, height + height % 2
-        self.rectangles(np.array([[x0, y0, x0 + width, y0 + height]]), bg, -1)
+        self.rectangles(np.array([[x0, y0, x0 + width, y0 + height]]), bg, -1, alpha)
         for k, (s, sz) in enumerate(zip(lines, sizes)):
             self.text((x0 + 3, y0 + line_h * (k + 1) - sz[1]), s, fg, scale, thickness)
 
@@ -218,6 +224,7 @@ class Style:
     horizon_bgr: tuple[int, int, int] = HORIZON_BGR
     text_bgr: tuple[int, int, int] = (255, 255, 255)
     text_bg_bgr: tuple[int, int, int] = (0, 0, 0)
+    panel_alpha: float = 0.55  # opacity of the counters panel's background
 
     def box_color(self, direction: str | None) -> tuple[int, int, int]:
         if direction == TOWARDS_VP1:
@@ -403,6 +410,9 @@ def draw_overlay(canvas: Canvas, marks: Sequence[VehicleMark], camera: Camera | 
             d = 2.0 + th
             cross = np.concatenate([np.stack([r - [d, 0], r + [d, 0]], 1), np.stack([r - [0, d], r + [0, d]], 1)])
             canvas.segments(cross, style.ref_point_bgr, th)
+    if options.counters and counter_lines:  # a translucent panel under the vehicles' labels: traffic stays visible
+        canvas.label((8, 8), list(counter_lines), fs, ft, style.text_bgr, style.text_bg_bgr,
+                     above=False, alpha=style.panel_alpha)
     if options.labels or options.speeds:
         for m in marks:
             lines = mark_label(m, options)
@@ -410,9 +420,6 @@ def draw_overlay(canvas: Canvas, marks: Sequence[VehicleMark], camera: Camera | 
                 top = np.min(m.corners[:, 1]) if m.corners is not None else m.box[1]
                 left = np.min(m.corners[:, 0]) if m.corners is not None else m.box[0]
                 canvas.label((left, top - 2), lines, fs, ft, style.text_bgr, style.text_bg_bgr)
-    if options.counters and counter_lines:
-        canvas.label((8, 8), list(counter_lines), fs, ft, style.text_bgr, style.text_bg_bgr,
-                     above=False)
 
 
 def marks_from_params(box: Sequence[float], label: str, object_id: int | None,

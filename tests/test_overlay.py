@@ -176,10 +176,17 @@ def test_labels_counters_and_toggles() -> None:
     ys, xs = np.nonzero(black)
     assert white.sum() > 30 and ys.max() <= 150 and xs.min() >= 38  # the label sits on its box
     img = np.full((H, W, 3), GREY, np.uint8)
+    img[:, ::2] = 64  # stripes: the video under the counters panel
+    before = img.copy()
     draw_overlay(canvas_for_bgr(img), [m], None, OverlayOptions(boxes=False, labels=False, speeds=False),
                  counter_lines=["vehicles: 3"])
-    ys, xs = np.nonzero(np.all(img == 0, axis=2))
+    ys, xs = np.nonzero(np.any(img != before, axis=2))
     assert ys.min() == 8 and xs.min() == 8  # the counter panel in the top-left corner
+    # translucent: darkened, the stripes still there (text aside)
+    a = STYLE.panel_alpha
+    panel = img[ys.min():ys.max() + 1, xs.min():xs.max() + 1, 0]
+    levels = {int(GREY[0] * (1 - a) + 0.5), int(64 * (1 - a) + 0.5)}
+    assert 0 < a < 1 and np.isin(panel, list(levels)).mean() > 0.6 and set(np.unique(panel)) >= levels
     img = np.full((H, W, 3), GREY, np.uint8)
     draw_overlay(canvas_for_bgr(img), [m], _camera(),
                  OverlayOptions(grid=False, horizon=False, boxes=False, labels=False, speeds=False, counters=False),

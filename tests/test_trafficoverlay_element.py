@@ -205,7 +205,8 @@ def test_property_toggles_and_counters() -> None:
     full = frame("")
     assert _near(full, STYLE.box_unknown_bgr, 10).any() and _near(full, STYLE.box_towards_bgr, 10).any()
     counters = full[:40, :110]
-    assert (counters.max(axis=2) < 10).mean() > 0.4 and (counters.min(axis=2) > 200).any()
+    # the translucent counters panel darkens the grey picture (128 -> 58) under white text
+    assert (counters.max(axis=2) < 70).mean() > 0.4 and (counters.min(axis=2) > 200).any()
     no_boxes = frame("draw-boxes=false")
     assert not _near(no_boxes, STYLE.box_unknown_bgr, 10).any()
     assert not _near(no_boxes, STYLE.box_towards_bgr, 10).any()
@@ -375,8 +376,8 @@ def test_nvr_overlay_reads_rtsp(script_env: dict[str, str], tmp_path: Path, rtsp
     assert f"uri={rtsp_url}" in out.stderr
     frames = _frames(out_path)
     assert 40 <= len(frames) <= 50
-    panel = frames[-1][8:30, 8:60]  # the counters panel: black box with white text
-    assert (panel.max(axis=2) < 40).mean() > 0.3 and (panel.min(axis=2) > 180).any()
+    panel = frames[-1][8:30, 8:60]  # the counters panel: a translucent dark box with white text
+    assert (panel.max(axis=2) < 80).mean() > 0.3 and (panel.min(axis=2) > 180).any()
 
 
 def test_nvr_overlay_streams_mpeg_ts_over_udp(script_env: dict[str, str], tmp_path: Path) -> None:
