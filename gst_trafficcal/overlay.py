@@ -410,9 +410,6 @@ def draw_overlay(canvas: Canvas, marks: Sequence[VehicleMark], camera: Camera | 
             d = 2.0 + th
             cross = np.concatenate([np.stack([r - [d, 0], r + [d, 0]], 1), np.stack([r - [0, d], r + [0, d]], 1)])
             canvas.segments(cross, style.ref_point_bgr, th)
-    if options.counters and counter_lines:  # a translucent panel under the vehicles' labels: traffic stays visible
-        canvas.label((8, 8), list(counter_lines), fs, ft, style.text_bgr, style.text_bg_bgr,
-                     above=False, alpha=style.panel_alpha)
     if options.labels or options.speeds:
         for m in marks:
             lines = mark_label(m, options)
@@ -420,6 +417,9 @@ def draw_overlay(canvas: Canvas, marks: Sequence[VehicleMark], camera: Camera | 
                 top = np.min(m.corners[:, 1]) if m.corners is not None else m.box[1]
                 left = np.min(m.corners[:, 0]) if m.corners is not None else m.box[0]
                 canvas.label((left, top - 2), lines, fs, ft, style.text_bgr, style.text_bg_bgr)
+    if options.counters and counter_lines:  # last, to stay readable; translucent: the traffic under it shows
+        canvas.label((8, 8), list(counter_lines), fs, ft, style.text_bgr, style.text_bg_bgr,
+                     above=False, alpha=style.panel_alpha)
 
 
 def marks_from_params(box: Sequence[float], label: str, object_id: int | None,
