@@ -159,8 +159,13 @@ def main() -> None:
     config = field_overrides(CalibratorConfig(), args.config)
     methods = args.methods.split(",")
     rows = []
+    given = [Path(d) for d in args.scenes.split(",") if d]
+    missing = [f"{d}: no {f}" for d in given for f in ("video.mp4", "calibration.json", "gt_data.pkl")
+               if not (d / f).is_file()]
+    if missing:  # before any work: a typo in the 20th folder should not cost the first 19 runs
+        raise SystemExit("--scenes: " + "; ".join(missing))
     scenes = [render(p, args.duration, args.work / p, args.boxes) for p in args.presets.split(",") if p]
-    scenes += [Path(d) for d in args.scenes.split(",") if d]
+    scenes += given
     for scene in scenes:
         for method in methods:
             row = score(scene, method, args.max_duration, config)

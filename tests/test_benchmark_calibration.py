@@ -17,3 +17,21 @@ def test_config_fields_reach_the_calibrator(load_benchmark, cuboid_clip_dense):
     # and a focal range the scene's camera is far outside of: no second vanishing point is accepted
     narrow = b.score(cuboid_clip_dense, "edgelets", 60.0, {"min_edgelets": 300, "focal_range": (1.0, 2.0)})
     assert narrow["state"] == "failed" and "ratio_mean" not in narrow
+
+
+def test_scene_folders_are_checked_before_any_run(tmp_path, cuboid_clip_dense):
+    """A missing or incomplete --scenes folder stops the benchmark at once, naming what is missing."""
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[1]
+    (tmp_path / "half").mkdir()
+    (tmp_path / "half" / "video.mp4").write_bytes(b"")
+    scenes = f"{cuboid_clip_dense},{tmp_path / 'half'},{tmp_path / 'nowhere'}"
+    proc = subprocess.run([sys.executable, str(root / "benchmarks" / "calibration.py"), "--presets", "",
+                           "--scenes", scenes], capture_output=True, text=True, timeout=120)
+    assert proc.returncode != 0 and "Traceback" not in proc.stderr
+    assert f"{tmp_path / 'half'}: no calibration.json" in proc.stderr
+    assert f"{tmp_path / 'nowhere'}: no video.mp4" in proc.stderr
+    assert str(cuboid_clip_dense) + ":" not in proc.stderr and proc.stdout == ""
