@@ -114,8 +114,13 @@ def test_every_vehicle_is_in_every_output(implicit):
     # evaluation from points the meter rejected)
     assert {t.id for t in results.cars} == {e.id for e in events if e.measured}
     for m, e in zip(msgs, events):
-        assert m.get("speed_kmh") == e.speed_kmh
+        assert m.get("speed_kmh") == e.speed_kmh and m["label"] == e.label and m.get("length_m") == e.length_m
     measured = [e for e in events if e.measured]
+    # the detector calls every vehicle a car; with the scale the meter gives each its class and size
+    assert {e.label for e in events} <= {"car", "van", "bus", "truck", "motorcycle"}
+    sized = [e for e in measured if e.length_m is not None]
+    # (the clip's cuboid vehicles through the background model's hulls: about half give a size some class explains)
+    assert len(sized) >= 5 and all(2 < e.length_m < 20 and 1 < e.height_m < 4.5 for e in sized)
     assert all(e.direction in ("towards_vp1", "away_from_vp1") and e.lane is not None for e in measured)
     assert {e.direction for e in measured} == {"towards_vp1", "away_from_vp1"}  # a two-way road
     assert all("too short" in e.reason or "no reference point" in e.reason for e in events if not e.measured)
