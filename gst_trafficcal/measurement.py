@@ -53,6 +53,7 @@ MIN_DIRECTION_SPAN = 0.05  # plane units the reference point must travel along t
 DEFAULT_STITCH_GAP = 1.0  # seconds: a track starting this soon after a vehicle was lost may continue it
 STITCH_LATERAL_M = 1.5  # metres across the road a continuing track may start from where the lost one was heading
 LIVE_WINDOW = 250  # observations behind the per-frame estimate of a vehicle still in view
+LIVE_LABEL_EVERY = 25  # observations between two classifications of a vehicle in view (its final one: when it leaves)
 
 
 @dataclass(frozen=True)
@@ -116,6 +117,8 @@ class _Record:
     observations: list[Observation] = field(default_factory=list)
     last_t: float = 0.0
     unboxed: list[int] = field(default_factory=list)  # observations that came without a 3D box but could have one
+    live_label: str = ""  # the class given to the vehicle in view (refreshed every LIVE_LABEL_EVERY observations)
+    live_label_at: int = -1  # how many observations it had then
 
     def track(self) -> Track:
         return Track(id=self.id, state=TrackState.FINISHED, observations=self.observations)
@@ -295,7 +298,10 @@ class SpeedMeter:
         m = self._speed(px, times)
         if not m.measured:
             return None
-        return LiveSpeed(m.speed_kmh, m.agreement, m.n_pairs, self._label(track)[0])
+        n = len(rec.observations)
+        if rec.live_label_at < 0 or n - rec.live_label_at >= LIVE_LABEL_EVERY:  # the size settles slowly: not
+            rec.live_label, rec.live_label_at = self._label(track)[0], n   # every frame (0.5 ms per vehicle)
+        return LiveSpeed(m.speed_kmh, m.agreement, m.n_pairs, rec.live_label)
 
     def _speed(self, px: np.ndarray, times: np.ndarray) -> VehicleSpeed:
         """:func:`~gst_trafficcal.speed.vehicle_speed` with the meter's minimum track length (reference points
