@@ -43,8 +43,8 @@ from .speed import DEFAULT_TAU, SpeedChecks, VehicleSpeed, _median_velocity, met
 from .tracking.box3d import TypicalHeight, box_heights, corners_fit_hulls, pixels_to_road
 from .tracking.tracker import Observation, Track, TrackerConfig, TrackState, measured_boxes, rebuild_boxes
 from .tracking.tracker import track_dimensions
-from .vehicles.classify import MAX_Z, classify_dimensions, refined_label
 from .tracking.tracker import _set_references, _update_direction  # the tracker's own finishing step
+from .vehicles.classify import MAX_Z, classify_dimensions, refined_label
 
 DEFAULT_MIN_TRACK_LENGTH = 10
 END_AFTER_MARGIN = 0.4  # seconds beyond the tracker's coasting time (max_lost) before a vehicle counts as gone

@@ -9,7 +9,7 @@ import pytest
 from gst_trafficcal.calibration import Calibration
 from gst_trafficcal.measurement import Sighting, SpeedMeter
 from gst_trafficcal.tracking.simulate import default_camera, vehicle_passing
-from gst_trafficcal.vehicles.catalogue import style_distributions
+from gst_trafficcal.vehicles.catalogue import BODY_STYLES, style_distributions
 from gst_trafficcal.vehicles.classify import LABEL_OF_STYLE, MAX_Z, classify_dimensions, refined_label
 
 SIZE = (960, 540)
@@ -25,6 +25,10 @@ def test_every_catalogue_style_at_its_mean_dimensions_is_its_own_class():
     assert [c.label for c in got] == want
     assert all(c.worst_z < 1e-9 and c.margin > 0 for c in got)
     assert {c.style for c in got} == set(styles)
+
+
+def test_every_body_style_has_a_label():
+    assert set(LABEL_OF_STYLE) == set(BODY_STYLES)
 
 
 def test_measured_dimensions_within_their_error_keep_the_class():

@@ -65,8 +65,9 @@ def classify_dimensions(dims: np.ndarray, noise: tuple[float, float, float] = ME
     sigma = np.sqrt(spread ** 2 + np.asarray(noise, np.float64) ** 2)  # (C, 3)
     z = (np.log(dims)[:, None, :] - mu[None]) / sigma[None]  # (N, C, 3)
     ll = -0.5 * np.sum(z * z, axis=2) - np.sum(np.log(sigma), axis=1)[None]  # (N, C)
-    labels = sorted(set(LABEL_OF_STYLE[n] for n in names))
-    of = np.array([labels.index(LABEL_OF_STYLE[n]) for n in names])
+    named = [LABEL_OF_STYLE.get(n, n) for n in names]  # a style a user added is reported by its own name
+    labels = sorted(set(named))
+    of = np.array([labels.index(n) for n in named])
     per = np.full((len(dims), len(labels)), -np.inf)
     for k in range(len(labels)):
         per[:, k] = ll[:, of == k].max(axis=1)
