@@ -235,7 +235,7 @@ def evaluate_run(gt_path: Path, summary: RunSummary, paths: RunPaths):
 
 
 def print_vehicles(console, events: list) -> None:
-    """Counts per lane and direction and why vehicles were not measured."""
+    """Counts per lane and direction, per class, and why vehicles were not measured (by kind of reason)."""
     from rich.table import Table
 
     from ..outputs import unmeasured_by_kind
