@@ -315,48 +315,16 @@ def truth_matches(frames_jsonl: Path, events: list, results_json: Path, size: tu
                   ) -> list[tuple[float, str, str, tuple, tuple | None]]:
     """(signed speed error, the rendered vehicle's class, the reported label, its rendered size (length, width,
     height m), the reported one or None) of every measured vehicle against the rendered vehicle its reference
-    points follow; classes as :data:`vehicles.classify.LABEL_OF_STYLE` names the renderer's body styles.
-
-    The renders' per-frame truth (frames.jsonl: reference point and speed of each vehicle) scores every measured
-    vehicle, not only those BrnoCompSpeed's matching keeps (a car must be tracked between its measurement lines,
-    which on the synth presets lie far down the road). A vehicle counts as following a rendered one when the
-    median distance between their reference points over the frames they share is below 5 % of the image width
-    and they share at least half of the track's frames; unmatched measured vehicles are left out (counted as
-    false positives by the evaluator instead).
-    """
+    points follow (:func:`gst_trafficcal.synth.truth_match.match_measured`: every measured vehicle, not only
+    those BrnoCompSpeed's matching keeps — a car must be tracked between its measurement lines, which on the synth
+    presets lie far down the road)."""
     from gst_trafficcal.brnocompspeed import load_results
-    from gst_trafficcal.synth.groundtruth import read_jsonl
-    from gst_trafficcal.vehicles.classify import LABEL_OF_STYLE
+    from gst_trafficcal.synth.truth_match import match_measured
 
     if not frames_jsonl.is_file():
         return []
-    truth: dict[int, dict[int, tuple[float, float, float]]] = {}
-    classes: dict[int, tuple[str, tuple]] = {}
-    for r in read_jsonl(frames_jsonl):
-        truth.setdefault(int(r["id"]), {})[int(r["frame"])] = (*r["ref"], float(r["speed_kmh"]))
-        cls = str(r.get("class", ""))
-        classes[int(r["id"])] = (LABEL_OF_STYLE.get(cls, cls), tuple(float(v) for v in r.get("size", (np.nan,) * 3)))
-    tracks = {t.id: t for t in load_results(results_json).cars}
-    out = []
-    for e in events:
-        tr = tracks.get(e.id)
-        if not e.measured or tr is None:
-            continue
-        frames = np.round(tr.frames).astype(int)
-        best = (0.05 * size[0], None, ("", ()))
-        for vid, recs in truth.items():
-            common = [(k, f) for k, f in enumerate(frames) if f in recs]
-            if len(common) < max(2, len(frames) // 2):
-                continue
-            ref = np.array([recs[f] for _, f in common])
-            d = float(np.median(np.hypot(*(ref[:, :2] - tr.pos[[k for k, _ in common]]).T)))
-            if d < best[0]:
-                best = (d, float(np.median(ref[:, 2])), classes[vid])
-        if best[1] is not None:
-            dims = (e.length_m, e.width_m, e.height_m)
-            out.append((e.speed_kmh - best[1], best[2][0], e.label, best[2][1],
-                        None if any(v is None for v in dims) else dims))
-    return out
+    return [(m.speed_error_kmh, m.rendered_class, m.label, m.rendered_size, m.size)
+            for m in match_measured(frames_jsonl, events, load_results(results_json), size)]
 
 
 # --------------------------------------------------------------------------- tables

@@ -31,3 +31,4 @@ def test_demo_writes_every_output(tmp_path):
     assert ok and frame.shape[:2] == (240, 320) and frames >= 90  # 8 s at 12.5 fps
     assert "data:image/png;base64," in (out / "report.html").read_text()
     assert "Against the ground truth" in proc.stdout
+    assert "vehicle classes right" in proc.stdout  # the labels by size, against the render's classes

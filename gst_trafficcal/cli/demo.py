@@ -15,6 +15,7 @@
 from __future__ import annotations
 
 import time
+from collections import Counter
 from pathlib import Path
 
 import click
@@ -50,6 +51,7 @@ def command(out_dir: Path, preset: str, duration: float, seed: int, detector: st
     from ..report import ReportInputs, write_report
     from ..synth import scenario as sc
     from ..synth.generate import generate
+    from ..synth.truth_match import match_measured
     from ..vanishing.calibrator import CalibratorConfig, calibrate_video
     from .run import RunPaths, measure_video, pipeline_description
 
@@ -137,6 +139,13 @@ def command(out_dir: Path, preset: str, duration: float, seed: int, detector: st
         summary.add_row("recall", f"{ev.speed.recall:.3f}")
         summary.add_row("false positives", str(ev.speed.false_positives))
         summary.add_row("matched vehicles", str(ev.speed.matched))
+    # the render's per-frame truth also names each vehicle's class: the labels the speedometer gave by size
+    matches = match_measured(scene_dir / "frames.jsonl", events, results, (W, H))
+    if matches:
+        wrong = Counter(f"{m.rendered_class} as {m.label}" for m in matches if m.label != m.rendered_class)
+        summary.add_row("vehicle classes right (against the render)",
+                        f"{sum(m.label == m.rendered_class for m in matches)} / {len(matches)}"
+                        + (f" ({', '.join(f'{n} {k}' for k, n in wrong.most_common())})" if wrong else ""))
     console.print(summary)
 
     write_report(out_dir / "report.html", ReportInputs(
