@@ -223,12 +223,17 @@ def _vehicles_section(events: Sequence[VehicleEvent]) -> str:
     listed = events[:MAX_LISTED]
     rows = [[e.id, e.label, _num(e.first_timestamp_s, ".2f"), _num(e.last_timestamp_s, ".2f"),
              _num(e.speed_kmh, ".1f"), "–" if e.lane is None else e.lane, _direction_label(e.direction),
-             e.reason] for e in listed]
+             _size(e), e.reason] for e in listed]
     more = f" (the first {MAX_LISTED} of {len(events)})" if len(events) > MAX_LISTED else ""
     out.append(f"<details><summary>Vehicle list{more}</summary>"
-               + _table(["id", "label", "first [s]", "last [s]", "speed [km/h]", "lane", "direction", "reason"],
-                        rows, left=2) + "</details>")
+               + _table(["id", "label", "first [s]", "last [s]", "speed [km/h]", "lane", "direction",
+                         "size L × W × H [m]", "reason"], rows, left=2) + "</details>")
     return "\n".join(out)
+
+
+def _size(e: VehicleEvent) -> str:
+    dims = (e.length_m, e.width_m, e.height_m)
+    return "–" if any(v is None for v in dims) else " × ".join(f"{v:.1f}" for v in dims)
 
 
 def _stats_cells(s: ErrorStats | None) -> list[str]:

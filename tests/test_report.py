@@ -107,7 +107,8 @@ def _events() -> list[VehicleEvent]:
         out.append(VehicleEvent(i + 1, "car" if i % 4 else "truck", i * 1.0, i * 1.0 + 2.0,
                                 float(rng.normal(80, 10)) if measured else None,
                                 "" if measured else ("track too short" if i % 2 else "no calibration with scale"),
-                                lane=[0, 1, 1, None][i % 4], direction=1 if i % 3 else -1, calibration_id="abc"))
+                                lane=[0, 1, 1, None][i % 4], direction=1 if i % 3 else -1, calibration_id="abc",
+                                **({"length_m": 4.52, "width_m": 1.79, "height_m": 1.46} if i % 2 else {})))
     return out
 
 
@@ -144,6 +145,8 @@ def test_report_without_ground_truth() -> None:
                           "away from VP1": sum(e.direction == "away_from_vp1" for e in events)}
     listing = _table_after(page, "id")
     assert len(listing) == len(events) + 1 and listing[4][4] == "–"  # vehicle 4 was not measured
+    size = listing[0].index("size L × W × H [m]")
+    assert listing[2][size] == "4.5 × 1.8 × 1.5" and listing[1][size] == "–"  # vehicle 2 has a size, 1 none
     calib = {r[0]: r[1] for r in _table_after(page, "")[1:]}
     assert calib["state"] == "calibrated" and calib["scale λ = camera height [m]"] == "7.000"
     assert calib["confidence: vp1"] == "0.93"
