@@ -278,9 +278,9 @@ def run_scene(scene: Scene, mode: str, work: Path, fresh: bool = False, detector
         row.scale_err_pct = 100 * (cam.scale / reference.camera.scale - 1)
     prepared = prepare_tracks(load_results(out / "system.json"), gt, width=size[0], height=size[1])
     matches = truth_matches(scene.folder / "frames.jsonl", events, out / "system.json", size)
-    row.truth_errors_kmh = [m[0] for m in matches]
-    row.classes = [(m[1], m[2]) for m in matches]
-    row.dims_log_ratio = [np.log(np.divide(m[4], m[3])).tolist() for m in matches if m[4] is not None]
+    row.truth_errors_kmh = [m.speed_error_kmh for m in matches]
+    row.classes = [(m.rendered_class, m.label) for m in matches]
+    row.dims_log_ratio = [np.log(np.divide(m.size, m.rendered_size)).tolist() for m in matches if m.size is not None]
     sp = evaluate_speeds(gt, prepared, cam)
     row.errors_kmh = [float(v) for v in sp.errors_abs_kmh]
     row.recall, row.false_positives, row.matched_valid = sp.recall, sp.false_positives, sp.matched_valid
@@ -311,20 +311,17 @@ def as_measured_by(gt, camera):
     return replace(gt, distances=tuple(replace(d, distance=float(v)) for d, v in zip(gt.distances, plane)))
 
 
-def truth_matches(frames_jsonl: Path, events: list, results_json: Path, size: tuple[int, int]
-                  ) -> list[tuple[float, str, str, tuple, tuple | None]]:
-    """(signed speed error, the rendered vehicle's class, the reported label, its rendered size (length, width,
-    height m), the reported one or None) of every measured vehicle against the rendered vehicle its reference
-    points follow (:func:`gst_trafficcal.synth.truth_match.match_measured`: every measured vehicle, not only
-    those BrnoCompSpeed's matching keeps — a car must be tracked between its measurement lines, which on the synth
-    presets lie far down the road)."""
+def truth_matches(frames_jsonl: Path, events: list, results_json: Path, size: tuple[int, int]) -> list:
+    """Every measured vehicle against the rendered vehicle its reference points follow
+    (:func:`gst_trafficcal.synth.truth_match.match_measured`'s ``TruthMatch`` records: speed error, class, size),
+    not only those BrnoCompSpeed's matching keeps — a car must be tracked between its measurement lines, which on
+    the synth presets lie far down the road; the results file is not read without a frames.jsonl."""
     from gst_trafficcal.brnocompspeed import load_results
     from gst_trafficcal.synth.truth_match import match_measured
 
     if not frames_jsonl.is_file():
         return []
-    return [(m.speed_error_kmh, m.rendered_class, m.label, m.rendered_size, m.size)
-            for m in match_measured(frames_jsonl, events, load_results(results_json), size)]
+    return match_measured(frames_jsonl, events, load_results(results_json), size)
 
 
 # --------------------------------------------------------------------------- tables
@@ -431,9 +428,8 @@ def class_table(rows: list[Row]) -> str:
                 got = Counter(label for true, label in pairs if true == c)
                 wrong = ", ".join(f"{k} {n}" for k, n in got.most_common() if k != c)
                 cells.append(f"{got[c]}/{sum(got.values())}" + (f" ({wrong})" if wrong else "") if got else "–")
-            right = sum(t == label for t, label in pairs)
             lines.append(f"| {kind} ({sum(r.kind == kind and r.mode == mode for r in rows)}) | {mode} | {len(pairs)} | "
-                         f"{right / len(pairs):.3f} | " + " | ".join(cells) + " |")
+                         f"{_class_accuracy(pairs):.3f} | " + " | ".join(cells) + " |")
             dims = _dimension_errors([d for r in rows if r.kind == kind and r.mode == mode for d in r.dims_log_ratio])
             if dims:
                 notes.append(f"{kind}, {mode}: {dims['vehicles']} vehicles, log(reported / rendered) length, width, "

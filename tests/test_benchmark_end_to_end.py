@@ -69,9 +69,10 @@ def test_reported_labels_are_scored_against_the_rendered_classes(load_benchmark,
               VehicleEvent(2, "car", 0.0, 0.36, 59.5),
               VehicleEvent(3, "car", 0.0, 0.36, None, reason="track too short")]
     got = b.truth_matches(frames, events, tmp_path / "system.json", size)
-    assert got == [(1.0, "bus", "truck", (12.0, 2.5, 3.2), (13.2, 2.5, 3.2)), (-0.5, "car", "car", (4.6, 1.8, 1.5), None)]
-    rows = [b.Row("s", "synth", "auto", classes=[(m[1], m[2]) for m in got] + [("bus", "bus")],
-                  dims_log_ratio=[np.log(np.divide(got[0][4], got[0][3])).tolist()])]
+    assert [(m.speed_error_kmh, m.rendered_class, m.label, m.rendered_size, m.size) for m in got] == [
+        (1.0, "bus", "truck", (12.0, 2.5, 3.2), (13.2, 2.5, 3.2)), (-0.5, "car", "car", (4.6, 1.8, 1.5), None)]
+    rows = [b.Row("s", "synth", "auto", classes=[(m.rendered_class, m.label) for m in got] + [("bus", "bus")],
+                  dims_log_ratio=[np.log(np.divide(got[0].size, got[0].rendered_size)).tolist()])]
     text = b.class_table(rows)
     cells = text.splitlines()[2].split("|")
     header = text.splitlines()[0].split("|")
