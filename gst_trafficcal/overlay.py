@@ -23,6 +23,7 @@ from .drawing import (GRID_ACROSS_BGR, GRID_ALONG_BGR, HORIZON_BGR, RoadGrid, cl
 from .geometry import Camera
 from .lanes import DEFAULT_LANE_WIDTH_M, lane_centres
 from .outputs import AWAY_FROM_VP1, TOWARDS_VP1, direction_name
+from .traffic_stats import is_over_limit
 
 _SHIFT = 4  # fixed-point bits of the coordinates given to cv2 (1/16 pixel)
 
@@ -211,6 +212,7 @@ class OverlayOptions:
     grid_spacing_m: float = 3.0
     thickness: int = 2
     font_scale: float = 0.0  # 0: from the frame height (0.6 at 720 lines)
+    speed_limit_kmh: float = 0.0  # > 0: vehicles faster than this are drawn in Style.speeding_bgr
 
 
 @dataclass(frozen=True)
@@ -224,6 +226,8 @@ class Style:
     horizon_bgr: tuple[int, int, int] = HORIZON_BGR
     text_bgr: tuple[int, int, int] = (255, 255, 255)
     text_bg_bgr: tuple[int, int, int] = (0, 0, 0)
+    speeding_bgr: tuple[int, int, int] = (0, 0, 200)  # dark red (the reference point is bright red): box and label
+    # background of a vehicle over the speed limit
     panel_alpha: float = 0.55  # opacity of the counters panel's background
 
     def box_color(self, direction: str | None) -> tuple[int, int, int]:
@@ -258,6 +262,9 @@ class VehicleCounter:
     _updates: int = field(default=0, repr=False)
     _lanes_key: tuple[int, int, int] = field(default=(-1, -1, -1), repr=False)
     _lanes: dict[int, int] = field(default_factory=dict, repr=False)
+    speed_limit_kmh: float = 0.0  # > 0: also count the vehicles whose latest speed is over it
+    _speed: dict[int, float] = field(default_factory=dict, repr=False)  # latest known speed of those still around
+    _done_speeding: int = field(default=0, repr=False)
 
     MAX_OFFSETS = 64  # per vehicle (its median is all that is used)
     LANE_REFRESH = 25  # per-lane counts are recounted at most every this many updates (or on a new vehicle)
@@ -273,6 +280,8 @@ class VehicleCounter:
             old_dir, old_lane = self.seen.get(m.track_id, (None, None))
             self.seen[m.track_id] = (m.direction or old_dir, m.lane if m.lane is not None else old_lane)
             self._last_seen[m.track_id] = self._updates
+            if m.speed_kmh is not None:
+                self._speed[m.track_id] = m.speed_kmh
             if metric and m.lane is None and m.ref_point is not None:
                 y = float(camera.to_world(np.asarray(m.ref_point, np.float64))[1])
                 if np.isfinite(y):
@@ -292,6 +301,7 @@ class VehicleCounter:
             self._done_dir[direction] = self._done_dir.get(direction, 0) + 1
             if lane is not None:
                 self._done_lane[lane] = self._done_lane.get(lane, 0) + 1
+            self._done_speeding += is_over_limit(self._speed.pop(i, None), self.speed_limit_kmh)
             ys = self.offsets.pop(i, None)
             if ys:
                 self._done_offsets.append(float(np.median(ys)))
@@ -316,6 +326,11 @@ class VehicleCounter:
     @property
     def total(self) -> int:
         return self._done_total + len(self.seen)
+
+    @property
+    def speeding(self) -> int:
+        """Distinct vehicles whose latest known speed was over ``speed_limit_kmh`` (0 without a limit)."""
+        return self._done_speeding + sum(is_over_limit(v, self.speed_limit_kmh) for v in self._speed.values())
 
     def by_direction(self) -> dict[str | None, int]:
         out = dict(self._done_dir)
@@ -345,6 +360,8 @@ class VehicleCounter:
         lanes = self.by_lane()
         if lanes:
             out.append("  ".join(f"lane {k}: {v}" for k, v in lanes.items()))
+        if self.speed_limit_kmh:
+            out.append(f"over {self.speed_limit_kmh:g} km/h: {self.speeding}")
         return out
 
 
@@ -394,9 +411,14 @@ def draw_overlay(canvas: Canvas, marks: Sequence[VehicleMark], camera: Camera | 
             canvas.segments(grid.across, style.grid_across_bgr, 1)
         if options.horizon and horizon is not None:
             canvas.segments(horizon[None], style.horizon_bgr, th)
+    def box_color(m: VehicleMark) -> tuple[int, int, int]:
+        if is_over_limit(m.speed_kmh, options.speed_limit_kmh):
+            return style.speeding_bgr
+        return style.box_color(m.direction)
+
     if options.boxes:
-        for color in {style.box_color(m.direction) for m in marks}:
-            group = [m for m in marks if style.box_color(m.direction) == color]
+        for color in {box_color(m) for m in marks}:
+            group = [m for m in marks if box_color(m) == color]
             boxes3d = [np.asarray(m.corners, np.float64).reshape(8, 2) for m in group if m.corners is not None]
             if boxes3d:
                 c = np.stack(boxes3d)  # (N, 8, 2)
@@ -416,7 +438,8 @@ def draw_overlay(canvas: Canvas, marks: Sequence[VehicleMark], camera: Camera | 
             if lines:
                 top = np.min(m.corners[:, 1]) if m.corners is not None else m.box[1]
                 left = np.min(m.corners[:, 0]) if m.corners is not None else m.box[0]
-                canvas.label((left, top - 2), lines, fs, ft, style.text_bgr, style.text_bg_bgr)
+                bg = style.speeding_bgr if is_over_limit(m.speed_kmh, options.speed_limit_kmh) else style.text_bg_bgr
+                canvas.label((left, top - 2), lines, fs, ft, style.text_bgr, bg)
     if options.counters and counter_lines:  # last, to stay readable; translucent: the traffic under it shows
         canvas.label((8, 8), list(counter_lines), fs, ft, style.text_bgr, style.text_bg_bgr,
                      above=False, alpha=style.panel_alpha)

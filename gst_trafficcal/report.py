@@ -1,7 +1,7 @@
 """``report.html``: one self-contained page summarising a run (every image embedded as base64 PNG).
 
 Sections: the calibration (numbers and a picture of a frame with the road grid and horizon), the vehicles
-(speed histogram, statistics, counts per lane and direction, why some were not measured, the list), and,
+(speed histogram, statistics with V85 and the vehicles over a speed limit when one is given, counts per lane and direction, why some were not measured, the list), and,
 when a ground truth was given, the evaluation (the tables of ``trafficcal eval`` and the cumulative
 speed-error plot of :func:`gst_trafficcal.evaluation.plot_cumulative_errors`).
 """
@@ -27,6 +27,7 @@ from .fileio import atomic_write_text
 from .geometry import Camera
 from .evaluation import ErrorStats, Evaluation, plot_cumulative_errors
 from .outputs import AWAY_FROM_VP1, TOWARDS_VP1, VehicleEvent, unmeasured_by_kind
+from .traffic_stats import check_limit, speed_stats
 
 MAX_LISTED = 1000
 """At most this many vehicles are listed one per row (all are counted)."""
@@ -110,14 +111,18 @@ def _plt():
     return plt
 
 
-def speed_histogram_uri(speeds: np.ndarray) -> str:
-    """Histogram of measured speeds (km/h) as a PNG data URI."""
+def speed_histogram_uri(speeds: np.ndarray, limit_kmh: float | None = None) -> str:
+    """Histogram of measured speeds (km/h) as a PNG data URI; V85 (and the speed limit, when given) marked."""
     plt = _plt()
     fig, ax = plt.subplots(figsize=(7, 3.6))
     try:
         lo, hi = float(np.floor(speeds.min() / 5) * 5), float(np.ceil(speeds.max() / 5) * 5)
         bins = np.arange(lo, max(hi, lo + 5) + 5, 5.0) if hi - lo <= 200 else 40
         ax.hist(speeds, bins=bins, color="#3c78d8", edgecolor="white")
+        ax.axvline(float(np.percentile(speeds, 85)), color="#222", ls="--", lw=1.2, label="V85")
+        if limit_kmh:
+            ax.axvline(limit_kmh, color="#d62728", lw=2, label=f"limit {limit_kmh:g} km/h")
+        ax.legend(loc="upper right", fontsize=8)
         ax.set_xlabel("speed [km/h]")
         ax.set_ylabel("vehicles")
         ax.set_title(f"Measured speeds (n={len(speeds)})")
@@ -173,18 +178,24 @@ def _calibration_section(cal: Calibration | None, frame: np.ndarray | None, spac
     return "\n".join(out)
 
 
-def _stats_row(name: str, v: np.ndarray) -> list[str]:
-    if not len(v):
-        return [name, "0"] + ["–"] * 5
-    return [name, str(len(v)), _num(float(np.mean(v))), _num(float(np.median(v))),
-            _num(float(np.percentile(v, 5))), _num(float(np.percentile(v, 95))), _num(float(np.max(v)))]
+def _stats_header(limit_kmh: float | None) -> list[str]:
+    head = ["speed [km/h]", "n", "mean", "median", "V85", "p95", "max"]
+    return head + ([f"over {limit_kmh:g} km/h"] if limit_kmh else [])
+
+
+def _stats_row(name: str, v: np.ndarray, limit_kmh: float | None = None) -> list[str]:
+    s = speed_stats(v, limit_kmh)
+    row = [name, str(s.n)] + [_num(x) for x in (s.mean, s.median, s.v85, s.p95, s.max)]
+    if limit_kmh:
+        row.append(f"{s.over_limit} ({100 * s.share_over:.0f} %)" if s.n else "0")
+    return row
 
 
 def _direction_label(d: str | None) -> str:
     return {TOWARDS_VP1: "towards VP1", AWAY_FROM_VP1: "away from VP1"}.get(d or "", "unknown")
 
 
-def _vehicles_section(events: Sequence[VehicleEvent]) -> str:
+def _vehicles_section(events: Sequence[VehicleEvent], limit_kmh: float | None = None) -> str:
     out = ["<h2>Vehicles</h2>"]
     measured = [e for e in events if e.measured]
     speeds = np.array([e.speed_kmh for e in measured], float)
@@ -193,19 +204,22 @@ def _vehicles_section(events: Sequence[VehicleEvent]) -> str:
         return "\n".join(out)
     blocks = []
     if len(speeds):
-        blocks.append(_img(speed_histogram_uri(speeds), "speed histogram"))
-    tables = [_table(["speed [km/h]", "n", "mean", "median", "p5", "p95", "max"],
-                     [_stats_row("all", speeds)]
-                     + [_stats_row(_direction_label(d), np.array([e.speed_kmh for e in measured if e.direction == d]))
+        blocks.append(_img(speed_histogram_uri(speeds, limit_kmh), "speed histogram"))
+    tables = [_table(_stats_header(limit_kmh),
+                     [_stats_row("all", speeds, limit_kmh)]
+                     + [_stats_row(_direction_label(d), np.array([e.speed_kmh for e in measured if e.direction == d]),
+                                   limit_kmh)
                         for d in (TOWARDS_VP1, AWAY_FROM_VP1) if any(e.direction == d for e in measured)])]
     lanes = Counter(e.lane for e in events)
     lane_meas = Counter(e.lane for e in measured)
     lane_rows = []
     for lane in sorted(lanes, key=lambda v: (v is None, v if v is not None else 0)):
-        v = np.array([e.speed_kmh for e in measured if e.lane == lane], float)
-        lane_rows.append(["unknown" if lane is None else f"lane {lane}", lanes[lane], lane_meas[lane],
-                          _num(float(np.mean(v))) if len(v) else "–"])
-    tables.append("<h3>Per lane</h3>" + _table(["lane", "vehicles", "measured", "mean speed [km/h]"], lane_rows))
+        st = speed_stats([e.speed_kmh for e in measured if e.lane == lane], limit_kmh)
+        row = ["unknown" if lane is None else f"lane {lane}", lanes[lane], lane_meas[lane], _num(st.mean),
+               _num(st.v85)]
+        lane_rows.append(row + ([st.over_limit] if limit_kmh else []))
+    tables.append("<h3>Per lane</h3>" + _table(["lane", "vehicles", "measured", "mean speed [km/h]", "V85 [km/h]"]
+                                               + ([f"over {limit_kmh:g} km/h"] if limit_kmh else []), lane_rows))
     classes = Counter(e.label or "unknown" for e in events)
     class_rows = []
     for label, n in classes.most_common():
@@ -288,6 +302,7 @@ class ReportInputs:
     title: str = "gst-trafficcal report"
     source: str = ""  # the video
     grid_spacing_m: float = 3.0
+    speed_limit_kmh: float | None = None  # marks the histogram, counts the vehicles over it
 
 
 def render_report(inputs: ReportInputs) -> str:
@@ -297,7 +312,7 @@ def render_report(inputs: ReportInputs) -> str:
     if inputs.source:
         parts.append(f'<p class="muted">Video: {_esc(inputs.source)}</p>')
     parts.append(_calibration_section(inputs.calibration, inputs.frame, inputs.grid_spacing_m))
-    parts.append(_vehicles_section(list(inputs.events)))
+    parts.append(_vehicles_section(list(inputs.events), check_limit(inputs.speed_limit_kmh)))
     if inputs.evaluation is not None:
         parts.append(_evaluation_section(inputs.evaluation, inputs.ground_truth_name))
     parts.append("</body></html>\n")

@@ -206,6 +206,29 @@ def test_vehicle_counter_counts_each_track_once() -> None:
     assert c.lines() == ["vehicles: 3", "towards VP1: 2  away: 1", "lane 0: 1  lane 1: 2"]
 
 
+def test_vehicles_over_the_speed_limit_are_drawn_in_red_and_counted() -> None:
+    slow = VehicleMark((20, 40, 90, 90), 1, "car", 64.0, direction="towards_vp1")
+    fast = VehicleMark((150, 40, 220, 90), 2, "car", 91.5, direction="towards_vp1")
+    img = np.full((H, W, 3), GREY, np.uint8)
+    draw_overlay(canvas_for_bgr(img), [slow, fast], None,
+                 OverlayOptions(counters=False, labels=False, speed_limit_kmh=80.0))
+    red = np.all(img == STYLE.speeding_bgr, axis=2)
+    green = np.all(img == STYLE.box_towards_bgr, axis=2)
+    assert red[40:91, 150:221].sum() > 100 and not red[:, :120].any()  # the fast one's box and label, only
+    assert green[40:91, 20:91].sum() > 100 and not green[:, 130:].any()
+    img = np.full((H, W, 3), GREY, np.uint8)
+    draw_overlay(canvas_for_bgr(img), [slow, fast], None, OverlayOptions(counters=False))  # no limit: no red
+    assert not np.all(img == STYLE.speeding_bgr, axis=2).any()
+    c = VehicleCounter(speed_limit_kmh=80.0)
+    c.update([slow, fast, VehicleMark((0, 0, 1, 1), 3)])  # vehicle 3: no speed yet
+    c.update([VehicleMark((0, 0, 1, 1), 3, speed_kmh=85.0), VehicleMark((0, 0, 1, 1), 2, speed_kmh=90.0)])
+    assert c.speeding == 2 and c.lines()[-1] == "over 80 km/h: 2"
+    for _ in range(2 * VehicleCounter.FORGET_AFTER):  # they leave: still counted once
+        c.update([])
+    assert c.speeding == 2 and not c.seen and not c._speed
+    assert "over" not in " ".join(VehicleCounter().lines())
+
+
 def test_marks_from_the_tracker_structure() -> None:
     """The tracker's "trafficcal-vehicle" fields (tracking.vehicle_meta) and the "speed" structure."""
     cam = _camera()

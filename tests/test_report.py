@@ -134,7 +134,11 @@ def test_report_without_ground_truth() -> None:
                    "lane 1": (want[1], sum(e.lane == 1 for e in measured)),
                    "unknown": (want[None], sum(e.lane is None for e in measured))}
     stats = _table_after(page, "speed [km/h]")
-    assert stats[1][:3] == ["all", str(len(measured)), f"{np.mean([e.speed_kmh for e in measured]):.2f}"]
+    speeds = [e.speed_kmh for e in measured]
+    assert stats[1][:3] == ["all", str(len(measured)), f"{np.mean(speeds):.2f}"]
+    assert stats[0][4] == "V85" and stats[1][4] == f"{np.percentile(speeds, 85):.2f}" and len(stats[0]) == 7
+    lane0 = [e.speed_kmh for e in measured if e.lane == 0]
+    assert lanes[0][4] == "V85 [km/h]" and lanes[1][4] == f"{np.percentile(lane0, 85):.2f}"
     reasons = {r[0]: int(r[1]) for r in _table_after(page, "reason")[1:]}
     assert reasons == dict(Counter(e.reason for e in events if not e.measured))
     classes = {r[0]: (int(r[1]), int(r[2])) for r in _table_after(page, "class")[1:]}
@@ -150,6 +154,27 @@ def test_report_without_ground_truth() -> None:
     calib = {r[0]: r[1] for r in _table_after(page, "")[1:]}
     assert calib["state"] == "calibrated" and calib["scale λ = camera height [m]"] == "7.000"
     assert calib["confidence: vp1"] == "0.93"
+
+
+def test_report_with_a_speed_limit() -> None:
+    events = _events()
+    speeds = np.array([e.speed_kmh for e in events if e.measured])
+    page = _parse(render_report(ReportInputs(events, _calibration(), speed_limit_kmh=85)))
+    stats = _table_after(page, "speed [km/h]")
+    assert stats[0][-1] == "over 85 km/h"
+    n = int(np.sum(speeds > 85))
+    assert 0 < n < len(speeds) and stats[1][-1] == f"{n} ({100 * n / len(speeds):.0f} %)"
+    lanes = _table_after(page, "lane")
+    assert lanes[0][-1] == "over 85 km/h" and sum(int(r[-1]) for r in lanes[1:]) == n
+    towards = [e.speed_kmh for e in events if e.measured and e.direction == "towards_vp1"]
+    assert stats[2][0] == "towards VP1" and stats[2][-1].startswith(f"{sum(v > 85 for v in towards)} (")
+    # the histogram marks the limit: a red line (matplotlib's C3 red) that the plain histogram lacks
+    hist = _decode(page.images[-1])  # (after the calibration picture)
+    plain = _decode(_parse(render_report(ReportInputs(events, _calibration()))).images[-1])
+    red = lambda img: int(np.sum((img[:, :, 2] > 180) & (img[:, :, 1] < 80) & (img[:, :, 0] < 80)))  # noqa: E731
+    assert red(hist) > 100 and red(plain) == 0
+    with pytest.raises(InputError, match="speed limit"):
+        render_report(ReportInputs(events, speed_limit_kmh=-1))
 
 
 def test_report_is_self_contained_and_escaped() -> None:
@@ -251,11 +276,13 @@ def test_cli_report_from_run_files(tmp_path: Path) -> None:
     save_calibration(_calibration(), tmp_path / "calibration.json")
     cv2.imwrite(str(tmp_path / "frame.png"), np.full((H, W, 3), 100, np.uint8))
     out = _cli("--events", str(tmp_path / "vehicles.jsonl"), "--calibration", str(tmp_path / "calibration.json"),
-               "--frame", str(tmp_path / "frame.png"), "--out", str(tmp_path / "report.html"))
+               "--frame", str(tmp_path / "frame.png"), "--speed-limit", "85", "--out", str(tmp_path / "report.html"))
     assert out.returncode == 0, out.stderr
     assert out.stdout.strip() == f"{tmp_path / 'report.html'}: {len(events)} vehicles (1 broken line(s) skipped)"
     page = _parse((tmp_path / "report.html").read_text(encoding="utf-8"))
     assert len(page.images) == 2 and _decode(page.images[0]).shape == (H, W, 3)
+    over = sum(e.speed_kmh > 85 for e in events if e.measured)
+    assert _table_after(page, "speed [km/h]")[1][-1].startswith(f"{over} (")
 
 
 def test_cli_report_with_ground_truth(tmp_path: Path) -> None:

@@ -9,6 +9,7 @@ import sys
 from pathlib import Path
 
 import cv2
+import numpy as np
 import pytest
 
 from gst_trafficcal.brnocompspeed import load_results
@@ -47,7 +48,7 @@ def with_truth(clip, tmp_path_factory):
     """The run with the clip's true calibration (scale known) and its ground truth."""
     out = tmp_path_factory.mktemp("run")
     proc = trafficcal("run", clip / "video.mp4", "--out", out, "--calibration", clip / "calibration.json",
-                      "--gt", clip / "gt_data.pkl")
+                      "--gt", clip / "gt_data.pkl", "--speed-limit", "80")
     assert proc.returncode == 0, proc.stdout[-2000:] + proc.stderr[-2000:]
     return out, proc
 
@@ -82,6 +83,13 @@ def test_run_writes_every_output(clip, with_truth):
     assert "Per lane" in report and "gt_data.pkl" in report
     assert "measuring" in proc.stdout and "Against gt_data.pkl" in proc.stdout
     assert not [ln for ln in user_lines(proc.stderr) if "warning" in ln], proc.stderr
+    # --speed-limit 80: to the overlay and the meter, counted in the summary and the report
+    assert "speedometer events-file=" in proc.stdout and " speed-limit=80 ! trafficoverlay speed-limit=80 !" in proc.stdout
+    speeds = [e.speed_kmh for e in events if e.measured]
+    over = sum(v > 80 for v in speeds)
+    assert f"V85 {np.percentile(speeds, 85):.1f}" in proc.stdout
+    assert f"{over} of {len(speeds)} over the 80 km/h limit" in proc.stdout
+    assert "over 80 km/h" in report
 
 
 def test_stream_ending_before_calibration_converges(clip, tmp_path):

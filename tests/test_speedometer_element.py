@@ -79,11 +79,17 @@ def detector(clip: Path) -> str:
 
 
 @pytest.fixture(scope="module")
-def implicit(clip, tmp_path_factory):
+def limit(clip) -> float:
+    """A speed limit half the clip's rendered vehicles exceed (their median speed, whole km/h)."""
+    return float(round(np.median([r["speed_kmh"] for r in read_jsonl(clip / "frames.jsonl")])))
+
+
+@pytest.fixture(scope="module")
+def implicit(clip, limit, tmp_path_factory):
     """The short form: detector ! speedometer (it tracks itself), calibration from the clip's true calibration.json."""
     out = tmp_path_factory.mktemp("implicit")
     return out, *measure(clip, out, detector(clip), f"calibration-file={clip / 'calibration.json'} "
-                                                    f"frames-file={out / 'frames.jsonl'}")
+                                                    f"frames-file={out / 'frames.jsonl'} speed-limit={limit}")
 
 
 def test_speeds_match_the_ground_truth(clip, implicit):
@@ -105,9 +111,12 @@ def test_speeds_match_the_ground_truth(clip, implicit):
     assert results.calibration is not None and results.calibration.scale == pytest.approx(cal.camera.brno_scale())
 
 
-def test_every_vehicle_is_in_every_output(implicit):
+def test_every_vehicle_is_in_every_output(implicit, limit):
     out, run, events, results = implicit
     msgs = [m.fields for m in run.messages if m.name == "trafficcal-speed"]
+    # with speed-limit each message says whether the vehicle was faster
+    assert [m["over_limit"] for m in msgs] == [e.speed_kmh is not None and e.speed_kmh > limit for e in events]
+    assert {m["over_limit"] for m in msgs} == {True, False}
     assert [m["id"] for m in msgs] == [e.id for e in events] and len(events) >= 15
     assert [e.id for e in read_events_csv(out / "events.csv")] == [e.id for e in events]
     # the BrnoCompSpeed results hold the measured vehicles (an unmeasured one would be given a speed by the
@@ -180,6 +189,8 @@ def test_explicit_tracker_gives_the_same_numbers(clip, implicit, tmp_path):
     assert [m.fields["tracking"] for m in run2.messages if m.name == "trafficcal-speedometer"] == ["upstream"]
     assert (tmp_path / "events.jsonl").read_text() == (out / "events.jsonl").read_text()
     assert (tmp_path / "results.json").read_text() == (out / "results.json").read_text()
+    # the speed limit changes the messages only (this run has none: no over_limit field)
+    assert not any("over_limit" in m.fields for m in run2.messages if m.name == "trafficcal-speed")
 
 
 def test_vanishing_points_upstream_with_the_scale_property(clip, implicit, tmp_path):

@@ -216,6 +216,25 @@ def test_property_toggles_and_counters() -> None:
     assert (speeds_only.max(axis=2) < 10).any()  # the speed labels remain
 
 
+def test_speed_limit_draws_the_faster_vehicle_in_red() -> None:
+    """speed-limit=70: the 81 km/h truck's 3D box turns red, the 55.5 km/h car keeps its colour."""
+    def frame(props: str) -> np.ndarray:
+        frames = []
+        run_pipeline(f"{GREY_SRC},format=BGR ! tcroisource {_rois_prop([_roi_2d(object_id=4), _roi_3d()])} ! "
+                     f"trafficoverlay draw-counters=false {props} ! appsink name=sink",
+                     on_buffer=lambda b, i: frames.append(_bgr(b, i)))
+        return frames[-1]
+
+    limited = frame("speed-limit=70")
+    red = _near(limited, STYLE.speeding_bgr, 10)
+    c = np.array(_roi_3d()["box"])
+    assert red[int(c[1]):int(c[3]) + 1, int(c[0]):int(c[2]) + 1].sum() > 50
+    assert not _near(limited, STYLE.box_towards_bgr, 10).any()
+    assert _near(limited, STYLE.box_unknown_bgr, 10).any()  # the slower car, unchanged
+    assert not _near(frame(""), STYLE.speeding_bgr, 10).any()  # no limit, no red
+    assert not _near(frame("speed-limit=90"), STYLE.speeding_bgr, 10).any()  # both under it
+
+
 def test_plain_detections_without_ids() -> None:
     """ROIs straight from a detector (no object_id, no trafficcal-vehicle) get their 2D box and label."""
     frames = []

@@ -16,7 +16,8 @@ leave before a calibration with scale exists are measured as soon as one arrives
 waiting are written unmeasured, with the reason.
 
 Output per frame: a ``"speed"`` {speed_kmh, label, model_name, confidence} structure on the ROI of every vehicle
-with a current estimate.  Per vehicle that leaves: a ``trafficcal-speed`` element message (the event's fields) and
+with a current estimate.  Per vehicle that leaves: a ``trafficcal-speed`` element message (the event's fields, and
+with ``speed-limit`` a boolean ``over_limit``) and
 a line in ``events-file`` (JSON lines) / ``csv-file``; per frame with tracked vehicles, a line in ``frames-file``
 (gvametaconvert's shape: box, track id, ``"trafficcal-vehicle"`` with the reference point and 3D box, ``"speed"``);
 ``results-file`` gets the BrnoCompSpeed results JSON
@@ -60,6 +61,8 @@ class Speedometer(TrafficcalTransform):
         "scale-regression-file": (str, "Scale regression file", "With no bbscale upstream and no scale given: "
                                   "scale-correction regression JSON for its own scale stage (as bbscale's)", "",
                                   _RW),
+        "speed-limit": (float, "Speed limit", "km/h: each trafficcal-speed message also says whether the vehicle "
+                        "was faster (over_limit; 0: no limit, no field)", 0.0, 1000.0, 0.0, _RW),
         "tau": (int, "Tau", "Observations between the two points of each speed sample (more for a vehicle that "
                 "covers less than 4 m of road in tau observations)", 1, 1000, 5, _RW),
         "min-track-length": (int, "Minimum track length", "Reference points a vehicle needs to be measured "
@@ -314,9 +317,14 @@ class Speedometer(TrafficcalTransform):
         """Post and write each finished vehicle; False (after posting an error) when a file could not be written."""
         from gst_trafficcal.errors import InputError
 
+        from gst_trafficcal.traffic_stats import is_over_limit
+
         ok = True
         for m in finished:
-            self.post_element_message("trafficcal-speed", m.event.to_dict())
+            fields = m.event.to_dict()
+            if self.speed_limit > 0:
+                fields["over_limit"] = is_over_limit(m.event.speed_kmh, self.speed_limit)
+            self.post_element_message("trafficcal-speed", fields)
             if self._outputs is None:
                 continue
             self._fix_fps()

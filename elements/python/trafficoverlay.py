@@ -4,7 +4,8 @@ Draws, in place and straight into the frame's planes (I420/NV12 luma and chroma,
 conversion of the whole frame): the road-plane grid towards VP1/VP2 and the horizon of the calibration (the
 sticky "trafficcal-calibration" event from upstream, or ``calibration-file``), each vehicle's 3D box (from
 the tracker's "trafficcal-vehicle" structure) or its 2D box (plain "detection" ROIs), its track id, label
-and speed (the "speed" structure), and counters of distinct vehicles per direction and lane.
+and speed (the "speed" structure), and counters of distinct vehicles per direction and lane; with
+``speed-limit``, vehicles over it in red and their count.
 
 The element is never in passthrough, so GstBaseTransform hands it a writable buffer: a buffer shared
 with another branch (e.g. after a ``tee``) is copied first and the other branch never sees the drawing.
@@ -36,6 +37,8 @@ class TrafficOverlay(TrafficcalTransform):
         "line-thickness": (int, "Line thickness", "Thickness of boxes and the horizon in pixels", 1, 16, 2, _RW),
         "font-scale": (float, "Font scale", "Text size (OpenCV font scale); 0 = from the frame height", 0.0, 10.0,
                        0.0, _RW),
+        "speed-limit": (float, "Speed limit", "km/h; vehicles faster than this are drawn in red and counted in the "
+                        "counters panel (0: none)", 0.0, 1000.0, 0.0, _RW),
         "calibration-file": (str, "Calibration file", "Calibration JSON used for the grid until (or unless) a "
                              "calibration event arrives from upstream; empty: none", "", _RW),
     }
@@ -49,7 +52,7 @@ class TrafficOverlay(TrafficcalTransform):
     def do_start(self):
         from gst_trafficcal.overlay import GridCache, VehicleCounter
 
-        self._counter = VehicleCounter()
+        self._counter = VehicleCounter(speed_limit_kmh=self.speed_limit)
         self._grid_cache = GridCache()
         if self.calibration_file:
             from gst_trafficcal.calibration import load_calibration
@@ -82,7 +85,7 @@ class TrafficOverlay(TrafficcalTransform):
         options = OverlayOptions(grid=self.draw_grid, horizon=self.draw_horizon, boxes=self.draw_boxes,
                                  labels=self.draw_labels, speeds=self.draw_speeds, counters=self.draw_counters,
                                  grid_spacing_m=self.grid_spacing, thickness=self.line_thickness,
-                                 font_scale=self.font_scale)
+                                 font_scale=self.font_scale, speed_limit_kmh=self.speed_limit)
         counter_lines = self._counter.lines() + [f"in view: {len(marks)}"]
         with self.planes(buffer, writable=True) as planes:
             canvas = canvas_for_planes(planes, format_name(self.video_info), *self._yuv)

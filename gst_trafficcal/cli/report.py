@@ -50,9 +50,13 @@ def _frame(image: Path | None, video: Path | None, at_s: float):
 @click.option("--results", "results_path", type=click.Path(path_type=Path),
               help="BrnoCompSpeed results JSON of the run (system.json); needed with --gt for speed errors.")
 @click.option("--title", default="gst-trafficcal report", show_default=True, help="Page title.")
+@click.option("--speed-limit", type=click.FloatRange(min=0), default=0.0, show_default=True,
+              help="Posted speed limit in km/h (0: none): marked on the histogram; the tables count the vehicles "
+                   "over it.")
 @click.option("--out", "out_path", required=True, type=click.Path(path_type=Path), help="The report.html to write.")
 def command(events_path: Path, calibration_path: Path | None, frame_path: Path | None, video_path: Path | None,
-            frame_time: float, gt_path: Path | None, results_path: Path | None, title: str, out_path: Path) -> None:
+            frame_time: float, gt_path: Path | None, results_path: Path | None, title: str, speed_limit: float,
+            out_path: Path) -> None:
     from ..brnocompspeed import load_gt_data, load_results
     from ..calibration import Calibration, load_calibration
     from ..outputs import read_events
@@ -77,6 +81,6 @@ def command(events_path: Path, calibration_path: Path | None, frame_path: Path |
         evaluation = evaluate(gt, cal.camera, results)
     path = write_report(out_path, ReportInputs(
         log.events, cal, frame, evaluation, ground_truth_name=str(gt_path or ""), title=title,
-        source=str(video_path or "")))
+        source=str(video_path or ""), speed_limit_kmh=speed_limit or None))
     skipped = f" ({log.skipped} broken line(s) skipped)" if log.skipped else ""
     click.echo(f"{path}: {len(log.events)} vehicles{skipped}")

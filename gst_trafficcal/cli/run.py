@@ -81,13 +81,16 @@ def detector_option(what: str):
 def pipeline_description(video: Path, paths: RunPaths, calibration: Path | None = None,
                          detector: Path | str | None = None,
                          overlay: bool = True, bbscale: bool = False, queues: bool = True,
-                         scale_regression: Path | None = None, body_shapes: str = "auto") -> str:
+                         scale_regression: Path | None = None, body_shapes: str = "auto",
+                         speed_limit: float = 0.0) -> str:
     """The gst-launch description ``trafficcal run`` plays (also printed, so it can be re-run by hand).
 
     With ``queues`` two ``queue`` elements split the chain into three streaming threads (decoding; vpdetect and
     vehicledetect; tracker onwards), so the stages run on more than one core; the numbers do not change (every
-    element still sees every buffer and the calibration events in stream order).
+    element still sees every buffer and the calibration events in stream order).  ``speed_limit`` (km/h, 0: none)
+    goes to speedometer (its messages say which vehicles were over it) and trafficoverlay (drawn in red, counted).
     """
+    limit = f" speed-limit={speed_limit:g}" if speed_limit else ""
     vp = f"vpdetect mode=fixed calibration-file={quote(calibration)}" if calibration else "vpdetect"
     model = model_of(detector)
     det = f"vehicledetect model={quote(model)}" if model else "vehicledetect"
@@ -97,9 +100,9 @@ def pipeline_description(video: Path, paths: RunPaths, calibration: Path | None 
     if bbscale:
         chain.append(f"bbscale regression-file={quote(scale_regression)}" if scale_regression else "bbscale")
     chain.append(f"speedometer events-file={quote(paths.events)} csv-file={quote(paths.csv)} "
-                 f"results-file={quote(paths.results)}")
+                 f"results-file={quote(paths.results)}{limit}")
     if overlay:
-        chain += ["trafficoverlay", "videoconvert", "video/x-raw,format=I420", "queue max-size-buffers=8",
+        chain += [f"trafficoverlay{limit}", "videoconvert", "video/x-raw,format=I420", "queue max-size-buffers=8",
                   "x264enc speed-preset=veryfast tune=zerolatency", "mp4mux",
                   f"filesink location={quote(paths.overlay)}"]
     else:
@@ -234,23 +237,33 @@ def evaluate_run(gt_path: Path, summary: RunSummary, paths: RunPaths):
     return ev
 
 
-def print_vehicles(console, events: list) -> None:
-    """Counts per lane and direction, per class, and why vehicles were not measured (by kind of reason)."""
+def print_vehicles(console, events: list, speed_limit: float | None = None) -> None:
+    """Counts and speeds (mean, V85, over the limit) per lane and direction, per class, and why vehicles were not
+    measured (by kind of reason)."""
     from rich.table import Table
 
     from ..outputs import unmeasured_by_kind
+    from ..traffic_stats import speed_stats
 
     measured = [e for e in events if e.measured]
     table = Table(title=f"{len(events)} vehicles, {len(measured)} measured")
-    for col in ("lane", "direction", "vehicles", "measured", "mean km/h"):
+    cols = ("lane", "direction", "vehicles", "measured", "mean km/h", "V85 km/h")
+    for col in cols + ((f"over {speed_limit:g}",) if speed_limit else ()):
         table.add_column(col, justify="right")
     groups = Counter((e.lane, e.direction) for e in events)
     for (lane, direction), n in sorted(groups.items(), key=lambda kv: (kv[0][0] is None, kv[0][0] or 0,
                                                                         str(kv[0][1]))):
-        speeds = [e.speed_kmh for e in measured if e.lane == lane and e.direction == direction]
-        table.add_row("?" if lane is None else str(lane), direction or "?", str(n), str(len(speeds)),
-                      f"{sum(speeds) / len(speeds):.1f}" if speeds else "–")
+        st = speed_stats([e.speed_kmh for e in measured if e.lane == lane and e.direction == direction], speed_limit)
+        row = ["?" if lane is None else str(lane), direction or "?", str(n), str(st.n),
+               "–" if st.mean is None else f"{st.mean:.1f}", "–" if st.v85 is None else f"{st.v85:.1f}"]
+        table.add_row(*row, *([str(st.over_limit)] if speed_limit else []))
     console.print(table)
+    st = speed_stats([e.speed_kmh for e in measured], speed_limit)
+    if st.n:
+        line = f"  speeds: mean {st.mean:.1f}, median {st.median:.1f}, V85 {st.v85:.1f}, max {st.max:.1f} km/h"
+        if speed_limit:
+            line += f"; {st.over_limit} of {st.n} over the {speed_limit:g} km/h limit ({100 * st.share_over:.0f} %)"
+        console.print(line, highlight=False, soft_wrap=True)
     classes = Counter(e.label or "unknown" for e in events)
     if classes:
         console.print("  classes: " + ", ".join(f"{label} {n}" for label, n in classes.most_common()))
@@ -277,9 +290,14 @@ def print_vehicles(console, events: list) -> None:
               help="The tracker's 3D box: auto = car body shapes for a segmenter's outlines (vehicleseg), the plain "
                    "box for the background detector's hulls; box = always the plain box (steadier on outlines that "
                    "keep a soft shadow halo); cars = always the body shapes. See docs/tracking.md.")
+@click.option("--speed-limit", type=click.FloatRange(min=0), default=0.0, show_default=True,
+              help="Posted speed limit in km/h (0: none): the overlay draws vehicles over it in red and counts them, "
+                   "the report and the summary give how many and which share of the measured vehicles were faster "
+                   "(V85, the speed 85 % do not exceed, is always given).")
 @click.option("--no-overlay", is_flag=True, help="Do not encode overlay.mp4 (faster).")
 def command(video: Path, out_dir: Path, calibration_path: Path | None, gt_path: Path | None,
-            detector: str | None, regression_path: Path | None, body_shapes: str, no_overlay: bool) -> None:
+            detector: str | None, regression_path: Path | None, body_shapes: str, speed_limit: float,
+            no_overlay: bool) -> None:
     """Calibrate and measure every vehicle of VIDEO in one pass through the GStreamer elements.
 
     Writes to --out: calibration.json, system.json (BrnoCompSpeed results), vehicles.jsonl, vehicles.csv,
@@ -313,7 +331,8 @@ def command(video: Path, out_dir: Path, calibration_path: Path | None, gt_path: 
     paths = RunPaths(out_dir)
     bbscale = (elements_dir() / "python" / "bbscale.py").exists()
     description = pipeline_description(video, paths, calibration_path, detector, overlay=not no_overlay,
-                                       bbscale=bbscale, scale_regression=regression_path, body_shapes=body_shapes)
+                                       bbscale=bbscale, scale_regression=regression_path, body_shapes=body_shapes,
+                                       speed_limit=speed_limit)
     console.print(f"[bold]Pipeline[/] {description}", highlight=False, soft_wrap=True)
     summary = measure_video(video, out_dir, description, console,
                             keep=(calibration_path,) if calibration_path is not None else ())
@@ -327,7 +346,7 @@ def command(video: Path, out_dir: Path, calibration_path: Path | None, gt_path: 
         scale = f"scale {c.scale:.3f} m" if c.scale is not None else "no scale"
         console.print(f"[bold]Calibration[/] ({cal.source}, {cal.state}): VP1 ({c.vp1[0]:.1f}, {c.vp1[1]:.1f}), "
                       f"VP2 ({c.vp2[0]:.1f}, {c.vp2[1]:.1f}), f = {c.focal:.0f} px, {scale}", highlight=False)
-    print_vehicles(console, summary.events)
+    print_vehicles(console, summary.events, speed_limit or None)
     for w in summary.warnings:
         console.print(f"[yellow]warning[/]: {w}", highlight=False)
 
@@ -344,7 +363,8 @@ def command(video: Path, out_dir: Path, calibration_path: Path | None, gt_path: 
     try:
         write_report(paths.report, ReportInputs(
             events=summary.events, calibration=cal, frame=first_frame(video), evaluation=ev,
-            ground_truth_name=str(gt_path or ""), title=f"gst-trafficcal run: {video.name}", source=str(video)))
+            ground_truth_name=str(gt_path or ""), title=f"gst-trafficcal run: {video.name}", source=str(video),
+            speed_limit_kmh=speed_limit or None))
     except InputError as exc:
         summary.errors.append(str(exc))
     written = [n for n in OUTPUTS if (out_dir / n).exists()]
