@@ -25,7 +25,8 @@ import math
 import os
 from collections import Counter
 from collections.abc import Iterable, Mapping, Sequence
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
+from datetime import datetime, timedelta
 from pathlib import Path
 from typing import Any
 
@@ -33,12 +34,13 @@ import numpy as np
 
 from .brnocompspeed import BrnoCalibration, Results, Track, save_results
 from .calibration import Calibration
+from .clock import clock_time
 from .errors import InputError
 from .fileio import atomic_write
 
 EVENT_FIELDS: tuple[str, ...] = (
     "id", "label", "first_timestamp_s", "last_timestamp_s", "speed_kmh", "reason", "lane", "direction",
-    "calibration_id", "n_samples", "length_m", "width_m", "height_m",
+    "calibration_id", "n_samples", "length_m", "width_m", "height_m", "first_time", "last_time",
 )
 
 TOWARDS_VP1 = "towards_vp1"
@@ -87,6 +89,8 @@ class VehicleEvent:
     length_m: float | None = None  # median 3D-box dimensions (metres), when a calibration with a scale gave them
     width_m: float | None = None
     height_m: float | None = None
+    first_time: str | None = None  # ISO 8601 date and time of the first / last sighting, when the stream's start
+    last_time: str | None = None  # time is known (clock.py)
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "id", int(self.id))
@@ -97,6 +101,8 @@ class VehicleEvent:
         object.__setattr__(self, "direction", direction_name(self.direction))
         object.__setattr__(self, "calibration_id", self.calibration_id or None)
         object.__setattr__(self, "n_samples", int(self.n_samples or 0))
+        for name in ("first_time", "last_time"):
+            object.__setattr__(self, name, str(getattr(self, name)) if getattr(self, name) else None)
         reason = str(self.reason or "")
         if self.speed_kmh is None and not reason:
             reason = "not measured"
@@ -107,6 +113,13 @@ class VehicleEvent:
     @property
     def measured(self) -> bool:
         return self.speed_kmh is not None
+
+    def with_clock(self, start: datetime | None) -> "VehicleEvent":
+        """The event with ``first_time``/``last_time`` = ``start`` + its timestamps (unchanged for no start)."""
+        if start is None:
+            return self
+        return replace(self, first_time=clock_time(start, self.first_timestamp_s),
+                       last_time=clock_time(start, self.last_timestamp_s))
 
     def to_dict(self) -> dict[str, Any]:
         """Plain JSON-ready dict with the keys of :data:`EVENT_FIELDS`, in that order."""
@@ -124,6 +137,16 @@ class VehicleEvent:
             return cls(**kwargs)
         except (TypeError, ValueError) as exc:
             raise InputError(f"{where}: bad vehicle event ({exc})") from None
+
+
+def stream_start(events: Iterable[VehicleEvent]) -> datetime | None:
+    """The date and time of stream time 0 from the first event that carries one (None: no event is dated)."""
+    from .clock import parse_start_time
+
+    for e in events:
+        if e.first_time and e.first_timestamp_s is not None:
+            return parse_start_time(e.first_time) - timedelta(seconds=e.first_timestamp_s)
+    return None
 
 
 def reason_kind(reason: str) -> str:

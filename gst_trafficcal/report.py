@@ -15,6 +15,7 @@ import math
 from collections import Counter
 from collections.abc import Sequence
 from dataclasses import dataclass
+from datetime import datetime
 from pathlib import Path
 
 import cv2
@@ -27,7 +28,7 @@ from .fileio import atomic_write_text
 from .geometry import Camera
 from .evaluation import ErrorStats, Evaluation, plot_cumulative_errors
 from .outputs import AWAY_FROM_VP1, TOWARDS_VP1, VehicleEvent, unmeasured_by_kind
-from .traffic_stats import check_limit, speed_stats
+from .traffic_stats import check_limit, interval_rows, speed_stats
 
 MAX_LISTED = 1000
 """At most this many vehicles are listed one per row (all are counted)."""
@@ -127,6 +128,31 @@ def speed_histogram_uri(speeds: np.ndarray, limit_kmh: float | None = None) -> s
         ax.set_ylabel("vehicles")
         ax.set_title(f"Measured speeds (n={len(speeds)})")
         ax.grid(axis="y", alpha=0.3)
+        fig.tight_layout()
+        return _figure_uri(fig)
+    finally:
+        plt.close(fig)
+
+
+def intervals_uri(names: Sequence[str], vehicles: Sequence[int], v85: Sequence[float | None],
+                  limit_kmh: float | None = None) -> str:
+    """Vehicles per interval (bars) and their V85 (line, right axis; the limit dashed) as a PNG data URI."""
+    plt = _plt()
+    fig, ax = plt.subplots(figsize=(7, 3.6))
+    try:
+        x = np.arange(len(names))
+        ax.bar(x, vehicles, color="#9fc5e8", label="vehicles")
+        ax.set_ylabel("vehicles per interval")
+        step = max(1, len(names) // 12)
+        ax.set_xticks(x[::step], [names[i] for i in range(0, len(names), step)], rotation=30, ha="right",
+                      fontsize=8)
+        right = ax.twinx()
+        right.plot(x, [np.nan if v is None else v for v in v85], "o-", color="#222", label="V85")
+        if limit_kmh:
+            right.axhline(limit_kmh, color="#d62728", ls="--", lw=1.5, label=f"limit {limit_kmh:g} km/h")
+        right.set_ylabel("V85 [km/h]")
+        right.legend(loc="best", fontsize=8)
+        ax.set_title("Traffic per interval")
         fig.tight_layout()
         return _figure_uri(fig)
     finally:
@@ -235,14 +261,37 @@ def _vehicles_section(events: Sequence[VehicleEvent], limit_kmh: float | None = 
     blocks.append("<div>" + "".join(tables) + "</div>")
     out.append('<div class="grid">' + "".join(blocks) + "</div>")
     listed = events[:MAX_LISTED]
-    rows = [[e.id, e.label, _num(e.first_timestamp_s, ".2f"), _num(e.last_timestamp_s, ".2f"),
-             _num(e.speed_kmh, ".1f"), "–" if e.lane is None else e.lane, _direction_label(e.direction),
-             _size(e), e.reason] for e in listed]
+    dated = any(e.first_time for e in listed)
+    rows = [[e.id, e.label, *([e.first_time or "–"] if dated else []), _num(e.first_timestamp_s, ".2f"),
+             _num(e.last_timestamp_s, ".2f"), _num(e.speed_kmh, ".1f"), "–" if e.lane is None else e.lane,
+             _direction_label(e.direction), _size(e), e.reason] for e in listed]
     more = f" (the first {MAX_LISTED} of {len(events)})" if len(events) > MAX_LISTED else ""
     out.append(f"<details><summary>Vehicle list{more}</summary>"
-               + _table(["id", "label", "first [s]", "last [s]", "speed [km/h]", "lane", "direction",
-                         "size L × W × H [m]", "reason"], rows, left=2) + "</details>")
+               + _table(["id", "label", *(["first seen"] if dated else []), "first [s]", "last [s]", "speed [km/h]",
+                         "lane", "direction", "size L × W × H [m]", "reason"], rows, left=2) + "</details>")
     return "\n".join(out)
+
+
+def _intervals_section(events: Sequence[VehicleEvent], interval_s: float, start: datetime | None,
+                       limit_kmh: float | None) -> str:
+    """Every vehicle of each interval (per lane and direction: intervals.csv); nothing without timestamps."""
+    rows = [r for r in interval_rows(events, interval_s, start, limit_kmh) if r.total]
+    if not rows:
+        return ""
+    head = ["interval", "vehicles", "measured", "mean [km/h]", "V85 [km/h]"]
+    body = []
+    for r in rows:
+        s = r.speeds
+        body.append([f"{r.start} – {r.end}", r.vehicles, s.n, _num(s.mean), _num(s.v85)]
+                    + ([s.over_limit] if limit_kmh else []))
+    what = f"{interval_s / 60:g} min" + ("" if start is not None else ", from the start of the video")
+    table = _table(head + ([f"over {limit_kmh:g} km/h"] if limit_kmh else []), body)
+    if len(rows) < 2:
+        return f"<h2>Per interval ({_esc(what)})</h2>" + table
+    names = [r.start[11:16] if start is not None else r.start for r in rows]  # HH:MM of a date, else stream time
+    plot = _img(intervals_uri(names, [r.vehicles for r in rows], [r.speeds.v85 for r in rows], limit_kmh),
+                "traffic per interval")
+    return f'<h2>Per interval ({_esc(what)})</h2><div class="grid">{plot}<div>{table}</div></div>'
 
 
 def _size(e: VehicleEvent) -> str:
@@ -303,6 +352,8 @@ class ReportInputs:
     source: str = ""  # the video
     grid_spacing_m: float = 3.0
     speed_limit_kmh: float | None = None  # marks the histogram, counts the vehicles over it
+    interval_s: float = 900.0  # the "Per interval" table's interval
+    start_time: datetime | None = None  # date and time of stream time 0: intervals aligned to and named by the clock
 
 
 def render_report(inputs: ReportInputs) -> str:
@@ -312,7 +363,9 @@ def render_report(inputs: ReportInputs) -> str:
     if inputs.source:
         parts.append(f'<p class="muted">Video: {_esc(inputs.source)}</p>')
     parts.append(_calibration_section(inputs.calibration, inputs.frame, inputs.grid_spacing_m))
-    parts.append(_vehicles_section(list(inputs.events), check_limit(inputs.speed_limit_kmh)))
+    limit = check_limit(inputs.speed_limit_kmh)
+    parts.append(_vehicles_section(list(inputs.events), limit))
+    parts.append(_intervals_section(list(inputs.events), inputs.interval_s, inputs.start_time, limit))
     if inputs.evaluation is not None:
         parts.append(_evaluation_section(inputs.evaluation, inputs.ground_truth_name))
     parts.append("</body></html>\n")

@@ -1,18 +1,24 @@
-"""Speed statistics as traffic engineers read them: V85 and vehicles over a speed limit.
+"""Traffic statistics as traffic engineers read them: V85, vehicles over a speed limit, counts per interval.
 
 V85, the speed 85 % of the vehicles do not exceed, is what speed limits are set and checked against; the share
-over the posted limit is what enforcement asks for.  Used by ``report.html``, ``trafficcal run`` and the
-overlay's counters.
+over the posted limit is what enforcement asks for; a traffic count is tabulated per time interval (15 min by
+default), lane and direction, with the classes.  Used by ``report.html``, ``trafficcal run`` (``intervals.csv``),
+``trafficcal report`` and the overlay's counters.
 """
 
 from __future__ import annotations
 
+import csv
+import io
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
-from typing import Iterable
+from datetime import datetime, timedelta
+from pathlib import Path
 
 import numpy as np
 
 from .errors import InputError
+from .fileio import atomic_write_text
 
 
 @dataclass(frozen=True)
@@ -61,3 +67,108 @@ def speed_stats(speeds_kmh: Iterable[float], limit_kmh: float | None = None) -> 
         return SpeedStats(0, limit_kmh=limit, over_limit=over)
     p50, p85, p95 = np.percentile(v, [50, 85, 95])
     return SpeedStats(len(v), float(v.mean()), float(p50), float(p85), float(p95), float(v.max()), limit, over)
+
+
+# --------------------------------------------------------------------------- counts per time interval
+
+CLASS_COLUMNS = ("car", "van", "bus", "truck", "motorcycle")
+"""Vehicle classes with a column of their own in the interval table (others are counted under ``other``)."""
+
+INTERVAL_FIELDS: tuple[str, ...] = (
+    "interval_start", "interval_end", "lane", "direction", "vehicles", "measured", "mean_kmh", "median_kmh",
+    "v85_kmh", "max_kmh", "over_limit", *CLASS_COLUMNS, "other",
+)
+
+
+@dataclass(frozen=True)
+class IntervalRow:
+    """Vehicles that passed in one time interval, in one lane and direction (``lane``/``direction`` None and
+    ``total`` True: all of them)."""
+
+    start: str  # ISO 8601 date and time when the stream's clock is known, else stream time "H:MM:SS"
+    end: str
+    lane: int | None
+    direction: str | None
+    vehicles: int
+    speeds: SpeedStats
+    classes: dict[str, int]
+    total: bool = False
+
+    def to_dict(self) -> dict[str, object]:
+        """The CSV row (keys :data:`INTERVAL_FIELDS`; None for an unknown lane, direction or speed)."""
+        s = self.speeds
+        d: dict[str, object] = {
+            "interval_start": self.start, "interval_end": self.end,
+            "lane": "all" if self.total else self.lane, "direction": "all" if self.total else self.direction,
+            "vehicles": self.vehicles, "measured": s.n,
+            "mean_kmh": _round(s.mean), "median_kmh": _round(s.median), "v85_kmh": _round(s.v85),
+            "max_kmh": _round(s.max), "over_limit": s.over_limit}
+        d.update({c: self.classes.get(c, 0) for c in CLASS_COLUMNS})
+        d["other"] = sum(n for c, n in self.classes.items() if c not in CLASS_COLUMNS)
+        return d
+
+
+def _round(v: float | None) -> float | None:
+    return None if v is None else round(v, 2)
+
+
+def _stream_clock(seconds: float) -> str:
+    s = int(round(seconds))
+    return f"{s // 3600}:{s % 3600 // 60:02d}:{s % 60:02d}"
+
+
+def interval_rows(events: Iterable, interval_s: float = 900.0, start: datetime | None = None,
+                  limit_kmh: float | None = None) -> list[IntervalRow]:
+    """Counts, speeds (mean, median, V85, max, over the limit) and classes per time interval, lane and direction,
+    plus one row with every vehicle of the interval — the traffic count traffic engineers tabulate.
+
+    A vehicle belongs to the interval of the middle of its time in view.  With ``start`` (the date and time of
+    stream time 0) intervals are aligned to the clock (15 min: :00, :15, :30, :45) and named by date and time;
+    without it they count from the start of the stream.  Vehicles without timestamps are left out.
+    """
+    if not interval_s > 0:
+        raise InputError(f"interval must be positive, got {interval_s!r} s")
+    limit = check_limit(limit_kmh)
+    offset, midnight = 0.0, None
+    if start is not None:
+        midnight = start.replace(hour=0, minute=0, second=0, microsecond=0)
+        offset = (start - midnight).total_seconds()
+    groups: dict[int, list] = {}
+    for e in events:
+        if e.first_timestamp_s is None or e.last_timestamp_s is None:
+            continue
+        t = offset + 0.5 * (e.first_timestamp_s + e.last_timestamp_s)
+        groups.setdefault(int(np.floor(t / interval_s)), []).append(e)
+    rows = []
+    for k in sorted(groups):
+        a, b = k * interval_s, (k + 1) * interval_s
+        if midnight is not None:
+            name = [(midnight + timedelta(seconds=x)).isoformat(timespec="seconds") for x in (a, b)]
+        else:
+            name = [_stream_clock(a), _stream_clock(b)]
+        members = groups[k]
+        keys = sorted({(e.lane, e.direction) for e in members},
+                      key=lambda kv: (kv[0] is None, kv[0] or 0, kv[1] or "~"))
+        for lane, direction in keys:
+            sub = [e for e in members if e.lane == lane and e.direction == direction]
+            rows.append(_row(name, lane, direction, sub, limit))
+        rows.append(_row(name, None, None, members, limit, total=True))
+    return rows
+
+
+def _row(name: list[str], lane, direction, events: list, limit: float | None, total: bool = False) -> IntervalRow:
+    classes: dict[str, int] = {}
+    for e in events:
+        classes[e.label or "unknown"] = classes.get(e.label or "unknown", 0) + 1
+    return IntervalRow(name[0], name[1], lane, direction, len(events),
+                       speed_stats([e.speed_kmh for e in events if e.speed_kmh is not None], limit), classes, total)
+
+
+def write_intervals_csv(path: str | Path, rows: Sequence[IntervalRow]) -> Path:
+    """The interval table as CSV (columns :data:`INTERVAL_FIELDS`, empty cell = unknown), written atomically."""
+    buf = io.StringIO()
+    w = csv.DictWriter(buf, fieldnames=INTERVAL_FIELDS, lineterminator="\n")
+    w.writeheader()
+    for r in rows:
+        w.writerow({k: "" if v is None else v for k, v in r.to_dict().items()})
+    return atomic_write_text(path, buf.getvalue(), "interval table")

@@ -16,7 +16,9 @@
 #   uridecodebin ! videoconvert ! I420 ! vpdetect ! vehicledetect ! speedometer events-file=... ! fakesink
 # (speedometer runs the tracker itself). Live sources (rtsp://...) run until Ctrl-C; the files are then
 # completed (gst-launch-1.0 -e). Every vehicle is written the moment it leaves, so nothing already measured
-# is lost if the run is interrupted.
+# is lost if the run is interrupted. For any input that is not a file, speedometer gets start-datetime=now:
+# every vehicle carries the date and time it passed (first_time, last_time) by this machine's clock; for a
+# recording, give its start yourself: SPEEDOMETER_OPTS="start-datetime=2026-12-05T08:00:00+01:00".
 #
 # Environment (optional):
 #   VPDETECT_OPTS       extra vpdetect properties (e.g. "min-duration=60")
@@ -67,12 +69,15 @@ if [[ -n "$calibration" ]]; then
     vp=(vpdetect mode=fixed "calibration-file=$calibration")
 fi
 
+clock=()
+[[ "$uri" == file://* ]] || clock=(start-datetime=now)  # a live source: date the vehicles by this machine's clock
+
 events="$out_dir/vehicles.jsonl"
 # shellcheck disable=SC2206  # word splitting of the user's property lists is intended
 pipeline=(uridecodebin "uri=$uri" ! videoconvert ! video/x-raw,format=I420
           ! "${vp[@]}" ${VPDETECT_OPTS:-} ! vehicledetect ${VEHICLEDETECT_OPTS:-}
           ! speedometer "events-file=$events" "csv-file=$out_dir/vehicles.csv" "results-file=$out_dir/system.json"
-            ${SPEEDOMETER_OPTS:-} ! fakesink)
+            "${clock[@]}" ${SPEEDOMETER_OPTS:-} ! fakesink)
 echo "measure: gst-launch-1.0 -e ${pipeline[*]}" >&2
 
 rc=0

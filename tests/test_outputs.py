@@ -65,6 +65,23 @@ def test_jsonl_and_csv_round_trip(tmp_path: Path) -> None:
     assert header == ",".join(EVENT_FIELDS)
 
 
+def test_events_with_the_clock_round_trip(tmp_path: Path) -> None:
+    from gst_trafficcal.clock import parse_start_time
+
+    start = parse_start_time("2026-12-05T08:00:00+01:00")
+    events = [e.with_clock(start) for e in _events()]
+    assert events[1].first_time == "2026-12-05T08:00:01.500+01:00"
+    assert events[1].last_time == "2026-12-05T08:00:03.750+01:00"
+    assert _events()[0].with_clock(None).first_time is None
+    with EventWriters.open(tmp_path / "v.jsonl", tmp_path / "v.csv") as w:
+        for e in events:
+            w.write(e)
+    assert read_events(tmp_path / "v.jsonl").events == events and read_events_csv(tmp_path / "v.csv") == events
+    # a file from before the clock fields still loads (no times)
+    old = {k: v for k, v in events[0].to_dict().items() if k not in ("first_time", "last_time")}
+    assert VehicleEvent.from_dict(old).first_time is None
+
+
 def test_unmeasured_vehicles_count_by_the_kind_of_reason() -> None:
     """Reasons that differ only in their figures count together; measured vehicles are not counted."""
     reasons = ["track too short (4 reference points, needs 10)", "speed samples disagree (only 21 % within 10 % "

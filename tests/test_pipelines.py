@@ -112,6 +112,7 @@ def test_measure_writes_vehicles_and_matches_trafficcal_run(clip, tmp_path):
     proc = script("measure.sh", (clip / "video.mp4").as_uri(), out, clip / "calibration.json")
     assert proc.returncode == 0, proc.stderr[-2000:]
     assert "vpdetect mode=fixed" in proc.stderr and "! vehicledetect ! speedometer" in proc.stderr
+    assert "start-datetime" not in proc.stderr  # a file: no clock unless given
     events = read_events(out / "vehicles.jsonl").events
     measured = [e for e in events if e.measured]
     assert len(events) >= 10 and len(measured) >= 4, events
@@ -133,6 +134,16 @@ def test_measure_writes_vehicles_and_matches_trafficcal_run(clip, tmp_path):
     key = lambda e: (e.first_timestamp_s, e.last_timestamp_s)  # noqa: E731 -- ids may be numbered differently
     assert sorted((key(e), e.speed_kmh) for e in ran if e.measured) == \
         sorted((key(e), e.speed_kmh) for e in measured)
+
+
+def test_measure_dates_the_vehicles_of_a_live_source_and_of_a_recording_when_told(clip, tmp_path):
+    proc = script("measure.sh", "rtsp://127.0.0.1:9/none", tmp_path / "live")  # nothing listens: fails fast
+    assert proc.returncode != 0 and " start-datetime=now " in proc.stderr.splitlines()[0] + " "
+    proc = script("measure.sh", clip / "video.mp4", tmp_path / "rec", clip / "calibration.json",
+                  SPEEDOMETER_OPTS="start-datetime=2026-12-05T08:00:00Z")
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    events = read_events(tmp_path / "rec" / "vehicles.jsonl").events
+    assert events and all(e.first_time == f"2026-12-05T08:00:{e.first_timestamp_s:06.3f}+00:00" for e in events)
 
 
 def test_measure_without_a_scale_keeps_vehicles_and_says_why(clip, tmp_path):

@@ -177,6 +177,38 @@ def test_report_with_a_speed_limit() -> None:
         render_report(ReportInputs(events, speed_limit_kmh=-1))
 
 
+def test_report_per_interval_with_dates() -> None:
+    from gst_trafficcal.clock import parse_start_time
+    from gst_trafficcal.outputs import stream_start
+
+    start = parse_start_time("2026-12-05T07:59:50+01:00")
+    events = [e.with_clock(start) for e in _events()]  # vehicles every second from 07:59:50
+    assert stream_start(events) == start and stream_start(_events()) is None
+    page = _parse(render_report(ReportInputs(events, interval_s=60, start_time=start, speed_limit_kmh=80)))
+    assert "Per interval (1 min)" in page.headings
+    table = _table_after(page, "interval")
+    assert table[0][-1] == "over 80 km/h"
+    mids = [0.5 * (e.first_timestamp_s + e.last_timestamp_s) for e in events]
+    want = [sum(m < 10 for m in mids), sum(10 <= m < 70 for m in mids)]  # 07:59 and 08:00
+    assert [r[0] for r in table[1:]] == ["2026-12-05T07:59:00+01:00 – 2026-12-05T08:00:00+01:00",
+                                         "2026-12-05T08:00:00+01:00 – 2026-12-05T08:01:00+01:00"]
+    assert [int(r[1]) for r in table[1:]] == want
+    # two intervals: a plot of vehicles (blue bars) and V85 per interval, the limit as a red dashed line
+    alts = [a.get("alt") for tag, a in page.attrs if tag == "img"]
+    plot = _decode(page.images[alts.index("traffic per interval")])
+    red = int(np.sum((plot[:, :, 2] > 180) & (plot[:, :, 1] < 80) & (plot[:, :, 0] < 80)))
+    bars = int(np.sum((np.abs(plot.astype(int) - (232, 197, 159)).max(axis=2) < 8)))  # #9fc5e8 in BGR
+    assert red > 50 and bars > 500
+    listing = _table_after(page, "id")
+    assert listing[0][2] == "first seen" and listing[1][2] == events[0].first_time
+    # without dates: intervals from the start of the video, no date column
+    page = _parse(render_report(ReportInputs(_events(), interval_s=60)))
+    assert "Per interval (1 min, from the start of the video)" in page.headings
+    assert _table_after(page, "interval")[1][0] == "0:00:00 – 0:01:00"
+    assert "traffic per interval" not in [a.get("alt") for tag, a in page.attrs if tag == "img"]  # one interval
+    assert "first seen" not in _table_after(page, "id")[0]
+
+
 def test_report_is_self_contained_and_escaped() -> None:
     events = [VehicleEvent(1, "<script>alert(1)</script>", 0.0, 1.0, 50.0)]
     text = render_report(ReportInputs(events, _calibration(), None, title="a & b"))
@@ -229,9 +261,10 @@ def test_report_with_brnocompspeed_ground_truth(tmp_path: Path) -> None:
     page = _parse(path.read_text(encoding="utf-8"))
     assert "Evaluation against the ground truth" in page.headings
     pics = [_decode(u) for u in page.images]
-    assert len(pics) == 3  # calibration picture, speed histogram, cumulative error plot
+    # calibration picture, speed histogram, traffic per 15 min (the recording's hour), cumulative error plot
+    assert len(pics) == 4
     assert pics[0].shape[1] == 1100  # 1920 frames are shrunk
-    assert pics[2].shape == (500, 800, 3)  # the evaluator's plot (8x5 in at 100 dpi)
+    assert pics[3].shape == (500, 800, 3)  # the evaluator's plot (8x5 in at 100 dpi)
     errors = _table_after(page, "metric")
     assert errors[1][0] == "speed [km/h]" and errors[1][1] == str(ev.speed.abs_kmh.n)
     assert errors[1][2] == f"{ev.speed.abs_kmh.mean:.3g}" and errors[1][4] == f"{ev.speed.abs_kmh.p95:.3g}"
@@ -276,11 +309,18 @@ def test_cli_report_from_run_files(tmp_path: Path) -> None:
     save_calibration(_calibration(), tmp_path / "calibration.json")
     cv2.imwrite(str(tmp_path / "frame.png"), np.full((H, W, 3), 100, np.uint8))
     out = _cli("--events", str(tmp_path / "vehicles.jsonl"), "--calibration", str(tmp_path / "calibration.json"),
-               "--frame", str(tmp_path / "frame.png"), "--speed-limit", "85", "--out", str(tmp_path / "report.html"))
+               "--frame", str(tmp_path / "frame.png"), "--speed-limit", "85", "--interval", "0.5",
+               "--intervals-csv", str(tmp_path / "intervals.csv"), "--out", str(tmp_path / "report.html"))
     assert out.returncode == 0, out.stderr
-    assert out.stdout.strip() == f"{tmp_path / 'report.html'}: {len(events)} vehicles (1 broken line(s) skipped)"
+    n_intervals = len({int(0.5 * (e.first_timestamp_s + e.last_timestamp_s) // 30) for e in events})
+    assert out.stdout.strip().splitlines() == [
+        f"{tmp_path / 'report.html'}: {len(events)} vehicles (1 broken line(s) skipped)",
+        f"{tmp_path / 'intervals.csv'}: {n_intervals} intervals"]
+    counts = [ln.split(",") for ln in (tmp_path / "intervals.csv").read_text().splitlines()[1:]]
+    assert sum(int(r[4]) for r in counts if r[2] == "all") == len(events)
     page = _parse((tmp_path / "report.html").read_text(encoding="utf-8"))
-    assert len(page.images) == 2 and _decode(page.images[0]).shape == (H, W, 3)
+    # calibration picture, histogram, traffic per half minute
+    assert len(page.images) == 3 and _decode(page.images[0]).shape == (H, W, 3)
     over = sum(e.speed_kmh > 85 for e in events if e.measured)
     assert _table_after(page, "speed [km/h]")[1][-1].startswith(f"{over} (")
 

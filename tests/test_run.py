@@ -43,12 +43,15 @@ def one_line_error(proc: subprocess.CompletedProcess) -> str:
     return lines[0]
 
 
+START = "2026-12-05T07:59:55+01:00"  # the clip's 12 s span 08:00: two 15-minute intervals
+
+
 @pytest.fixture(scope="module")
 def with_truth(clip, tmp_path_factory):
     """The run with the clip's true calibration (scale known) and its ground truth."""
     out = tmp_path_factory.mktemp("run")
     proc = trafficcal("run", clip / "video.mp4", "--out", out, "--calibration", clip / "calibration.json",
-                      "--gt", clip / "gt_data.pkl", "--speed-limit", "80")
+                      "--gt", clip / "gt_data.pkl", "--speed-limit", "80", "--start-time", START)
     assert proc.returncode == 0, proc.stdout[-2000:] + proc.stderr[-2000:]
     return out, proc
 
@@ -56,8 +59,8 @@ def with_truth(clip, tmp_path_factory):
 def test_run_writes_every_output(clip, with_truth):
     out, proc = with_truth
     assert "! vehicledetect model=\"vehicleseg\" !" in proc.stdout  # the default detector: the shipped segmenter
-    for name in ("calibration.json", "system.json", "vehicles.jsonl", "vehicles.csv", "overlay.mp4", "report.html",
-                 "evaluation.json"):
+    for name in ("calibration.json", "system.json", "vehicles.jsonl", "vehicles.csv", "intervals.csv", "overlay.mp4",
+                 "report.html", "evaluation.json"):
         assert (out / name).is_file(), name
     truth = load_calibration(clip / "calibration.json")
     cal = load_calibration(out / "calibration.json")
@@ -84,12 +87,28 @@ def test_run_writes_every_output(clip, with_truth):
     assert "measuring" in proc.stdout and "Against gt_data.pkl" in proc.stdout
     assert not [ln for ln in user_lines(proc.stderr) if "warning" in ln], proc.stderr
     # --speed-limit 80: to the overlay and the meter, counted in the summary and the report
-    assert "speedometer events-file=" in proc.stdout and " speed-limit=80 ! trafficoverlay speed-limit=80 !" in proc.stdout
+    assert ' speed-limit=80 start-datetime="2026-12-05T07:59:55+01:00" ! trafficoverlay speed-limit=80 !' in proc.stdout
     speeds = [e.speed_kmh for e in events if e.measured]
     over = sum(v > 80 for v in speeds)
     assert f"V85 {np.percentile(speeds, 85):.1f}" in proc.stdout
     assert f"{over} of {len(speeds)} over the 80 km/h limit" in proc.stdout
     assert "over 80 km/h" in report
+    # --start-time: every vehicle dated; the count per 15 min aligned to the clock (the 12 s clip spans 08:00)
+    from datetime import datetime, timedelta
+
+    start = datetime.fromisoformat(START)
+    for e in events:
+        assert datetime.fromisoformat(e.first_time) == start + timedelta(seconds=round(e.first_timestamp_s, 3))
+    import csv
+
+    with open(out / "intervals.csv", newline="") as f:
+        rows = [r for r in csv.DictReader(f) if r["lane"] == "all"]
+    mids = [start + timedelta(seconds=0.5 * (e.first_timestamp_s + e.last_timestamp_s)) for e in events]
+    eight = datetime.fromisoformat("2026-12-05T08:00:00+01:00")
+    want = [(r0, n) for r0, n in (("2026-12-05T07:45:00+01:00", sum(m < eight for m in mids)),
+                                  ("2026-12-05T08:00:00+01:00", sum(m >= eight for m in mids))) if n]
+    assert [(r["interval_start"], int(r["vehicles"])) for r in rows] == want and len(want) == 2
+    assert "Per interval (15 min)" in report and "first seen" in report
 
 
 def test_stream_ending_before_calibration_converges(clip, tmp_path):
@@ -151,6 +170,12 @@ def test_a_bad_detector_is_refused_before_any_work(clip, tmp_path, command):
     assert not out.exists()
 
 
+def test_bad_start_time_is_refused_before_the_run(clip, tmp_path):
+    line = one_line_error(trafficcal("run", clip / "video.mp4", "--out", tmp_path, "--start-time", "8 o'clock"))
+    assert "--start-time" in line and "ISO 8601" in line
+    assert not (tmp_path / "vehicles.jsonl").exists()
+
+
 def test_missing_video(tmp_path):
     proc = trafficcal("run", tmp_path / "absent.mp4", "--out", tmp_path / "out")
     assert proc.returncode == 2 and "does not exist" in proc.stderr and "Traceback" not in proc.stderr
@@ -189,7 +214,7 @@ def test_full_disk_keeps_every_vehicle_already_measured(clip, with_truth, tmp_pa
     # the calibration given lives in --out under the output's name: used, not cleared away as a stale output
     (out / "calibration.json").write_text((clip / "calibration.json").read_text())
     proc = trafficcal("run", clip / "video.mp4", "--out", out, "--calibration", out / "calibration.json",
-                      "--no-overlay")
+                      "--no-overlay", "--start-time", START)
     line = one_line_error(proc)
     assert "vehicles.jsonl" in line and "No space left on device" in line
     kept = read_events_csv(out / "vehicles.csv")

@@ -240,6 +240,31 @@ def test_frames_file_on_a_full_disk_is_an_error_and_the_vehicles_are_kept(clip, 
     assert kept and all(e.measured or e.reason for e in kept), kept
 
 
+def test_start_datetime_dates_every_vehicle(clip, implicit, tmp_path):
+    """start-datetime=now (a live source): stream time 0 is the clock at the first frame less its timestamp."""
+    from datetime import datetime, timedelta
+
+    from gst_trafficcal.outputs import stream_start
+
+    out, run, events, results = implicit
+    assert all(e.first_time is None for e in events)  # no start given: no dates
+    before = datetime.now().astimezone()
+    run2, events2, _ = measure(clip, tmp_path, detector(clip),
+                               f"calibration-file={clip / 'calibration.json'} start-datetime=now")
+    after = datetime.now().astimezone()
+    start = stream_start(events2)
+    assert start is not None and before - timedelta(seconds=0.01) <= start <= after
+    for e in events2:
+        span = datetime.fromisoformat(e.last_time) - datetime.fromisoformat(e.first_time)
+        assert span.total_seconds() == pytest.approx(e.last_timestamp_s - e.first_timestamp_s, abs=0.002)
+    msgs = [m.fields for m in run2.messages if m.name == "trafficcal-speed"]
+    assert [m["first_time"] for m in msgs] == [e.first_time for e in events2]
+    # the same numbers otherwise
+    assert [e.speed_kmh for e in events2] == [e.speed_kmh for e in events]
+    with pytest.raises(PipelineError, match="start-datetime.*ISO 8601"):
+        run_pipeline(f"{source(clip)} ! {detector(clip)} ! speedometer start-datetime=yesterday ! appsink name=sink")
+
+
 def test_bad_calibration_file_is_a_clear_error(clip, tmp_path):
     bad = tmp_path / "bad.json"
     bad.write_text("{not json")

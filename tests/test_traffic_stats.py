@@ -39,3 +39,59 @@ def test_limits() -> None:
     assert is_over_limit(81.0, 80.0) and not is_over_limit(80.0, 80.0)
     assert not is_over_limit(None, 80.0) and not is_over_limit(float("nan"), 80.0)
     assert not is_over_limit(200.0, 0.0) and not is_over_limit(200.0, None)
+
+
+def _event(i: int, t: float, speed: float | None, lane: int | None = 0, direction: str | None = "towards_vp1",
+           label: str = "car"):
+    from gst_trafficcal.outputs import VehicleEvent
+
+    return VehicleEvent(i, label, t - 1.0, t + 1.0, speed, "" if speed is not None else "track too short",
+                        lane=lane, direction=direction)
+
+
+def test_counts_per_interval_lane_and_direction() -> None:
+    from gst_trafficcal.traffic_stats import interval_rows
+
+    events = [_event(1, 10, 50.0), _event(2, 100, 70.0), _event(3, 200, 90.0, label="van"),
+              _event(4, 890, None, lane=1),  # middle at 890 s: still the first 15 minutes
+              _event(5, 950, 60.0, direction="away_from_vp1", label="bus"), _event(6, 1000, 80.0),
+              _event(7, 3600 * 2 + 5, 55.0)]  # an empty hour in between: no rows for it
+    rows = interval_rows(events, 900, limit_kmh=75)
+    assert [(r.start, r.end, r.lane, r.direction, r.vehicles, r.total) for r in rows] == [
+        ("0:00:00", "0:15:00", 0, "towards_vp1", 3, False), ("0:00:00", "0:15:00", 1, "towards_vp1", 1, False),
+        ("0:00:00", "0:15:00", None, None, 4, True),
+        ("0:15:00", "0:30:00", 0, "away_from_vp1", 1, False), ("0:15:00", "0:30:00", 0, "towards_vp1", 1, False),
+        ("0:15:00", "0:30:00", None, None, 2, True),
+        ("2:00:00", "2:15:00", 0, "towards_vp1", 1, False), ("2:00:00", "2:15:00", None, None, 1, True)]
+    first = rows[0].to_dict()
+    assert first["measured"] == 3 and first["mean_kmh"] == 70.0 and first["over_limit"] == 1
+    assert first["v85_kmh"] == round(float(np.percentile([50, 70, 90], 85)), 2)
+    assert (first["car"], first["van"], first["bus"], first["other"]) == (2, 1, 0, 0)
+    total = rows[2].to_dict()
+    assert total["lane"] == total["direction"] == "all" and total["vehicles"] == 4 and total["measured"] == 3
+    assert rows[1].to_dict()["mean_kmh"] is None  # lane 1's only vehicle was not measured
+    assert rows[3].to_dict()["bus"] == 1
+
+
+def test_intervals_are_aligned_to_the_clock_when_the_start_time_is_known(tmp_path) -> None:
+    import csv
+    from datetime import datetime
+
+    from gst_trafficcal.clock import parse_start_time
+    from gst_trafficcal.traffic_stats import INTERVAL_FIELDS, interval_rows, write_intervals_csv
+
+    start = parse_start_time("2026-12-05T07:58:30+01:00")
+    assert start == datetime.fromisoformat("2026-12-05T07:58:30+01:00")
+    # stream second 60 is 07:59:30, second 120 is 08:00:30: two intervals, named by the clock
+    rows = interval_rows([_event(1, 60, 50.0), _event(2, 120, 60.0)], 900, start)
+    assert [(r.start, r.end) for r in rows if r.total] == [
+        ("2026-12-05T07:45:00+01:00", "2026-12-05T08:00:00+01:00"),
+        ("2026-12-05T08:00:00+01:00", "2026-12-05T08:15:00+01:00")]
+    path = write_intervals_csv(tmp_path / "intervals.csv", rows)
+    with open(path, newline="") as f:
+        back = list(csv.DictReader(f))
+    assert tuple(back[0]) == INTERVAL_FIELDS and len(back) == 4
+    assert back[1]["lane"] == "all" and back[1]["over_limit"] == "" and back[3]["mean_kmh"] == "60.0"
+    with pytest.raises(InputError, match="interval"):
+        interval_rows([], 0)
+

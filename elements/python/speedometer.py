@@ -61,6 +61,10 @@ class Speedometer(TrafficcalTransform):
         "scale-regression-file": (str, "Scale regression file", "With no bbscale upstream and no scale given: "
                                   "scale-correction regression JSON for its own scale stage (as bbscale's)", "",
                                   _RW),
+        "start-datetime": (str, "Start date and time", "Date and time of stream time 0, ISO 8601 "
+                           "(2026-12-05T08:00:00+01:00; without an offset: local time): the events then carry "
+                           "first_time and last_time; 'now': the clock at the first frame less its timestamp (live "
+                           "sources); empty: none", "", _RW),
         "speed-limit": (float, "Speed limit", "km/h: each trafficcal-speed message also says whether the vehicle "
                         "was faster (over_limit; 0: no limit, no field)", 0.0, 1000.0, 0.0, _RW),
         "tau": (int, "Tau", "Observations between the two points of each speed sample (more for a vehicle that "
@@ -94,6 +98,7 @@ class Speedometer(TrafficcalTransform):
         self._own_stage = None  # bbscale's stage, built at start
         self._stage = None  # ... in use: no bbscale upstream, no scale given (decided at the first frame)
         self._scaled = None  # the upstream calibration with the λ that stage found
+        self._start = None  # datetime of stream time 0 (start-datetime), None while unknown
 
     # ------------------------------------------------------------------ life cycle
     def do_start(self):
@@ -103,7 +108,11 @@ class Speedometer(TrafficcalTransform):
 
         self._reset()
         try:
+            from gst_trafficcal.clock import NOW, parse_start_time
+
             self._meter = SpeedMeter(tau=self.tau, min_track_length=self.min_track_length)
+            if self.start_datetime.strip().lower() != NOW:
+                self._start = parse_start_time(self.start_datetime, "start-datetime")
             if self.calibration_file:
                 self._file_cal = load_calibration(self.calibration_file)
             # opened now so that an unwritable path fails at start; the frame rate is set from the caps
@@ -190,6 +199,10 @@ class Speedometer(TrafficcalTransform):
         if self._last_pts is not None and t > self._last_pts and len(self._dts) < 50:
             self._dts.append(t - self._last_pts)  # the frame rate of variable-rate caps, for BrnoCompSpeed
         self._last_pts = t
+        if self._start is None and self.start_datetime.strip().lower() == "now":
+            from gst_trafficcal.clock import start_from_now
+
+            self._start = start_from_now(t)
         if self._tracking is None:
             upstream = _tracker_upstream(self)
             self._tracking = False if upstream is not None else self._tracking_pipeline()
@@ -321,15 +334,16 @@ class Speedometer(TrafficcalTransform):
 
         ok = True
         for m in finished:
-            fields = m.event.to_dict()
+            event = m.event.with_clock(self._start)
+            fields = event.to_dict()
             if self.speed_limit > 0:
-                fields["over_limit"] = is_over_limit(m.event.speed_kmh, self.speed_limit)
+                fields["over_limit"] = is_over_limit(event.speed_kmh, self.speed_limit)
             self.post_element_message("trafficcal-speed", fields)
             if self._outputs is None:
                 continue
             self._fix_fps()
             try:
-                self._outputs.vehicle(m.event, m.times_s if len(m.points_px) else None, m.points_px)
+                self._outputs.vehicle(event, m.times_s if len(m.points_px) else None, m.points_px)
             except InputError as exc:  # every other output got the vehicle; the files keep what they have
                 if ok and not self._failed:
                     self.post_error(f"speedometer: {exc}")
@@ -382,7 +396,8 @@ class Speedometer(TrafficcalTransform):
         elif self._outputs is not None:  # stopping without EOS (or after an error): keep what can be kept, quietly
             for m in finished:
                 try:
-                    self._outputs.vehicle(m.event, m.times_s if len(m.points_px) else None, m.points_px)
+                    self._outputs.vehicle(m.event.with_clock(self._start), m.times_s if len(m.points_px) else None,
+                                          m.points_px)
                 except InputError:
                     pass
         self._close(report=post)

@@ -36,7 +36,8 @@ def _frame(image: Path | None, video: Path | None, at_s: float):
     return frame
 
 
-@click.command(help="Write a self-contained report.html (calibration picture, speed histogram, per-lane counts; "
+@click.command(help="Write a self-contained report.html (calibration picture, speed histogram and statistics with "
+                    "V85, counts per lane, class and interval; "
                     "with --gt and --results also the BrnoCompSpeed error tables and cumulative error plot).")
 @click.option("--events", "events_path", required=True, type=click.Path(path_type=Path),
               help="Vehicle events, JSON lines (vehicles.jsonl).")
@@ -53,14 +54,20 @@ def _frame(image: Path | None, video: Path | None, at_s: float):
 @click.option("--speed-limit", type=click.FloatRange(min=0), default=0.0, show_default=True,
               help="Posted speed limit in km/h (0: none): marked on the histogram; the tables count the vehicles "
                    "over it.")
+@click.option("--interval", "interval_min", type=click.FloatRange(min=0, min_open=True), default=15.0,
+              show_default=True, help="Minutes per interval of the traffic count (aligned to the clock when the "
+                                      "events carry dates: speedometer start-datetime=, trafficcal run --start-time).")
+@click.option("--intervals-csv", "intervals_path", type=click.Path(path_type=Path),
+              help="Also write the traffic count per interval, lane and direction as CSV.")
 @click.option("--out", "out_path", required=True, type=click.Path(path_type=Path), help="The report.html to write.")
 def command(events_path: Path, calibration_path: Path | None, frame_path: Path | None, video_path: Path | None,
             frame_time: float, gt_path: Path | None, results_path: Path | None, title: str, speed_limit: float,
-            out_path: Path) -> None:
+            interval_min: float, intervals_path: Path | None, out_path: Path) -> None:
     from ..brnocompspeed import load_gt_data, load_results
     from ..calibration import Calibration, load_calibration
-    from ..outputs import read_events
+    from ..outputs import read_events, stream_start
     from ..report import ReportInputs, write_report
+    from ..traffic_stats import interval_rows, write_intervals_csv
 
     log = read_events(events_path)
     cal = load_calibration(calibration_path) if calibration_path is not None else None
@@ -79,8 +86,13 @@ def command(events_path: Path, calibration_path: Path | None, frame_path: Path |
             raise InputError(f"{calibration_path or results_path}: calibration has no scale, speeds cannot be "
                              "evaluated")
         evaluation = evaluate(gt, cal.camera, results)
+    start = stream_start(log.events)
     path = write_report(out_path, ReportInputs(
         log.events, cal, frame, evaluation, ground_truth_name=str(gt_path or ""), title=title,
-        source=str(video_path or ""), speed_limit_kmh=speed_limit or None))
+        source=str(video_path or ""), speed_limit_kmh=speed_limit or None, interval_s=60 * interval_min,
+        start_time=start))
     skipped = f" ({log.skipped} broken line(s) skipped)" if log.skipped else ""
     click.echo(f"{path}: {len(log.events)} vehicles{skipped}")
+    if intervals_path is not None:
+        rows = interval_rows(log.events, 60 * interval_min, start, speed_limit or None)
+        click.echo(f"{write_intervals_csv(intervals_path, rows)}: {sum(r.total for r in rows)} intervals")

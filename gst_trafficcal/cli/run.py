@@ -24,8 +24,8 @@ import click
 
 from ..errors import InputError
 
-OUTPUTS = ("calibration.json", "system.json", "vehicles.jsonl", "vehicles.csv", "overlay.mp4", "report.html",
-           "evaluation.json")
+OUTPUTS = ("calibration.json", "system.json", "vehicles.jsonl", "vehicles.csv", "intervals.csv", "overlay.mp4",
+           "report.html", "evaluation.json")
 
 
 def quote(value: str | Path) -> str:
@@ -43,6 +43,7 @@ class RunPaths:
     results = property(lambda self: self.out / "system.json")
     events = property(lambda self: self.out / "vehicles.jsonl")
     csv = property(lambda self: self.out / "vehicles.csv")
+    intervals = property(lambda self: self.out / "intervals.csv")
     overlay = property(lambda self: self.out / "overlay.mp4")
     report = property(lambda self: self.out / "report.html")
     evaluation = property(lambda self: self.out / "evaluation.json")
@@ -82,15 +83,17 @@ def pipeline_description(video: Path, paths: RunPaths, calibration: Path | None 
                          detector: Path | str | None = None,
                          overlay: bool = True, bbscale: bool = False, queues: bool = True,
                          scale_regression: Path | None = None, body_shapes: str = "auto",
-                         speed_limit: float = 0.0) -> str:
+                         speed_limit: float = 0.0, start_time: str = "") -> str:
     """The gst-launch description ``trafficcal run`` plays (also printed, so it can be re-run by hand).
 
     With ``queues`` two ``queue`` elements split the chain into three streaming threads (decoding; vpdetect and
     vehicledetect; tracker onwards), so the stages run on more than one core; the numbers do not change (every
     element still sees every buffer and the calibration events in stream order).  ``speed_limit`` (km/h, 0: none)
-    goes to speedometer (its messages say which vehicles were over it) and trafficoverlay (drawn in red, counted).
+    goes to speedometer (its messages say which vehicles were over it) and trafficoverlay (drawn in red, counted);
+    ``start_time`` (ISO 8601, the date and time the video starts) to speedometer, which then dates every vehicle.
     """
     limit = f" speed-limit={speed_limit:g}" if speed_limit else ""
+    clock = f" start-datetime={quote(start_time)}" if start_time else ""
     vp = f"vpdetect mode=fixed calibration-file={quote(calibration)}" if calibration else "vpdetect"
     model = model_of(detector)
     det = f"vehicledetect model={quote(model)}" if model else "vehicledetect"
@@ -100,7 +103,7 @@ def pipeline_description(video: Path, paths: RunPaths, calibration: Path | None 
     if bbscale:
         chain.append(f"bbscale regression-file={quote(scale_regression)}" if scale_regression else "bbscale")
     chain.append(f"speedometer events-file={quote(paths.events)} csv-file={quote(paths.csv)} "
-                 f"results-file={quote(paths.results)}{limit}")
+                 f"results-file={quote(paths.results)}{limit}{clock}")
     if overlay:
         chain += [f"trafficoverlay{limit}", "videoconvert", "video/x-raw,format=I420", "queue max-size-buffers=8",
                   "x264enc speed-preset=veryfast tune=zerolatency", "mp4mux",
@@ -294,26 +297,36 @@ def print_vehicles(console, events: list, speed_limit: float | None = None) -> N
               help="Posted speed limit in km/h (0: none): the overlay draws vehicles over it in red and counts them, "
                    "the report and the summary give how many and which share of the measured vehicles were faster "
                    "(V85, the speed 85 % do not exceed, is always given).")
+@click.option("--start-time", default="", metavar="ISO8601",
+              help="Date and time the video starts (e.g. 2026-12-05T08:00:00+01:00; without an offset: this "
+                   "machine's local time): every vehicle then carries the date and time it passed (first_time, "
+                   "last_time), and intervals.csv is aligned to the clock.")
+@click.option("--interval", "interval_min", type=click.FloatRange(min=0, min_open=True), default=15.0,
+              show_default=True, help="Minutes per row of intervals.csv (the traffic count per interval, lane and "
+                                      "direction: vehicles, classes, mean speed, V85, over the limit).")
 @click.option("--no-overlay", is_flag=True, help="Do not encode overlay.mp4 (faster).")
 def command(video: Path, out_dir: Path, calibration_path: Path | None, gt_path: Path | None,
             detector: str | None, regression_path: Path | None, body_shapes: str, speed_limit: float,
-            no_overlay: bool) -> None:
+            start_time: str, interval_min: float, no_overlay: bool) -> None:
     """Calibrate and measure every vehicle of VIDEO in one pass through the GStreamer elements.
 
     Writes to --out: calibration.json, system.json (BrnoCompSpeed results), vehicles.jsonl, vehicles.csv,
-    overlay.mp4 (unless --no-overlay), report.html, and with --gt evaluation.json. Speeds need a scale: from
-    bbscale when installed, else from a --calibration file with a scale; without one, vehicles are written
-    with speed null and the reason.
+    intervals.csv (the traffic count per --interval, lane and direction), overlay.mp4 (unless --no-overlay),
+    report.html, and with --gt evaluation.json. Speeds need a scale: from bbscale when installed, else from a
+    --calibration file with a scale; without one, vehicles are written with speed null and the reason.
     """
     import sys
 
     from rich.console import Console
 
     from ..calibration import load_calibration
+    from ..clock import parse_start_time
     from ..gst.env import elements_dir
     from ..report import ReportInputs, write_report
+    from ..traffic_stats import interval_rows, write_intervals_csv
 
     console = Console()
+    start = parse_start_time(start_time, "--start-time")  # a bad time: a one-line error before any work
     if calibration_path is not None:
         given = load_calibration(calibration_path)  # unreadable/corrupt: a one-line InputError now, not mid-run
         if given.camera is None:
@@ -332,7 +345,7 @@ def command(video: Path, out_dir: Path, calibration_path: Path | None, gt_path: 
     bbscale = (elements_dir() / "python" / "bbscale.py").exists()
     description = pipeline_description(video, paths, calibration_path, detector, overlay=not no_overlay,
                                        bbscale=bbscale, scale_regression=regression_path, body_shapes=body_shapes,
-                                       speed_limit=speed_limit)
+                                       speed_limit=speed_limit, start_time=start.isoformat() if start else "")
     console.print(f"[bold]Pipeline[/] {description}", highlight=False, soft_wrap=True)
     summary = measure_video(video, out_dir, description, console,
                             keep=(calibration_path,) if calibration_path is not None else ())
@@ -361,10 +374,15 @@ def command(video: Path, out_dir: Path, calibration_path: Path | None, gt_path: 
         elif ev is None:
             console.print(f"[yellow]no evaluation against {gt_path.name}: the calibration has no scale[/]")
     try:
+        write_intervals_csv(paths.intervals, interval_rows(summary.events, 60 * interval_min, start,
+                                                           speed_limit or None))
+    except InputError as exc:
+        summary.errors.append(str(exc))
+    try:
         write_report(paths.report, ReportInputs(
             events=summary.events, calibration=cal, frame=first_frame(video), evaluation=ev,
             ground_truth_name=str(gt_path or ""), title=f"gst-trafficcal run: {video.name}", source=str(video),
-            speed_limit_kmh=speed_limit or None))
+            speed_limit_kmh=speed_limit or None, interval_s=60 * interval_min, start_time=start))
     except InputError as exc:
         summary.errors.append(str(exc))
     written = [n for n in OUTPUTS if (out_dir / n).exists()]

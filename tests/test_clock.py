@@ -1,0 +1,25 @@
+"""Dates and times of stream timestamps (``clock.py``)."""
+
+from __future__ import annotations
+
+import pytest
+
+from gst_trafficcal.errors import InputError
+
+
+def test_start_times() -> None:
+    from datetime import datetime, timedelta, timezone
+
+    from gst_trafficcal.clock import clock_time, parse_start_time, start_from_now
+
+    utc = parse_start_time("2026-12-05T08:00:00Z")
+    assert utc == datetime(2026, 12, 5, 8, tzinfo=timezone.utc)
+    assert clock_time(utc, 61.25) == "2026-12-05T08:01:01.250+00:00" and clock_time(utc, None) is None
+    local = parse_start_time("2026-12-05 08:00:00")  # no offset: the machine's local time
+    assert local.tzinfo is not None and local.replace(tzinfo=None) == datetime(2026, 12, 5, 8)
+    assert parse_start_time("") is None and parse_start_time(None) is None
+    for bad in ("yesterday", "now", "2026-13-45T00:00:00"):
+        with pytest.raises(InputError, match="ISO 8601"):
+            parse_start_time(bad)
+    now = datetime(2026, 12, 5, 8, 0, 10, tzinfo=timezone.utc)
+    assert start_from_now(10.0, now) == now - timedelta(seconds=10)
