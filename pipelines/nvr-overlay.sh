@@ -22,7 +22,8 @@
 # Environment (all optional):
 #   ANALYSIS       replaces the analysis chain "vpdetect ! vehicledetect ! tracker ! speedometer" (e.g. to
 #                  pass element properties); an empty string draws the overlay of CALIBRATION only
-#   OVERLAY_OPTS   extra trafficoverlay properties, e.g. "draw-grid=false grid-spacing=5"
+#   OVERLAY_OPTS   extra trafficoverlay properties, e.g. "draw-grid=false grid-spacing=5" or "speed-limit=80"
+#                  (vehicles over the limit drawn in red and counted)
 #   ENCODER        encoder element and properties (default "x264enc tune=zerolatency speed-preset=veryfast")
 set -euo pipefail
 

@@ -65,3 +65,71 @@ def test_in_process_python_elements_log_no_floating_reference_critical():
     assert res.returncode == 0, res.stderr
     assert "should be floating" not in res.stderr
     assert "GStreamer-CRITICAL" in res.stderr and "another critical" in res.stderr
+
+
+def _frames(path) -> int:
+    import cv2
+
+    cap = cv2.VideoCapture(str(path))
+    n = 0
+    while cap.read()[0]:
+        n += 1
+    cap.release()
+    return n
+
+
+ENDLESS = ("videotestsrc is-live=true ! video/x-raw,width=64,height=48,framerate=25/1 ! "
+           "x264enc tune=zerolatency speed-preset=ultrafast ! mp4mux ! filesink location={}")
+
+
+def test_stop_after_ends_an_endless_stream_with_a_playable_file(tmp_path):
+    """A live source that never ends: stopped at 1 s by an end-of-stream, so mp4mux completes the file."""
+    out = run_pipeline_file(ENDLESS.format(tmp_path / "a.mp4"), stop_after_s=1.0, poll_s=0.05)
+    assert out.stopped == "duration" and out.position_s == pytest.approx(1.0, abs=0.2)
+    assert 20 <= _frames(tmp_path / "a.mp4") <= 35  # 25 fps for about a second: a finished MP4
+
+
+def test_stop_after_at_a_named_element_is_exact(tmp_path):
+    """With the element on the decoded video named, the stream ends at the first frame that late, however far
+    ahead the source runs (a file decodes faster than real time)."""
+    desc = ("videotestsrc num-buffers=100 ! video/x-raw,width=64,height=48,framerate=25/1 ! videoconvert name=head ! "
+            f"queue ! x264enc tune=zerolatency speed-preset=ultrafast ! mp4mux ! filesink location={tmp_path / 'c.mp4'}")
+    out = run_pipeline_file(desc, stop_after_s=1.0, stop_element="head", poll_s=0.05)
+    assert out.stopped == "duration" and _frames(tmp_path / "c.mp4") == 25
+    out = run_pipeline_file(desc, stop_after_s=10.0, stop_element="head")  # longer than the stream: to its end
+    assert out.stopped == "" and _frames(tmp_path / "c.mp4") == 100
+
+
+@pytest.fixture
+def ctrl_c():
+    """Ctrl-C as in a terminal (a test run in the background may have SIGINT ignored)."""
+    import signal
+
+    before = signal.signal(signal.SIGINT, signal.default_int_handler)
+    yield
+    signal.signal(signal.SIGINT, before)
+
+
+def test_ctrl_c_finishes_the_stream_and_a_second_one_stops_at_once(tmp_path, ctrl_c):
+    import os
+    import signal
+
+    def interrupt(pos, dur):
+        if pos >= 0.5:
+            os.kill(os.getpid(), signal.SIGINT)  # Ctrl-C, while the bus loop runs
+
+    out = run_pipeline_file(ENDLESS.format(tmp_path / "b.mp4"), progress=interrupt, poll_s=0.05)
+    assert out.stopped == "interrupted" and _frames(tmp_path / "b.mp4") >= 10  # a playable file up to there
+
+    calls = []
+
+    def stubborn(pos, dur):  # keeps pressing Ctrl-C: the second one is not waited out
+        calls.append(pos)
+        os.kill(os.getpid(), signal.SIGINT)
+
+    with pytest.raises(KeyboardInterrupt):
+        # the end-of-stream waits behind slow buffers: the second Ctrl-C comes before it arrives
+        run_pipeline_file("videotestsrc is-live=true ! video/x-raw,width=64,height=48 ! queue ! "
+                          "identity sleep-time=300000 ! fakesink", progress=stubborn, poll_s=0.05)
+    assert len(calls) == 2
+    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler  # the handler is put back

@@ -256,3 +256,99 @@ def test_body_shapes_reach_the_tracker(clip, tmp_path):
     assert read_events(tmp_path / "out" / "vehicles.jsonl")
     bad = trafficcal("run", clip / "video.mp4", "--out", tmp_path / "bad", "--body-shapes", "round")
     assert bad.returncode == 2 and "'round' is not one of" in bad.stderr and not (tmp_path / "bad").exists()
+
+
+@pytest.fixture
+def rtsp_clip(clip):
+    """The clip served live over RTSP by a server in this process (needs gir1.2-gst-rtsp-server-1.0)."""
+    import threading
+
+    import gi
+
+    try:
+        gi.require_version("GstRtspServer", "1.0")
+        from gi.repository import GstRtspServer
+    except (ValueError, ImportError):
+        pytest.skip("needs the GstRtspServer introspection data (Debian: gir1.2-gst-rtsp-server-1.0)")
+    from gst_trafficcal.gst._gi import GLib
+
+    ctx = GLib.MainContext.new()
+    loop = GLib.MainLoop.new(ctx, False)
+    server = GstRtspServer.RTSPServer.new()
+    server.set_service("0")
+    factory = GstRtspServer.RTSPMediaFactory.new()
+    factory.set_launch(f"( filesrc location={clip / 'video.mp4'} ! qtdemux ! h264parse ! rtph264pay name=pay0 pt=96 )")
+    server.get_mount_points().add_factory("/clip", factory)
+    server.attach(ctx)
+    thread = threading.Thread(target=loop.run, daemon=True)
+    thread.start()
+    try:
+        yield f"rtsp://127.0.0.1:{server.get_bound_port()}/clip"
+    finally:
+        loop.quit()
+        thread.join(timeout=5)
+
+
+def test_a_live_stream_runs_until_ctrl_c_and_every_output_is_complete(clip, rtsp_clip, tmp_path):
+    """`trafficcal run rtsp://...` measures a live camera; Ctrl-C ends it as the end of the stream would."""
+    import signal
+    import time
+    from datetime import datetime, timedelta
+
+    out = tmp_path / "live"
+    before = datetime.now().astimezone()
+    proc = subprocess.Popen([sys.executable, "-m", "gst_trafficcal", "run", rtsp_clip, "--out", str(out),
+                             "--calibration", str(clip / "calibration.json"), "--start-time", "now"],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            # Ctrl-C reaches it as in a terminal, even when the tests run as a background job
+                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
+    deadline = time.monotonic() + 120
+    while time.monotonic() < deadline and proc.poll() is None:  # until the first vehicle has left
+        if (out / "vehicles.jsonl").is_file() and (out / "vehicles.jsonl").read_text().strip():
+            break
+        time.sleep(0.2)
+    assert proc.poll() is None, proc.communicate()
+    proc.send_signal(signal.SIGINT)
+    stdout, stderr = proc.communicate(timeout=120)
+    assert proc.returncode == 130, stdout[-2000:] + stderr[-2000:]
+    assert "! uridecodebin uri=" not in stdout and f'uridecodebin uri="{rtsp_clip}"' in stdout
+    assert "interrupted (Ctrl-C) at" in stdout and "Traceback" not in stderr
+    events = read_events(out / "vehicles.jsonl").events
+    assert len(events) >= 2 and any(e.measured for e in events)  # the first ones, and those in view at the stop
+    # --start-time now: dated by the clock at the stream's first frame, the count per 15 min aligned to it
+    start = datetime.fromisoformat(events[0].first_time) - timedelta(seconds=events[0].first_timestamp_s)
+    assert before - timedelta(seconds=1) < start < datetime.now().astimezone()
+    first = datetime.fromisoformat((out / "intervals.csv").read_text().splitlines()[1].split(",")[0])
+    assert first.minute % 15 == 0 and first.second == 0 and start - timedelta(minutes=15) < first <= start + \
+        timedelta(seconds=20)
+    frames = 0
+    cap = cv2.VideoCapture(str(out / "overlay.mp4"))  # finished by the end-of-stream: playable
+    while cap.read()[0]:
+        frames += 1
+    cap.release()
+    assert 12 < frames < 150  # some of the 12 s (150 frames) clip, not all of it
+    for name in ("calibration.json", "system.json", "vehicles.csv", "intervals.csv", "report.html"):
+        assert (out / name).is_file(), name
+
+
+def test_duration_stops_a_file_early(clip, tmp_path):
+    proc = trafficcal("run", clip / "video.mp4", "--out", tmp_path, "--calibration", clip / "calibration.json",
+                      "--duration", "5")
+    assert proc.returncode == 0, proc.stdout[-2000:] + proc.stderr[-2000:]
+    assert "--duration reached at" in proc.stdout
+    events = read_events(tmp_path / "vehicles.jsonl").events
+    assert events and max(e.last_timestamp_s for e in events) < 5.0
+    cap = cv2.VideoCapture(str(tmp_path / "overlay.mp4"))
+    n = int(cap.get(cv2.CAP_PROP_FRAME_COUNT))
+    cap.release()
+    assert n == 63  # the frames at 0, 0.08, ... 4.96 s (12.5 fps): the stream ends exactly there, a finished MP4
+
+
+def test_start_time_now_is_for_streams(clip, tmp_path):
+    line = one_line_error(trafficcal("run", clip / "video.mp4", "--out", tmp_path, "--start-time", "now"))
+    assert "live streams" in line
+
+
+def test_a_directory_is_not_a_video(tmp_path):
+    proc = trafficcal("run", tmp_path, "--out", tmp_path / "out")
+    assert proc.returncode == 2 and "is a directory" in proc.stderr and "Traceback" not in proc.stderr

@@ -20,12 +20,26 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+import re
+
 import click
 
 from ..errors import InputError
 
 OUTPUTS = ("calibration.json", "system.json", "vehicles.jsonl", "vehicles.csv", "intervals.csv", "overlay.mp4",
            "report.html", "evaluation.json")
+
+
+def is_uri(text: str | Path) -> bool:
+    """Whether ``text`` is a URI (``rtsp://cam/stream``, ``file:///v.mp4``, ``http://...``) rather than a path."""
+    return isinstance(text, str) and re.match(r"^[A-Za-z][A-Za-z0-9+.-]*://", text) is not None
+
+
+def source_elements(video: Path | str) -> list[str]:
+    """The pipeline's source: ``filesrc ! decodebin`` for a file, ``uridecodebin`` for a URI (a live camera)."""
+    if is_uri(video):
+        return [f"uridecodebin uri={quote(video)}"]
+    return [f"filesrc location={quote(video)}", "decodebin"]
 
 
 def quote(value: str | Path) -> str:
@@ -49,6 +63,7 @@ class RunPaths:
     evaluation = property(lambda self: self.out / "evaluation.json")
 
 
+STOP_ELEMENT = "tcstart"  # the first element on the decoded video: --duration ends the stream there, exactly
 QUEUE = "queue max-size-buffers=4 max-size-bytes=0 max-size-time=0"
 DEFAULT_DETECTOR = "vehicleseg"  # trafficcal run / demo; the element's own default (no model) is the background one
 BACKGROUND = "background"  # --detector value for vehicledetect without a model
@@ -79,7 +94,7 @@ def detector_option(what: str):
                              "background subtraction, no weights, the fastest).")
 
 
-def pipeline_description(video: Path, paths: RunPaths, calibration: Path | None = None,
+def pipeline_description(video: Path | str, paths: RunPaths, calibration: Path | None = None,
                          detector: Path | str | None = None,
                          overlay: bool = True, bbscale: bool = False, queues: bool = True,
                          scale_regression: Path | None = None, body_shapes: str = "auto",
@@ -97,7 +112,7 @@ def pipeline_description(video: Path, paths: RunPaths, calibration: Path | None 
     vp = f"vpdetect mode=fixed calibration-file={quote(calibration)}" if calibration else "vpdetect"
     model = model_of(detector)
     det = f"vehicledetect model={quote(model)}" if model else "vehicledetect"
-    chain = [f"filesrc location={quote(video)}", "decodebin", "videoconvert", "video/x-raw,format=I420",
+    chain = [*source_elements(video), f"videoconvert name={STOP_ELEMENT}", "video/x-raw,format=I420",
              *([QUEUE] if queues else []), vp, det, *([QUEUE] if queues else []),
              "tracker" if body_shapes == "auto" else f"tracker body-shapes={body_shapes}"]
     if bbscale:
@@ -122,6 +137,8 @@ class RunSummary:
     warnings: list[str] = field(default_factory=list)
     errors: list[str] = field(default_factory=list)  # output files that could not be written
     duration_s: float | None = None
+    stopped: str = ""  # "interrupted" (Ctrl-C) or "duration" (--duration): ended before the stream did
+    position_s: float | None = None  # how far into the stream the run got
 
     @property
     def has_scale(self) -> bool:
@@ -144,9 +161,11 @@ def _read_vehicle_events(paths: RunPaths) -> list:
     return found
 
 
-def measure_video(video: Path, out_dir: Path, description: str, console, label: str = "measuring",
-                  keep: tuple[Path, ...] = ()) -> RunSummary:
+def measure_video(video: Path | str, out_dir: Path, description: str, console, label: str = "measuring",
+                  keep: tuple[Path, ...] = (), stop_after_s: float | None = None) -> RunSummary:
     """Play ``description`` (see :func:`pipeline_description`) with a progress bar; read back what it wrote.
+
+    ``stop_after_s``: end the run there (an end-of-stream, as Ctrl-C does: every output is completed).
 
     Earlier outputs in ``out_dir`` are removed first, except the files in ``keep`` (inputs of this run, such as a
     calibration file given inside ``out_dir``).
@@ -183,13 +202,14 @@ def measure_video(video: Path, out_dir: Path, description: str, console, label: 
                        cars=f"{counts['vehicles']} vehicles, {counts['measured']} measured")
 
         try:
-            outcome = run_pipeline_file(description, progress=progress, on_message=on_message)
+            outcome = run_pipeline_file(description, progress=progress, on_message=on_message,
+                                        stop_after_s=stop_after_s, stop_element=STOP_ELEMENT)
         except RunFailed as exc:
             outcome, failure = exc.outcome, str(exc)
         except PipelineError as exc:
             raise InputError(f"{video}: {exc}") from None
     summary = RunSummary(outcome.calibration, _read_vehicle_events(paths), outcome.warnings,
-                         duration_s=outcome.duration_s)
+                         duration_s=outcome.duration_s, stopped=outcome.stopped, position_s=outcome.position_s)
     if summary.calibration is not None:
         try:
             save_calibration(summary.calibration, paths.calibration)
@@ -211,11 +231,16 @@ def _same(a: Path, b: Path) -> bool:
         return False
 
 
-def first_frame(video: Path):
-    """A BGR frame from the video (for the calibration picture), or None."""
+def first_frame(video: Path | str):
+    """A BGR frame from the video or stream (for the calibration picture), or None (a stream that is gone gives
+    up within seconds)."""
     import cv2
 
-    cap = cv2.VideoCapture(str(video))
+    if is_uri(video):
+        cap = cv2.VideoCapture(str(video), cv2.CAP_FFMPEG, [cv2.CAP_PROP_OPEN_TIMEOUT_MSEC, 5000,
+                                                            cv2.CAP_PROP_READ_TIMEOUT_MSEC, 5000])
+    else:
+        cap = cv2.VideoCapture(str(video))
     try:
         ok, frame = cap.read()
     finally:
@@ -278,7 +303,7 @@ def print_vehicles(console, events: list, speed_limit: float | None = None) -> N
 
 
 @click.command(name="run")
-@click.argument("video", type=click.Path(exists=True, dir_okay=False, path_type=Path))
+@click.argument("video", metavar="VIDEO|URI")
 @click.option("--out", "out_dir", required=True, type=click.Path(file_okay=False, path_type=Path),
               help="Folder for the outputs (created; earlier outputs there are replaced).")
 @click.option("--calibration", "calibration_path", type=click.Path(path_type=Path), default=None,
@@ -297,18 +322,25 @@ def print_vehicles(console, events: list, speed_limit: float | None = None) -> N
               help="Posted speed limit in km/h (0: none): the overlay draws vehicles over it in red and counts them, "
                    "the report and the summary give how many and which share of the measured vehicles were faster "
                    "(V85, the speed 85 % do not exceed, is always given).")
-@click.option("--start-time", default="", metavar="ISO8601",
+@click.option("--start-time", default="", metavar="ISO8601|now",
               help="Date and time the video starts (e.g. 2026-12-05T08:00:00+01:00; without an offset: this "
-                   "machine's local time): every vehicle then carries the date and time it passed (first_time, "
-                   "last_time), and intervals.csv is aligned to the clock.")
+                   "machine's local time; 'now' for a live stream: the clock at its first frame): every vehicle then "
+                   "carries the date and time it passed (first_time, last_time), and intervals.csv is aligned to "
+                   "the clock.")
 @click.option("--interval", "interval_min", type=click.FloatRange(min=0, min_open=True), default=15.0,
               show_default=True, help="Minutes per row of intervals.csv (the traffic count per interval, lane and "
                                       "direction: vehicles, classes, mean speed, V85, over the limit).")
+@click.option("--duration", "duration_s", type=click.FloatRange(min=0, min_open=True), default=None,
+              help="Stop after this many seconds of video (a live stream otherwise runs until Ctrl-C). Either way the "
+                   "run ends as at the end of the stream: every vehicle in view is written and every output "
+                   "completed.")
 @click.option("--no-overlay", is_flag=True, help="Do not encode overlay.mp4 (faster).")
-def command(video: Path, out_dir: Path, calibration_path: Path | None, gt_path: Path | None,
+def command(video: str, out_dir: Path, calibration_path: Path | None, gt_path: Path | None,
             detector: str | None, regression_path: Path | None, body_shapes: str, speed_limit: float,
-            start_time: str, interval_min: float, no_overlay: bool) -> None:
-    """Calibrate and measure every vehicle of VIDEO in one pass through the GStreamer elements.
+            start_time: str, interval_min: float, duration_s: float | None, no_overlay: bool) -> None:
+    """Calibrate and measure every vehicle of VIDEO (a file, or the URI of a stream: rtsp://, http://, file://)
+    in one pass through the GStreamer elements. Ctrl-C (or --duration) ends the run as the end of the stream
+    would, with every output complete; a second Ctrl-C stops at once.
 
     Writes to --out: calibration.json, system.json (BrnoCompSpeed results), vehicles.jsonl, vehicles.csv,
     intervals.csv (the traffic count per --interval, lane and direction), overlay.mp4 (unless --no-overlay),
@@ -320,13 +352,23 @@ def command(video: Path, out_dir: Path, calibration_path: Path | None, gt_path: 
     from rich.console import Console
 
     from ..calibration import load_calibration
-    from ..clock import parse_start_time
+    from ..clock import NOW, parse_start_time
+    from ..outputs import stream_start
     from ..gst.env import elements_dir
     from ..report import ReportInputs, write_report
     from ..traffic_stats import interval_rows, write_intervals_csv
 
     console = Console()
-    start = parse_start_time(start_time, "--start-time")  # a bad time: a one-line error before any work
+    if not is_uri(video):
+        if not Path(video).is_file():
+            raise click.BadParameter(f"File {video!r} does not exist." if not Path(video).exists() else
+                                     f"{video!r} is a directory.", param_hint="'VIDEO|URI'")
+        video = Path(video)
+    live_clock = start_time.strip().lower() == NOW
+    if live_clock and not is_uri(video):
+        raise InputError("--start-time now is for live streams (the clock at the first frame); for a file give the "
+                         "date and time the recording starts")
+    start = None if live_clock else parse_start_time(start_time, "--start-time")  # bad: one line, before any work
     if calibration_path is not None:
         given = load_calibration(calibration_path)  # unreadable/corrupt: a one-line InputError now, not mid-run
         if given.camera is None:
@@ -345,10 +387,17 @@ def command(video: Path, out_dir: Path, calibration_path: Path | None, gt_path: 
     bbscale = (elements_dir() / "python" / "bbscale.py").exists()
     description = pipeline_description(video, paths, calibration_path, detector, overlay=not no_overlay,
                                        bbscale=bbscale, scale_regression=regression_path, body_shapes=body_shapes,
-                                       speed_limit=speed_limit, start_time=start.isoformat() if start else "")
+                                       speed_limit=speed_limit,
+                                       start_time=NOW if live_clock else start.isoformat() if start else "")
     console.print(f"[bold]Pipeline[/] {description}", highlight=False, soft_wrap=True)
     summary = measure_video(video, out_dir, description, console,
-                            keep=(calibration_path,) if calibration_path is not None else ())
+                            keep=(calibration_path,) if calibration_path is not None else (), stop_after_s=duration_s)
+    if live_clock:  # the speedometer took the clock at the first frame: the events say when that was
+        start = stream_start(summary.events)
+    if summary.stopped:
+        at = f"{summary.position_s:.1f} s" if summary.position_s is not None else "the start"
+        why = "interrupted (Ctrl-C)" if summary.stopped == "interrupted" else "--duration reached"
+        console.print(f"[yellow]{why}[/] at {at}: the outputs cover the video up to there", highlight=False)
 
     cal = summary.calibration
     if cal is None or cal.camera is None:
@@ -381,7 +430,8 @@ def command(video: Path, out_dir: Path, calibration_path: Path | None, gt_path: 
     try:
         write_report(paths.report, ReportInputs(
             events=summary.events, calibration=cal, frame=first_frame(video), evaluation=ev,
-            ground_truth_name=str(gt_path or ""), title=f"gst-trafficcal run: {video.name}", source=str(video),
+            ground_truth_name=str(gt_path or ""), title=f"gst-trafficcal run: {getattr(video, 'name', video)}",
+            source=str(video),
             speed_limit_kmh=speed_limit or None, interval_s=60 * interval_min, start_time=start))
     except InputError as exc:
         summary.errors.append(str(exc))
@@ -402,3 +452,5 @@ def command(video: Path, out_dir: Path, calibration_path: Path | None, gt_path: 
                    + ("; bbscale found none (its warning above says why)" if bbscale else
                       ", or install the bbscale element"), err=True)
     sys.stdout.flush()
+    if summary.stopped == "interrupted":
+        sys.exit(130)  # the shell's code for Ctrl-C; every output above is complete

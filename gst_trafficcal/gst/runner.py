@@ -12,6 +12,9 @@ Our elements must be findable: :func:`ensure_elements` puts ``elements/`` on the
 
 from __future__ import annotations
 
+import signal
+import threading
+import time
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from typing import Any
@@ -38,6 +41,7 @@ class RunOutcome:
     warnings: list[str] = field(default_factory=list)
     position_s: float | None = None  # last position seen
     duration_s: float | None = None
+    stopped: str = ""  # why the run ended before the stream did ("interrupted", "duration"); "" at the stream's end
 
     @property
     def calibration(self) -> Calibration | None:
@@ -105,12 +109,43 @@ def _query_time(pipeline: Gst.Element, what: str) -> float | None:
     return value / Gst.SECOND if ok and value >= 0 else None
 
 
+def _end_stream_at(pad: Gst.Pad, seconds: float, on_end: Callable[[], None]) -> None:
+    """Make ``pad`` end the stream at the first buffer ``seconds`` after the first one: that buffer and every later
+    one are dropped, and an end-of-stream goes in their place (upstream then stops with flow EOS)."""
+    state: dict[str, Any] = {"t0": None, "ended": False}
+
+    def probe(pad: Gst.Pad, info: Gst.PadProbeInfo) -> Gst.PadProbeReturn:
+        buf = info.get_buffer()
+        if buf is None or buf.pts == Gst.CLOCK_TIME_NONE:
+            return Gst.PadProbeReturn.OK
+        if state["t0"] is None:
+            state["t0"] = buf.pts
+        if state["ended"]:
+            return Gst.PadProbeReturn.DROP
+        if (buf.pts - state["t0"]) / Gst.SECOND >= seconds - 1e-6:
+            state["ended"] = True
+            on_end()
+            pad.send_event(Gst.Event.new_eos())
+            return Gst.PadProbeReturn.DROP
+        return Gst.PadProbeReturn.OK
+
+    pad.add_probe(Gst.PadProbeType.BUFFER, probe)
+
+
 def run_pipeline_file(description: str, progress: Progress | None = None,
-                      on_message: Callable[[BusMessage], None] | None = None, poll_s: float = 0.25) -> RunOutcome:
+                      on_message: Callable[[BusMessage], None] | None = None, poll_s: float = 0.25,
+                      stop_after_s: float | None = None, drain_timeout_s: float = 60.0,
+                      stop_element: str = "") -> RunOutcome:
     """Play ``description`` to end-of-stream; ``progress(position_s, duration_s or None)`` every ``poll_s``.
 
+    The run ends early, as ``gst-launch-1.0 -e`` does, by an end-of-stream sent into the pipeline — so every
+    element finishes as at the stream's end (speedometer writes the vehicles still in view, mp4mux completes a
+    playable file): after ``stop_after_s`` seconds of video (``outcome.stopped`` "duration"; exactly, at the first
+    frame that late, when the description has an element named ``stop_element`` on the decoded video, else when
+    the pipeline's position gets there), or on Ctrl-C ("interrupted"; a second Ctrl-C, or no end-of-stream within
+    ``drain_timeout_s``, stops it at once).
     Raises :class:`PipelineError` when the description does not parse, :class:`RunFailed` (with the outcome so
-    far) when an element posts an ERROR; the pipeline is stopped first, so elements write what they have. Ctrl-C stops the pipeline and re-raises.
+    far) when an element posts an ERROR; the pipeline is stopped first, so elements write what they have.
     """
     ensure_elements()
     try:
@@ -123,44 +158,84 @@ def run_pipeline_file(description: str, progress: Progress | None = None,
     bus = pipeline.get_bus()
     mask = Gst.MessageType.ERROR | Gst.MessageType.EOS | Gst.MessageType.ELEMENT | Gst.MessageType.WARNING
     error: str | None = None
+    drain_until: float | None = None  # monotonic deadline once an end-of-stream was sent
+
+    def finish_early(why: str) -> None:
+        nonlocal drain_until
+        if drain_until is None:
+            out.stopped = why
+            drain_until = time.monotonic() + drain_timeout_s
+            pipeline.send_event(Gst.Event.new_eos())
+
+    head = pipeline.get_by_name(stop_element) if stop_after_s is not None and stop_element else None
+    if head is not None:
+        _end_stream_at(head.get_static_pad("sink"), stop_after_s, lambda: setattr(out, "stopped", "duration"))
+    started = False
+
+    def step() -> str | None:
+        """One poll of the bus: None to go on, "eos" at the end, else the error text."""
+        msg = bus.timed_pop_filtered(int(poll_s * Gst.SECOND), mask)
+        if drain_until is not None and time.monotonic() > drain_until:
+            return f"the pipeline did not finish within {drain_timeout_s:g} s of being told to stop"
+        if msg is None:
+            if not started:  # no ERROR explains the failure
+                return "the pipeline failed to start"
+            pos = _query_time(pipeline, "position")
+            if pos is not None:
+                out.position_s = pos
+                out.duration_s = out.duration_s or _query_time(pipeline, "duration")
+                if progress is not None:
+                    progress(pos, out.duration_s if stop_after_s is None else
+                             min(stop_after_s, out.duration_s or stop_after_s))
+                if stop_after_s is not None and head is None and pos >= stop_after_s:
+                    finish_early("duration")
+            return None
+        if msg.type == Gst.MessageType.ERROR:
+            return _error_text(msg)
+        if msg.type == Gst.MessageType.EOS:
+            return "eos"
+        if msg.type == Gst.MessageType.WARNING:
+            w, _ = msg.parse_warning()
+            out.warnings.append(f"{msg.src.get_name() if msg.src else 'pipeline'}: {w.message}")
+            return None
+        cal = parse_calibration_message(msg)
+        if cal is not None:
+            out.calibrations.append((msg.src.get_name() if msg.src else "", cal))
+            return None
+        s = msg.get_structure()
+        if s is not None:
+            bm = BusMessage(msg.src.get_name() if msg.src else "", s.get_name(), structure_to_dict(s))
+            out.messages.append(bm)
+            if on_message is not None:
+                on_message(bm)
+        return None
+
+    interrupts = []
+
+    def on_sigint(signum, frame) -> None:  # Ctrl-C: finish the stream; a second one: stop at once
+        interrupts.append(signum)
+        if len(interrupts) > 1:
+            raise KeyboardInterrupt
+
+    # only where Ctrl-C reaches us: the main thread, and not a process told to ignore it (a background job)
+    main = threading.current_thread() is threading.main_thread() and \
+        signal.getsignal(signal.SIGINT) is not signal.SIG_IGN
+    previous = signal.signal(signal.SIGINT, on_sigint) if main else None
     try:
         started = pipeline.set_state(Gst.State.PLAYING) != Gst.StateChangeReturn.FAILURE
         while True:
-            msg = bus.timed_pop_filtered(int(poll_s * Gst.SECOND), mask)
-            if msg is None:
-                if not started:  # no ERROR explains the failure
-                    error = "the pipeline failed to start"
-                    break
-                pos = _query_time(pipeline, "position")
-                if pos is not None:
-                    out.position_s = pos
-                    out.duration_s = out.duration_s or _query_time(pipeline, "duration")
-                    if progress is not None:
-                        progress(pos, out.duration_s)
-                continue
-            if msg.type == Gst.MessageType.ERROR:
-                error = _error_text(msg)
+            result = step()
+            if interrupts:
+                finish_early("interrupted")
+            if result is not None:
+                error = None if result == "eos" else result
                 break
-            if msg.type == Gst.MessageType.EOS:
-                break
-            if msg.type == Gst.MessageType.WARNING:
-                w, _ = msg.parse_warning()
-                out.warnings.append(f"{msg.src.get_name() if msg.src else 'pipeline'}: {w.message}")
-                continue
-            cal = parse_calibration_message(msg)
-            if cal is not None:
-                out.calibrations.append((msg.src.get_name() if msg.src else "", cal))
-                continue
-            s = msg.get_structure()
-            if s is not None:
-                bm = BusMessage(msg.src.get_name() if msg.src else "", s.get_name(), structure_to_dict(s))
-                out.messages.append(bm)
-                if on_message is not None:
-                    on_message(bm)
     finally:
+        if main:
+            signal.signal(signal.SIGINT, previous)
         pipeline.set_state(Gst.State.NULL)  # elements close their files (speedometer keeps every vehicle)
     if error is not None:
         raise RunFailed(error, out)
-    if out.duration_s is not None and progress is not None:
+    if out.duration_s is not None and progress is not None and not out.stopped:
         progress(out.duration_s, out.duration_s)
     return out
