@@ -411,6 +411,7 @@ def draw_overlay(canvas: Canvas, marks: Sequence[VehicleMark], camera: Camera | 
             canvas.segments(grid.across, style.grid_across_bgr, 1)
         if options.horizon and horizon is not None:
             canvas.segments(horizon[None], style.horizon_bgr, th)
+
     def box_color(m: VehicleMark) -> tuple[int, int, int]:
         if is_over_limit(m.speed_kmh, options.speed_limit_kmh):
             return style.speeding_bgr
