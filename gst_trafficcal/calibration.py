@@ -53,6 +53,7 @@ class Calibration:
     source: str = "unknown"
     confidence: dict[str, float] = field(default_factory=dict)
     reason: str = ""
+    view: dict | None = None  # the static scene it was learnt on (vanishing/view.py), to tell a moved camera
 
     def __post_init__(self) -> None:
         if self.state not in STATES:
@@ -94,6 +95,8 @@ class Calibration:
             d["camera_calibration"] = {"vp1": c.vp1.tolist(), "vp2": c.vp2.tolist(), "pp": c.pp.tolist(),
                                        "scale": None if c.scale is None else c.brno_scale()}
         d["confidence"] = dict(self.confidence)
+        if self.view is not None:
+            d["view"] = dict(self.view)
         return d
 
     @classmethod
@@ -121,8 +124,13 @@ class Calibration:
         conf = d.get("confidence", {})
         if not isinstance(conf, dict):
             raise InputError(f"{where}: field 'confidence' must be an object")
+        view = d.get("view")
+        if view is not None and not (isinstance(view, dict) and isinstance(view.get("png"), str)
+                                     and isinstance(view.get("frame_width"), int)):
+            raise InputError(f"{where}: field 'view' must be an object with 'png' and 'frame_width'")
         return cls(camera=camera, image_size=_size(d, where), state=state, source=str(d.get("source", "unknown")),
-                   confidence={str(k): float(v) for k, v in conf.items()}, reason=str(d.get("reason", "")))
+                   confidence={str(k): float(v) for k, v in conf.items()}, reason=str(d.get("reason", "")),
+                   view=view)
 
     @classmethod
     def from_brno_block(cls, block: Any, where: str = "calibration",

@@ -38,16 +38,17 @@ def _cal(scale: float | None = 6.5, **kw) -> Calibration:
 @pytest.mark.parametrize(
     "cal",
     [_cal(), _cal(scale=None), _cal(reason="retrying"), Calibration(None, (640, 480), state="learning"),
-     Calibration(None, (640, 480), state="failed", reason="too few tracks")],
-    ids=["calibrated", "vps", "reason", "learning", "failed"],
+     Calibration(None, (640, 480), state="failed", reason="too few tracks"),
+     _cal(view={"png": "iVBORw0KGgo=", "frame_width": 322})],
+    ids=["calibrated", "vps", "reason", "learning", "failed", "view"],
 )
 def test_event_round_trip(cal: Calibration) -> None:
     event = calibration_event(cal)
     assert event.type == Gst.EventType.CUSTOM_DOWNSTREAM_STICKY and event.has_name(STRUCTURE_NAME)
     back = parse_calibration_event(event)
     assert back is not None and back.id == cal.id and back.state == cal.state
-    assert (back.image_size, back.source, back.confidence, back.reason) == (
-        cal.image_size, cal.source, cal.confidence, cal.reason)
+    assert (back.image_size, back.source, back.confidence, back.reason, back.view) == (
+        cal.image_size, cal.source, cal.confidence, cal.reason, cal.view)
     if cal.camera is None:
         assert back.camera is None
     else:

@@ -154,3 +154,60 @@ def test_element_and_cli_calibrate_a_clip_alike(tmp_path):
     # (BGR -> COLOR_BGR2GRAY in the CLI, as before, moved the focal length by 0.05 % and VP1 by 0.15 px here)
     assert abs(a.focal - b.focal) < 1e-5 * a.focal
     assert cli.confidence["seconds"] == pytest.approx(elem.confidence["seconds"], abs=1e-6)
+    # both keep the view they were learnt on (the same thumbnails of the same luma frames)
+    from gst_trafficcal.vanishing.view import compare_views, decode_view
+
+    (v1, w1), (v2, w2) = decode_view(cli.view), decode_view(elem.view)
+    assert w1 == w2 == W and np.abs(v1.astype(int) - v2).max() <= 2 and not compare_views(v1, v2, W).moved
+
+
+@pytest.fixture(scope="module")
+def learnt(frames, tmp_path_factory):
+    """A calibration vpdetect learnt on the scene and saved, with the view it was learnt on."""
+    path = tmp_path_factory.mktemp("learnt") / "cal.json"
+    run_pipeline(f"appsrc name=src ! vpdetect {FAST} calibration-file={path} ! appsink name=sink", frames, CAPS,
+                 fps=FPS)
+    return path
+
+
+def test_the_saved_calibration_holds_the_view_it_was_learnt_on(learnt, frames):
+    from gst_trafficcal.vanishing.view import VIEW_WIDTH, ViewAccumulator, compare_views, decode_view
+
+    view, width = decode_view(load_calibration(learnt).view)
+    assert width == W and view.shape == (round(VIEW_WIDTH * H / W), VIEW_WIDTH)
+    acc = ViewAccumulator()
+    for f in frames[:100]:  # the first seconds of the same scene (its traffic passing)
+        acc.add(f[:, :, 0])
+    match = compare_views(view, acc.view(), W)
+    assert not match.moved and match.similarity > 0.9, match
+
+
+def _shifted(frames, dx):
+    return [np.roll(f, dx, axis=1) for f in frames]
+
+
+@pytest.mark.parametrize("case", ["same view", "moved, auto", "moved, fixed", "moved, check off"])
+def test_a_moved_camera_is_noticed(learnt, frames, tmp_path, case):
+    """The file's calibration is used for its own view; a camera moved by 5 % of the width is noticed: mode auto
+    learns anew (and replaces the file), mode fixed warns and keeps the file's calibration."""
+    path = tmp_path / "cal.json"
+    path.write_text(learnt.read_text())
+    stored = load_calibration(path)
+    clip = frames if case == "same view" else _shifted(frames, W // 20)
+    props = {"same view": "", "moved, auto": "", "moved, fixed": "mode=fixed",
+             "moved, check off": "view-check=false"}[case]
+    run = run_pipeline(f"appsrc name=src ! vpdetect {FAST} calibration-file={path} {props} ! appsink name=sink",
+                       clip, CAPS, fps=FPS)
+    warned = [w for w in run.warnings if "camera view differs" in w]
+    final = run.calibrations[-1]
+    if case == "same view":
+        assert _states(run) == ["learning", "vps"] and final.id == stored.id and not warned  # held 5 s, then used
+    elif case == "moved, auto":
+        assert len(warned) == 1 and "learning a new calibration" in warned[0] and "shifted by (+" in warned[0]
+        assert _states(run) == ["learning", "learning", "vps"] and final.id != stored.id
+        assert load_calibration(path).id == final.id  # the new calibration replaced the file
+    elif case == "moved, fixed":
+        assert len(warned) == 1 and "recalibrate" in warned[0]
+        assert _states(run) == ["vps"] and final.id == stored.id and load_calibration(path).id == stored.id
+    else:
+        assert _states(run) == ["vps"] and final.id == stored.id and not warned

@@ -6,7 +6,10 @@ then how far along them from the tracks' perspective acceleration) and VP2 from 
 resolution and on a subset of frames), and announces every state change (learning -> vps, or failed with the
 reason) downstream as the sticky ``trafficcal-calibration`` event and on the bus as an element message.
 No scale here: λ comes from ``bbscale``.  With ``calibration-file`` it loads a stored calibration (mode
-auto/fixed) or saves the one it learnt (mode auto/learn).
+auto/fixed) or saves the one it learnt (mode auto/learn), with a thumbnail of the static scene it was learnt on
+(``view``, ``gst_trafficcal.vanishing.view``).  A loaded calibration with a view is checked against the stream's
+first seconds: if the camera has moved (shifted, zoomed, rotated, or another scene), mode auto warns and learns
+anew (and saves the new calibration); mode fixed warns and keeps the file's.
 """
 
 from gst_trafficcal.gst._gi import GObject, Gst
@@ -14,6 +17,7 @@ from gst_trafficcal.gst.element import TrafficcalTransform
 
 _RW = GObject.ParamFlags.READWRITE
 MODES = ("auto", "learn", "fixed")
+VIEW_CHECK_SAMPLES = 15  # thumbnails (every 5th frame: 3 s at 25 fps) before a loaded calibration's view is checked
 
 
 class VpDetect(TrafficcalTransform):
@@ -42,6 +46,8 @@ class VpDetect(TrafficcalTransform):
                         1.0, 90.0, 30.0, _RW),
         "method": (str, "VP2 method", "edgelets (the paper) or gradient (orientation of image gradients, ITS15 "
                    "baseline)", "edgelets", _RW),
+        "view-check": (bool, "View check", "Compare the stream's first seconds with the scene a loaded calibration "
+                       "was learnt on; if the camera has moved, warn, and in mode auto learn anew", True, _RW),
         "constant-speed": (bool, "Constant speed", "Move VP1 along the lanes to where the tracked points' "
                            "perspective acceleration puts it, taking vehicles to keep their speed for the second or "
                            "two a point is tracked (the lane lines alone place VP1 poorly along the lanes, which "
@@ -56,12 +62,12 @@ class VpDetect(TrafficcalTransform):
         self._frames = 0
         self._fps = 25.0
         self._format = "I420"
+        self._views = None  # ViewAccumulator: the stream's static scene (learning, or checking a loaded calibration)
+        self._loaded = None  # a loaded calibration whose view is being checked
+        self._held = False  # ... and not published yet (mode auto: held until the check is done)
 
     def on_caps(self, info):
         from gst_trafficcal.calibration import Calibration, load_calibration
-        from gst_trafficcal.cli.calibrate import parse_focal_range
-        from gst_trafficcal.vanishing.calibrator import CalibratorConfig, VPCalibrator
-
         from gst_trafficcal.gst.buffers import format_name
 
         if info.fps_n > 0 and info.fps_d > 0:
@@ -88,10 +94,27 @@ class VpDetect(TrafficcalTransform):
                 self.post_error(f"vpdetect: {exc}")
                 return
             self._learner = None
+            if cal.view is not None and self.view_check:
+                from gst_trafficcal.vanishing.view import ViewAccumulator
+
+                self._views, self._loaded = ViewAccumulator(), cal
+                self._held = self.mode == "auto"  # a moved camera must not measure with the file's calibration
+                if self._held:
+                    self.publish_calibration(Calibration(None, self.frame_size, state="learning", source="vpdetect"))
+                    return
             self.publish_calibration(cal)
             return
         if self._learner is not None and self._learner.image_size == tuple(self.frame_size):
             return
+        self._start_learning()
+
+    def _start_learning(self):
+        from gst_trafficcal.calibration import Calibration
+        from gst_trafficcal.cli.calibrate import parse_focal_range
+        from gst_trafficcal.vanishing.calibrator import CalibratorConfig, VPCalibrator
+        from gst_trafficcal.vanishing.view import ViewAccumulator
+
+        self._views = ViewAccumulator(keep=60)
         try:
             width = self.frame_size[0]
             d = self.downscale
@@ -108,14 +131,16 @@ class VpDetect(TrafficcalTransform):
         self.publish_calibration(Calibration(None, self.frame_size, state="learning", source="vpdetect"))
 
     def on_calibration(self, cal):
-        return self._learner is None  # while learning, our own calibration is the one downstream sees
+        # while learning or holding a loaded calibration back, our own calibration is the one downstream sees
+        return self._learner is None and not self._held
 
     def transform_frame(self, buffer):
         from gst_trafficcal.gst.buffers import pts_seconds
         from gst_trafficcal.vanishing.frames import luma
 
         learner = self._learner
-        if learner is None or learner.done:
+        checking = self._loaded is not None
+        if not checking and (learner is None or learner.done):
             return Gst.FlowReturn.OK
         t = pts_seconds(buffer)
         if t is None:
@@ -124,12 +149,56 @@ class VpDetect(TrafficcalTransform):
         # the luma plane, computed by the same function as for files (trafficcal calibrate): the Y plane of
         # I420/NV12/GRAY8 as it is, colour formats converted to BT.601 limited-range luma
         with self.planes(buffer) as planes:
-            changed = learner.add(luma(planes[0], self._format), t)
+            y = luma(planes[0], self._format)
+            self._views.add(y)
+            if checking:
+                if self._views.count >= VIEW_CHECK_SAMPLES:
+                    self._check_view()
+                return Gst.FlowReturn.OK
+            changed = learner.add(y, t)
         if changed:
             self._publish(learner.calibration)
         return Gst.FlowReturn.OK
 
+    def _check_view(self):
+        """Compare the stream's scene with the loaded calibration's; publish it, or (moved) warn and in mode auto
+        learn anew."""
+        from gst_trafficcal.vanishing.view import compare_views, decode_view, thumbnail
+
+        cal, self._loaded = self._loaded, None
+        try:
+            stored, width = decode_view(cal.view, self.calibration_file)
+        except Exception as exc:  # a broken view: the calibration itself is readable, so say so and use it
+            self.post_warning(f"vpdetect: {exc}; the camera view is not checked")
+            stored = None
+        current = self._views.view()
+        match = compare_views(stored, current, width) if stored is not None and current is not None else None
+        if match is not None and stored.shape != current.shape:  # another aspect ratio than the file's
+            match = None
+        if match is None or not match.moved:
+            if self._held:
+                self.publish_calibration(cal)
+            self._held = False
+            return
+        if not self._held:  # mode fixed: the file's calibration stays, the user is told
+            self.post_warning(f"vpdetect: the camera view differs from the one {self.calibration_file} was "
+                              f"calibrated on ({match.describe()}): the camera may have moved and speeds may be "
+                              "wrong; recalibrate (mode=auto or learn)")
+            return
+        self._held = False
+        self.post_warning(f"vpdetect: the camera view differs from the one {self.calibration_file} was calibrated "
+                          f"on ({match.describe()}): the camera has moved; learning a new calibration (it will "
+                          "replace the file)")
+        self._start_learning()
+
     def on_eos(self):
+        if self._loaded is not None:  # the stream ended while its view was being checked
+            if self._views.count >= 3:
+                self._check_view()
+            elif self._held:
+                self._held = False
+                cal, self._loaded = self._loaded, None
+                self.publish_calibration(cal)
         learner = self._learner
         if learner is not None and not learner.done:
             self._publish(learner.finish())
@@ -137,6 +206,12 @@ class VpDetect(TrafficcalTransform):
     def _publish(self, cal):
         from gst_trafficcal.calibration import save_calibration
 
+        if cal.camera is not None and cal.view is None and self._views is not None and self._views.count:
+            from dataclasses import replace
+
+            from gst_trafficcal.vanishing.view import encode_view
+
+            cal = replace(cal, view=encode_view(self._views.view(), self.frame_size[0]))
         self.publish_calibration(cal)
         if cal.state == "failed":
             self.post_warning(f"vpdetect: calibration failed: {cal.reason}")

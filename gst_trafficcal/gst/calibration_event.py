@@ -11,7 +11,9 @@ The calibration travels downstream as a *sticky custom downstream event* whose s
 Flat doubles (not arrays) so ``gst-launch-1.0 -m`` prints it readably on one line and any
 language reads it with ``gst_structure_get_double``. The point/focal/scale fields are absent
 while the state is "learning" (or "failed"), ``scale`` is absent until it is known, ``reason``
-only when set, and there is one ``confidence_<name>`` per entry of ``Calibration.confidence``.
+only when set, and there is one ``confidence_<name>`` per entry of ``Calibration.confidence``; a calibration
+learnt by ``vpdetect`` also carries ``view_png`` (a 160-px grey thumbnail of the scene it was learnt on, base64
+PNG, ~14 kB) and ``view_width`` (``Calibration.view``; ``vanishing/view.py``).
 Being sticky, a new event replaces the previous one and reaches elements linked later.
 The same structure is posted on the bus as an element message.
 """
@@ -44,6 +46,8 @@ def calibration_structure(cal: Calibration) -> Gst.Structure:
         fields[_CONF_PREFIX + key] = float(value)
     if cal.reason:
         fields["reason"] = cal.reason
+    if cal.view is not None:  # the scene it was learnt on, so that whoever saves it can check a moved camera later
+        fields["view_png"], fields["view_width"] = str(cal.view["png"]), int(cal.view["frame_width"])
     return make_structure(STRUCTURE_NAME, fields)
 
 
@@ -64,6 +68,8 @@ def calibration_from_structure(s: Gst.Structure) -> Calibration:
         d["scale"] = values.get("scale")
     if "reason" in values:
         d["reason"] = values["reason"]
+    if "view_png" in values:
+        d["view"] = {"png": values["view_png"], "frame_width": values.get("view_width")}
     return Calibration.from_dict(d, where=f"{STRUCTURE_NAME} event")
 
 

@@ -57,6 +57,7 @@ class PipelineRun:
     frames: list[SinkFrame] = field(default_factory=list)
     messages: list[BusMessage] = field(default_factory=list)
     calibrations: list[Calibration] = field(default_factory=list)  # every calibration event at the sink
+    warnings: list[str] = field(default_factory=list)  # WARNING messages: "element: text"
 
 
 def _error_text(msg: Gst.Message) -> str:
@@ -191,7 +192,7 @@ def _sink_frame(sample: Gst.Sample, index: int, order: collections.deque, on_buf
 
 def _drain_bus(bus: Gst.Bus, run: PipelineRun, wait: bool) -> bool:
     """Handle pending bus messages; True at EOS. Raises PipelineError on ERROR."""
-    mask = Gst.MessageType.ERROR | Gst.MessageType.EOS | Gst.MessageType.ELEMENT
+    mask = Gst.MessageType.ERROR | Gst.MessageType.EOS | Gst.MessageType.ELEMENT | Gst.MessageType.WARNING
     while True:
         msg = bus.timed_pop_filtered(50 * Gst.MSECOND if wait else 0, mask)
         if msg is None:
@@ -200,6 +201,10 @@ def _drain_bus(bus: Gst.Bus, run: PipelineRun, wait: bool) -> bool:
             raise PipelineError(_error_text(msg))
         if msg.type == Gst.MessageType.EOS:
             return True
+        if msg.type == Gst.MessageType.WARNING:
+            w, _ = msg.parse_warning()
+            run.warnings.append(f"{msg.src.get_name() if msg.src else 'pipeline'}: {w.message}")
+            continue
         s = msg.get_structure()
         if s is not None:
             run.messages.append(BusMessage(msg.src.get_name() if msg.src else "", s.get_name(), structure_to_dict(s)))

@@ -429,19 +429,24 @@ def calibrate_video(path, config: CalibratorConfig | None = None, progress=None,
 
     Frames are analysed as their luma plane (:mod:`.frames`), exactly what the element sees on YUV caps.
     ``progress(frame_index, frame_count, status)`` is called for every frame.  Raises InputError for a missing
-    or undecodable file; an empty or static video gives state ``failed`` with the reason.
+    or undecodable file; an empty or static video gives state ``failed`` with the reason.  A calibration with
+    vanishing points carries the view it was learnt on (:mod:`.view`), as ``vpdetect``'s does.
     """
     import time
+    from dataclasses import replace
 
     from .frames import luma_frames
+    from .view import ViewAccumulator, encode_view
 
     frames = luma_frames(path)
     cal = VPCalibrator(frames.size, config)
+    views = ViewAccumulator(keep=60)
     n = 0
     busy = 0.0
     for t, gray in frames:
         start = time.perf_counter()
         cal.add(gray, t)
+        views.add(gray)
         busy += time.perf_counter() - start
         n += 1
         if progress is not None:
@@ -449,4 +454,6 @@ def calibrate_video(path, config: CalibratorConfig | None = None, progress=None,
         if stop_when_done and cal.done:
             break
     result = cal.finish()
+    if result.camera is not None and views.count:
+        result = replace(result, view=encode_view(views.view(), frames.size[0]))
     return VideoCalibration(result, cal, frames.first_bgr, n, busy)

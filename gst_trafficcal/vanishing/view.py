@@ -1,0 +1,144 @@
+"""Has the camera moved since it was calibrated?  A small fingerprint of the static scene, stored with the
+calibration and compared with the scene a stream shows.
+
+A stored calibration is only right for the view it was learnt on: a camera knocked, re-aimed or zoomed keeps
+its image size, and its speeds would be silently wrong.  ``vpdetect`` keeps a median background thumbnail
+(:class:`ViewAccumulator`) of the video it calibrates on and saves it in the calibration file (``view``); when
+it loads a calibration it compares the stream's thumbnail with it (:func:`compare_views`: the shift between the
+two images' gradients by phase correlation, and their normalised correlation once aligned).  The gradients, not
+the grey levels, so that daylight, exposure and weather changes are not taken for a move.
+"""
+
+from __future__ import annotations
+
+import base64
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from ..errors import InputError
+
+VIEW_WIDTH = 160
+"""Width in pixels of the thumbnail (the height keeps the frame's aspect)."""
+MAX_SHIFT = 1.5
+"""Thumbnail pixels (1.5 / 160 ≈ 1 % of the frame width) the view may shift before it counts as moved."""
+MAX_ZOOM = 0.01
+"""Relative change of scale (a zoom: the focal length, hence every speed, changes by as much) that counts as moved."""
+MAX_ROTATION_DEG = 0.5
+"""Rotation of the image (the camera's roll) that counts as moved."""
+MIN_SIMILARITY = 0.5
+"""Normalised correlation of the aligned gradient images below which the view counts as another one."""
+
+
+@dataclass(frozen=True)
+class ViewMatch:
+    """How the current view compares with the calibration's."""
+
+    shift: tuple[float, float]  # (dx, dy) of the current view against the stored one, in frame pixels
+    zoom: float  # relative scale of the current view against the stored one, minus 1
+    rotation_deg: float
+    similarity: float  # normalised correlation of the aligned gradient images, -1..1
+    moved: bool
+
+    def describe(self) -> str:
+        return (f"shifted by ({self.shift[0]:+.0f}, {self.shift[1]:+.0f}) px, zoom {100 * self.zoom:+.1f} %, "
+                f"rotated {self.rotation_deg:+.1f}°, similarity {self.similarity:.2f} (the same view: within "
+                f"{MAX_SHIFT / VIEW_WIDTH * 100:.0f} % of the width, {100 * MAX_ZOOM:g} % zoom, {MAX_ROTATION_DEG:g}°, "
+                f"similarity at least {MIN_SIMILARITY:g})")
+
+
+def thumbnail(luma: np.ndarray) -> np.ndarray:
+    """A VIEW_WIDTH-wide grey thumbnail of a luma frame (area averaging)."""
+    h, w = luma.shape[:2]
+    size = (VIEW_WIDTH, max(1, round(VIEW_WIDTH * h / w)))
+    return cv2.resize(luma, size, interpolation=cv2.INTER_AREA)
+
+
+class ViewAccumulator:
+    """Median of the thumbnails of every ``every``-th frame (up to ``keep`` of them): the static scene without
+    the traffic passing through it."""
+
+    def __init__(self, every: int = 5, keep: int = 25) -> None:
+        self.every, self.keep = every, keep
+        self._n = 0
+        self._thumbs: list[np.ndarray] = []
+
+    def add(self, luma: np.ndarray) -> None:
+        if self._n % self.every == 0:
+            self._thumbs.append(thumbnail(luma))
+            del self._thumbs[:-self.keep]
+        self._n += 1
+
+    @property
+    def count(self) -> int:
+        return len(self._thumbs)
+
+    def view(self) -> np.ndarray | None:
+        """The median thumbnail (None before the first frame)."""
+        if not self._thumbs:
+            return None
+        return np.median(np.stack(self._thumbs), axis=0).astype(np.uint8)
+
+
+def encode_view(view: np.ndarray, frame_width: int) -> dict:
+    """The calibration file's ``view`` field: the thumbnail as base64 PNG and the frame width it came from."""
+    ok, png = cv2.imencode(".png", view)
+    if not ok:
+        raise ValueError("cannot encode the view thumbnail")
+    return {"png": base64.b64encode(png.tobytes()).decode("ascii"), "frame_width": int(frame_width)}
+
+
+def decode_view(field: dict, where: str = "calibration") -> tuple[np.ndarray, int]:
+    """(thumbnail, frame width) from a calibration file's ``view``; InputError naming ``where`` if it is broken."""
+    try:
+        img = cv2.imdecode(np.frombuffer(base64.b64decode(field["png"], validate=True), np.uint8),
+                           cv2.IMREAD_GRAYSCALE)
+        width = int(field["frame_width"])
+    except (KeyError, TypeError, ValueError) as exc:
+        raise InputError(f"{where}: field 'view' is broken ({exc})") from None
+    if img is None or width <= 0:
+        raise InputError(f"{where}: field 'view' is broken (not a PNG thumbnail)")
+    return img, width
+
+
+def _gradient(img: np.ndarray) -> np.ndarray:
+    f = cv2.GaussianBlur(img.astype(np.float32), (0, 0), 0.8)
+    return cv2.magnitude(cv2.Sobel(f, cv2.CV_32F, 1, 0), cv2.Sobel(f, cv2.CV_32F, 0, 1))
+
+
+def _correlation(a: np.ndarray, b: np.ndarray, margin: int = 4) -> float:
+    x, y = a[margin:-margin, margin:-margin].ravel(), b[margin:-margin, margin:-margin].ravel()
+    x, y = x - x.mean(), y - y.mean()
+    denom = float(np.sqrt((x * x).sum() * (y * y).sum()))
+    return float((x * y).sum() / denom) if denom > 0 else 0.0
+
+
+def compare_views(stored: np.ndarray, current: np.ndarray, frame_width: int) -> ViewMatch:
+    """How the current thumbnail maps onto the stored one (same size): the shift by phase correlation of their
+    gradient images, refined to a similarity transform (zoom, rotation) by ECC; their normalised correlation once
+    aligned.  Moved when any of them is out of bounds (MAX_SHIFT, MAX_ZOOM, MAX_ROTATION_DEG, MIN_SIMILARITY)."""
+    if stored.shape != current.shape:
+        return ViewMatch((0.0, 0.0), 0.0, 0.0, 0.0, True)
+    a, b = _gradient(stored), _gradient(current)
+    window = cv2.createHanningWindow(a.shape[::-1], cv2.CV_32F)
+    (dx, dy), _ = cv2.phaseCorrelate(a, b, window)
+    warp = np.float32([[1, 0, dx], [0, 1, dy]])  # stored -> current coordinates
+    try:
+        _, warp = cv2.findTransformECC(a, b, warp, cv2.MOTION_AFFINE,
+                                       (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 100, 1e-5), None, 3)
+    except cv2.error:  # no convergence (e.g. another scene): the shift alone
+        pass
+    A = warp[:, :2].astype(np.float64)
+    zoom = float(np.sqrt(abs(np.linalg.det(A)))) - 1.0
+    rotation = float(np.degrees(np.arctan2(A[1, 0] - A[0, 1], A[0, 0] + A[1, 1])))
+    # the translation of the thumbnail's centre (where a camera's re-aim shows)
+    c = np.array([a.shape[1] / 2, a.shape[0] / 2])
+    tx, ty = A @ c + warp[:, 2] - c
+    back = cv2.warpAffine(b, warp, b.shape[::-1], flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP,
+                          borderMode=cv2.BORDER_REPLICATE)
+    sim = _correlation(a, back)
+    scale = frame_width / stored.shape[1]
+    moved = bool(np.hypot(tx, ty) > MAX_SHIFT or abs(zoom) > MAX_ZOOM or abs(rotation) > MAX_ROTATION_DEG
+                 or sim < MIN_SIMILARITY)
+    return ViewMatch((float(tx * scale), float(ty * scale)), zoom, rotation, sim, moved)
