@@ -34,7 +34,7 @@ import numpy as np
 
 from .brnocompspeed import BrnoCalibration, Results, Track, save_results
 from .calibration import Calibration
-from .clock import clock_time
+from .clock import clock_time, parse_start_time
 from .errors import InputError
 from .fileio import atomic_write
 
@@ -141,8 +141,6 @@ class VehicleEvent:
 
 def stream_start(events: Iterable[VehicleEvent]) -> datetime | None:
     """The date and time of stream time 0 from the first event that carries one (None: no event is dated)."""
-    from .clock import parse_start_time
-
     for e in events:
         if e.first_time and e.first_timestamp_s is not None:
             return parse_start_time(e.first_time) - timedelta(seconds=e.first_timestamp_s)

@@ -199,10 +199,11 @@ class Speedometer(TrafficcalTransform):
         if self._last_pts is not None and t > self._last_pts and len(self._dts) < 50:
             self._dts.append(t - self._last_pts)  # the frame rate of variable-rate caps, for BrnoCompSpeed
         self._last_pts = t
-        if self._start is None and self.start_datetime.strip().lower() == "now":
-            from gst_trafficcal.clock import start_from_now
+        if self._start is None and self.start_datetime:
+            from gst_trafficcal.clock import NOW, start_from_now
 
-            self._start = start_from_now(t)
+            if self.start_datetime.strip().lower() == NOW:
+                self._start = start_from_now(t)
         if self._tracking is None:
             upstream = _tracker_upstream(self)
             self._tracking = False if upstream is not None else self._tracking_pipeline()
