@@ -34,6 +34,38 @@ def load_benchmark():
     return load
 
 
+def serve_rtsp(launch: str, mount: str):
+    """Serve ``launch`` (a gst-rtsp-server media description, payloader ``pay0``) over RTSP from a server running
+    in this process; yields its ``rtsp://127.0.0.1:PORT/mount`` URL.  For generator fixtures: skips the test
+    without Debian's gir1.2-gst-rtsp-server-1.0."""
+    import threading
+
+    import gi
+
+    try:
+        gi.require_version("GstRtspServer", "1.0")
+        from gi.repository import GstRtspServer
+    except (ValueError, ImportError):
+        pytest.skip("needs the GstRtspServer introspection data (Debian: gir1.2-gst-rtsp-server-1.0)")
+    from gst_trafficcal.gst._gi import GLib
+
+    ctx = GLib.MainContext.new()
+    loop = GLib.MainLoop.new(ctx, False)
+    server = GstRtspServer.RTSPServer.new()
+    server.set_service("0")
+    factory = GstRtspServer.RTSPMediaFactory.new()
+    factory.set_launch(launch)
+    server.get_mount_points().add_factory(f"/{mount}", factory)
+    server.attach(ctx)
+    thread = threading.Thread(target=loop.run, daemon=True)
+    thread.start()
+    try:
+        yield f"rtsp://127.0.0.1:{server.get_bound_port()}/{mount}"
+    finally:
+        loop.quit()
+        thread.join(10)
+
+
 def require_shared(path: Path) -> Path:
     """Skip the calling test with a reason when a file of ../shared is not there."""
     if not path.exists():

@@ -16,6 +16,8 @@ from gst_trafficcal.brnocompspeed import load_results
 from gst_trafficcal.calibration import load_calibration
 from gst_trafficcal.outputs import read_events, read_events_csv
 
+from .conftest import serve_rtsp
+
 pytestmark = pytest.mark.gst
 
 
@@ -261,32 +263,8 @@ def test_body_shapes_reach_the_tracker(clip, tmp_path):
 @pytest.fixture
 def rtsp_clip(clip):
     """The clip served live over RTSP by a server in this process (needs gir1.2-gst-rtsp-server-1.0)."""
-    import threading
-
-    import gi
-
-    try:
-        gi.require_version("GstRtspServer", "1.0")
-        from gi.repository import GstRtspServer
-    except (ValueError, ImportError):
-        pytest.skip("needs the GstRtspServer introspection data (Debian: gir1.2-gst-rtsp-server-1.0)")
-    from gst_trafficcal.gst._gi import GLib
-
-    ctx = GLib.MainContext.new()
-    loop = GLib.MainLoop.new(ctx, False)
-    server = GstRtspServer.RTSPServer.new()
-    server.set_service("0")
-    factory = GstRtspServer.RTSPMediaFactory.new()
-    factory.set_launch(f"( filesrc location={clip / 'video.mp4'} ! qtdemux ! h264parse ! rtph264pay name=pay0 pt=96 )")
-    server.get_mount_points().add_factory("/clip", factory)
-    server.attach(ctx)
-    thread = threading.Thread(target=loop.run, daemon=True)
-    thread.start()
-    try:
-        yield f"rtsp://127.0.0.1:{server.get_bound_port()}/clip"
-    finally:
-        loop.quit()
-        thread.join(timeout=5)
+    yield from serve_rtsp(f"( filesrc location={clip / 'video.mp4'} ! qtdemux ! h264parse ! rtph264pay name=pay0 "
+                          "pt=96 )", "clip")
 
 
 def test_a_live_stream_runs_until_ctrl_c_and_every_output_is_complete(clip, rtsp_clip, tmp_path):

@@ -22,6 +22,8 @@ from gst_trafficcal.gst.env import gst_environment  # noqa: E402
 from gst_trafficcal.gst.pipeline import PipelineError, run_pipeline  # noqa: E402
 from gst_trafficcal.overlay import Style  # noqa: E402
 
+from .conftest import serve_rtsp  # noqa: E402
+
 ROOT = Path(__file__).resolve().parents[1]
 PLUGINS = Path(__file__).resolve().parent / "gst_plugins"
 W, H = 320, 240
@@ -194,14 +196,17 @@ def _bgr(buffer: Gst.Buffer, info) -> np.ndarray:
         return bgr.copy()
 
 
-def test_property_toggles_and_counters() -> None:
-    def frame(props: str) -> np.ndarray:
-        frames = []
-        run_pipeline(f"{GREY_SRC},format=BGR ! tcroisource {_rois_prop([_roi_2d(object_id=4), _roi_3d()])} ! "
-                     f"trafficoverlay {props} ! appsink name=sink",
-                     on_buffer=lambda b, i: frames.append(_bgr(b, i)))
-        return frames[-1]
+def _two_vehicles(props: str) -> np.ndarray:
+    """The last BGR frame of trafficoverlay (with ``props``) over the 55.5 km/h car and the 81 km/h truck."""
+    frames = []
+    run_pipeline(f"{GREY_SRC},format=BGR ! tcroisource {_rois_prop([_roi_2d(object_id=4), _roi_3d()])} ! "
+                 f"trafficoverlay {props} ! appsink name=sink",
+                 on_buffer=lambda b, i: frames.append(_bgr(b, i)))
+    return frames[-1]
 
+
+def test_property_toggles_and_counters() -> None:
+    frame = _two_vehicles
     full = frame("")
     assert _near(full, STYLE.box_unknown_bgr, 10).any() and _near(full, STYLE.box_towards_bgr, 10).any()
     counters = full[:40, :110]
@@ -219,11 +224,7 @@ def test_property_toggles_and_counters() -> None:
 def test_speed_limit_draws_the_faster_vehicle_in_red() -> None:
     """speed-limit=70: the 81 km/h truck's 3D box turns red, the 55.5 km/h car keeps its colour."""
     def frame(props: str) -> np.ndarray:
-        frames = []
-        run_pipeline(f"{GREY_SRC},format=BGR ! tcroisource {_rois_prop([_roi_2d(object_id=4), _roi_3d()])} ! "
-                     f"trafficoverlay draw-counters=false {props} ! appsink name=sink",
-                     on_buffer=lambda b, i: frames.append(_bgr(b, i)))
-        return frames[-1]
+        return _two_vehicles(f"draw-counters=false {props}")
 
     limited = frame("speed-limit=70")
     red = _near(limited, STYLE.speeding_bgr, 10)
@@ -358,33 +359,9 @@ def test_nvr_overlay_full_chain(script_env: dict[str, str], tmp_path: Path) -> N
 @pytest.fixture
 def rtsp_url():
     """An RTSP server in this process streaming 2 s of test video (needs gir1.2-gst-rtsp-server-1.0)."""
-    import threading
-
-    import gi
-
-    try:
-        gi.require_version("GstRtspServer", "1.0")
-        from gi.repository import GstRtspServer
-    except (ValueError, ImportError):
-        pytest.skip("needs the GstRtspServer introspection data (Debian: gir1.2-gst-rtsp-server-1.0)")
-    from gst_trafficcal.gst._gi import GLib
-
-    ctx = GLib.MainContext.new()
-    loop = GLib.MainLoop.new(ctx, False)
-    server = GstRtspServer.RTSPServer.new()
-    server.set_service("0")
-    factory = GstRtspServer.RTSPMediaFactory.new()
-    factory.set_launch(f"( {GREY_SRC.replace('num-buffers=8', 'num-buffers=50')},format=I420 ! "
-                       "x264enc tune=zerolatency speed-preset=ultrafast key-int-max=10 ! rtph264pay name=pay0 pt=96 )")
-    server.get_mount_points().add_factory("/test", factory)
-    server.attach(ctx)
-    thread = threading.Thread(target=loop.run, daemon=True)
-    thread.start()
-    try:
-        yield f"rtsp://127.0.0.1:{server.get_bound_port()}/test"
-    finally:
-        loop.quit()
-        thread.join(10)
+    yield from serve_rtsp(f"( {GREY_SRC.replace('num-buffers=8', 'num-buffers=50')},format=I420 ! "
+                          "x264enc tune=zerolatency speed-preset=ultrafast key-int-max=10 ! "
+                          "rtph264pay name=pay0 pt=96 )", "test")
 
 
 def test_nvr_overlay_reads_rtsp(script_env: dict[str, str], tmp_path: Path, rtsp_url: str) -> None:
