@@ -54,6 +54,8 @@ class Calibration:
     confidence: dict[str, float] = field(default_factory=dict)
     reason: str = ""
     view: dict | None = None  # the static scene it was learnt on (vanishing/view.py), to tell a moved camera
+    moved_at: float | None = None  # stream time (s) the camera moved, on the "learning" calibration vpdetect
+    # announces then: what was seen before belongs to the calibration in force before, nothing after does
 
     def __post_init__(self) -> None:
         if self.state not in STATES:
@@ -67,7 +69,7 @@ class Calibration:
     def id(self) -> str:
         """Short content hash: equal calibrations have equal ids."""
         if self.camera is None:
-            key = f"{self.state}:{self.image_size}"
+            key = f"{self.state}:{self.image_size}" + ("" if self.moved_at is None else f":moved@{self.moved_at:.3f}")
         else:
             c = self.camera
             key = json.dumps([np.round(c.vp1, 6).tolist(), np.round(c.vp2, 6).tolist(), np.round(c.pp, 6).tolist(),
@@ -86,6 +88,8 @@ class Calibration:
                              "source": self.source, "image_size": list(self.image_size)}
         if self.reason:
             d["reason"] = self.reason
+        if self.moved_at is not None:
+            d["moved_at"] = float(self.moved_at)
         if self.camera is not None:
             c = self.camera
             d.update(vp1=c.vp1.tolist(), vp2=c.vp2.tolist(), pp=c.pp.tolist(), focal=c.focal, scale=c.scale)
@@ -128,9 +132,12 @@ class Calibration:
         if view is not None and not (isinstance(view, dict) and isinstance(view.get("png"), str)
                                      and isinstance(view.get("frame_width"), int)):
             raise InputError(f"{where}: field 'view' must be an object with 'png' and 'frame_width'")
+        moved_at = d.get("moved_at")
+        if moved_at is not None and not (isinstance(moved_at, (int, float)) and math.isfinite(moved_at)):
+            raise InputError(f"{where}: field 'moved_at' must be a number (seconds) or null")
         return cls(camera=camera, image_size=_size(d, where), state=state, source=str(d.get("source", "unknown")),
                    confidence={str(k): float(v) for k, v in conf.items()}, reason=str(d.get("reason", "")),
-                   view=view)
+                   view=view, moved_at=None if moved_at is None else float(moved_at))
 
     @classmethod
     def from_brno_block(cls, block: Any, where: str = "calibration",

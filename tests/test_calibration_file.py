@@ -43,6 +43,18 @@ def test_without_scale_is_vps_state(tmp_path):
     assert json.loads((tmp_path / "c.json").read_text())["camera_calibration"]["scale"] is None
 
 
+def test_a_moved_camera_is_kept_in_the_file(tmp_path):
+    cal = Calibration(None, (1920, 1080), state="learning", source="vpdetect", reason="the camera moved at 12.5 s",
+                      moved_at=12.5)
+    back = load_calibration(save_calibration(cal, tmp_path / "c.json"))
+    assert back.moved_at == 12.5 and back.id == cal.id and back.reason == cal.reason
+    assert back.id != Calibration(None, (1920, 1080), state="learning").id  # not the start's learning state
+    (tmp_path / "bad.json").write_text(json.dumps(dict(json.loads((tmp_path / "c.json").read_text()),
+                                                       moved_at="soon")))
+    with pytest.raises(InputError, match="bad.json: field 'moved_at' must be a number"):
+        load_calibration(tmp_path / "bad.json")
+
+
 def test_reads_brnocompspeed_results_file():
     path = require_shared(BRNO / "session0_center" / "system_dubska_bmvc14.json")
     cal = load_calibration(path)

@@ -39,16 +39,17 @@ def _cal(scale: float | None = 6.5, **kw) -> Calibration:
     "cal",
     [_cal(), _cal(scale=None), _cal(reason="retrying"), Calibration(None, (640, 480), state="learning"),
      Calibration(None, (640, 480), state="failed", reason="too few tracks"),
-     _cal(view={"png": "iVBORw0KGgo=", "frame_width": 322})],
-    ids=["calibrated", "vps", "reason", "learning", "failed", "view"],
+     _cal(view={"png": "iVBORw0KGgo=", "frame_width": 322}),
+     Calibration(None, (640, 480), state="learning", reason="the camera moved at 7.2 s", moved_at=7.25)],
+    ids=["calibrated", "vps", "reason", "learning", "failed", "view", "moved"],
 )
 def test_event_round_trip(cal: Calibration) -> None:
     event = calibration_event(cal)
     assert event.type == Gst.EventType.CUSTOM_DOWNSTREAM_STICKY and event.has_name(STRUCTURE_NAME)
     back = parse_calibration_event(event)
     assert back is not None and back.id == cal.id and back.state == cal.state
-    assert (back.image_size, back.source, back.confidence, back.reason, back.view) == (
-        cal.image_size, cal.source, cal.confidence, cal.reason, cal.view)
+    assert (back.image_size, back.source, back.confidence, back.reason, back.view, back.moved_at) == (
+        cal.image_size, cal.source, cal.confidence, cal.reason, cal.view, cal.moved_at)
     if cal.camera is None:
         assert back.camera is None
     else:

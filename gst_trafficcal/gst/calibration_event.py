@@ -13,7 +13,8 @@ language reads it with ``gst_structure_get_double``. The point/focal/scale field
 while the state is "learning" (or "failed"), ``scale`` is absent until it is known, ``reason``
 only when set, and there is one ``confidence_<name>`` per entry of ``Calibration.confidence``; a calibration
 learnt by ``vpdetect`` also carries ``view_png`` (a 160-px grey thumbnail of the scene it was learnt on, base64
-PNG, ~14 kB) and ``view_width`` (``Calibration.view``; ``vanishing/view.py``).
+PNG, ~14 kB) and ``view_width`` (``Calibration.view``; ``vanishing/view.py``); the "learning" calibration
+vpdetect announces when it notices that the camera moved carries ``moved_at`` (stream seconds).
 Being sticky, a new event replaces the previous one and reaches elements linked later.
 The same structure is posted on the bus as an element message.
 """
@@ -46,6 +47,8 @@ def calibration_structure(cal: Calibration) -> Gst.Structure:
         fields[_CONF_PREFIX + key] = float(value)
     if cal.reason:
         fields["reason"] = cal.reason
+    if cal.moved_at is not None:  # vpdetect noticed the camera move (then): what came before is another view
+        fields["moved_at"] = float(cal.moved_at)
     if cal.view is not None:  # the scene it was learnt on, so that whoever saves it can check a moved camera later
         fields["view_png"], fields["view_width"] = str(cal.view["png"]), int(cal.view["frame_width"])
     return make_structure(STRUCTURE_NAME, fields)
@@ -66,8 +69,9 @@ def calibration_from_structure(s: Gst.Structure) -> Calibration:
         for name in ("vp1", "vp2", "pp"):
             d[name] = [values.get(f"{name}_x"), values.get(f"{name}_y")]
         d["scale"] = values.get("scale")
-    if "reason" in values:
-        d["reason"] = values["reason"]
+    for key in ("reason", "moved_at"):
+        if key in values:
+            d[key] = values[key]
     if "view_png" in values:
         d["view"] = {"png": values["view_png"], "frame_width": values.get("view_width")}
     return Calibration.from_dict(d, where=f"{STRUCTURE_NAME} event")
