@@ -9,7 +9,11 @@ No scale here: λ comes from ``bbscale``.  With ``calibration-file`` it loads a 
 auto/fixed) or saves the one it learnt (mode auto/learn), with a thumbnail of the static scene it was learnt on
 (``view``, ``gst_trafficcal.vanishing.view``).  A loaded calibration with a view is checked against the stream's
 first seconds: if the camera has moved (shifted, zoomed, rotated, or another scene), mode auto warns and learns
-anew (and saves the new calibration); mode fixed warns and keeps the file's.
+anew (and saves the new calibration); mode fixed warns and keeps the file's.  Then, all along the stream, the
+calibration in force is watched (``ViewMonitor``): a camera knocked or re-aimed mid-stream is noticed a second or
+two later; modes auto and learn then announce a "learning" calibration with ``moved_at`` (when it moved), which
+tells the elements downstream that what they saw before belongs to the previous calibration, and learn anew; mode
+fixed warns.  Each change is also a ``trafficcal-view`` bus message.
 """
 
 from gst_trafficcal.gst._gi import GObject, Gst
@@ -46,8 +50,9 @@ class VpDetect(TrafficcalTransform):
                         1.0, 90.0, 30.0, _RW),
         "method": (str, "VP2 method", "edgelets (the paper) or gradient (orientation of image gradients, ITS15 "
                    "baseline)", "edgelets", _RW),
-        "view-check": (bool, "View check", "Compare the stream's first seconds with the scene a loaded calibration "
-                       "was learnt on; if the camera has moved, warn, and in mode auto learn anew", True, _RW),
+        "view-check": (bool, "View check", "Compare the stream with the scene the calibration in force was learnt "
+                       "on: a loaded calibration in the first seconds, and any calibration all along the stream; if "
+                       "the camera has moved, warn, and (mode fixed excepted) learn anew", True, _RW),
         "constant-speed": (bool, "Constant speed", "Move VP1 along the lanes to where the tracked points' "
                            "perspective acceleration puts it, taking vehicles to keep their speed for the second or "
                            "two a point is tracked (the lane lines alone place VP1 poorly along the lanes, which "
@@ -65,6 +70,8 @@ class VpDetect(TrafficcalTransform):
         self._views = None  # ViewAccumulator: the stream's static scene (learning, or checking a loaded calibration)
         self._loaded = None  # a loaded calibration whose view is being checked
         self._held = False  # ... and not published yet (mode auto: held until the check is done)
+        self._monitor = None  # ViewMonitor watching the calibration in force for a moved camera
+        self._moved_at = None  # when the camera moved, while the new view is being learnt
 
     def on_caps(self, info):
         from gst_trafficcal.calibration import Calibration, load_calibration
@@ -108,7 +115,9 @@ class VpDetect(TrafficcalTransform):
             return
         self._start_learning()
 
-    def _start_learning(self):
+    def _start_learning(self, announce=None):
+        """Learn a calibration from here on; ``announce``: the "learning" calibration to send (default: a plain
+        one)."""
         from gst_trafficcal.calibration import Calibration
         from gst_trafficcal.cli.calibrate import parse_focal_range
         from gst_trafficcal.vanishing.calibrator import CalibratorConfig, VPCalibrator
@@ -128,7 +137,7 @@ class VpDetect(TrafficcalTransform):
         except Exception as exc:  # bad property values or frame size: readable error at negotiation
             self.post_error(f"vpdetect: {exc}")
             return
-        self.publish_calibration(Calibration(None, self.frame_size, state="learning", source="vpdetect"))
+        self.publish_calibration(announce or Calibration(None, self.frame_size, state="learning", source="vpdetect"))
 
     def on_calibration(self, cal):
         # while learning or holding a loaded calibration back, our own calibration is the one downstream sees
@@ -140,12 +149,14 @@ class VpDetect(TrafficcalTransform):
 
         learner = self._learner
         checking = self._loaded is not None
-        if not checking and (learner is None or learner.done):
-            return Gst.FlowReturn.OK
         t = pts_seconds(buffer)
         if t is None:
             t = self._frames / self._fps
         self._frames += 1
+        if not checking and (learner is None or learner.done):
+            if self._monitor is not None:
+                self._monitor_frame(buffer, t)
+            return Gst.FlowReturn.OK
         # the luma plane, computed by the same function as for files (trafficcal calibrate): the Y plane of
         # I420/NV12/GRAY8 as it is, colour formats converted to BT.601 limited-range luma
         with self.planes(buffer) as planes:
@@ -179,6 +190,8 @@ class VpDetect(TrafficcalTransform):
             if self._held:
                 self.publish_calibration(cal)
             self._held = False
+            if stored is not None:
+                self._watch(stored, width)
             return
         if not self._held:  # mode fixed: the file's calibration stays, the user is told
             self.post_warning(f"vpdetect: the camera view differs from the one {self.calibration_file} was "
@@ -190,6 +203,48 @@ class VpDetect(TrafficcalTransform):
                           f"on ({match.describe()}): the camera has moved; learning a new calibration (it will "
                           "replace the file)")
         self._start_learning()
+
+    def _watch(self, stored, width):
+        """Watch the calibration in force (its view: thumbnail ``stored`` of ``width``-px frames) from now on."""
+        from gst_trafficcal.vanishing.view import ViewMonitor
+
+        self._monitor = ViewMonitor(stored, width, every=max(1, round(self._fps / 5)))  # 5 comparisons a second
+
+    def _monitor_frame(self, buffer, t):
+        from gst_trafficcal.vanishing.frames import luma
+
+        monitor = self._monitor
+        if not monitor.wants():
+            monitor.skip()
+            return
+        with self.planes(buffer) as planes:
+            event = monitor.add(luma(planes[0], self._format), t)
+        if event is None:
+            return
+        m = event.match
+        self.post_element_message("trafficcal-view", {
+            "state": event.kind, "t": float(event.t), "shift_x": m.shift[0], "shift_y": m.shift[1],
+            "zoom": float(m.zoom), "rotation_deg": float(m.rotation_deg), "similarity": float(m.similarity)})
+        if event.kind == "unrecognised":
+            self.post_warning(f"vpdetect: since {event.t:.1f} s the scene no longer matches the view the calibration "
+                              f"was learnt on (similarity {m.similarity:.2f}): too dark, obscured, or another scene; "
+                              "the calibration is kept (speeds are wrong if the camera was moved)")
+        elif event.kind == "moved":
+            self._camera_moved(event)
+
+    def _camera_moved(self, event):
+        from gst_trafficcal.calibration import Calibration
+
+        self._monitor = None
+        what = f"the camera moved at {event.t:.1f} s ({event.match.describe()})"
+        if self.mode == "fixed":
+            self.post_warning(f"vpdetect: {what}: speeds from here on are wrong; recalibrate (mode=auto or learn)")
+            return
+        self.post_warning(f"vpdetect: {what}: learning a new calibration"
+                          + (f" (it will replace {self.calibration_file})" if self.calibration_file else ""))
+        self._moved_at = float(event.t)
+        self._start_learning(Calibration(None, self.frame_size, state="learning", source="vpdetect",
+                                         reason=f"the camera moved at {event.t:.1f} s", moved_at=float(event.t)))
 
     def on_eos(self):
         if self._loaded is not None:  # the stream ended while its view was being checked
@@ -204,15 +259,25 @@ class VpDetect(TrafficcalTransform):
             self._publish(learner.finish())
 
     def _publish(self, cal):
+        from dataclasses import replace
+
         from gst_trafficcal.calibration import save_calibration
 
-        if cal.camera is not None and cal.view is None and self._views is not None and self._views.count:
-            from dataclasses import replace
+        if cal.state == "failed" and self._moved_at is not None:  # say why there was something to learn
+            cal = replace(cal, reason=f"the camera moved at {self._moved_at:.1f} s and the new view could not be "
+                                      f"calibrated: {cal.reason}")
+        elif cal.camera is not None:
+            self._moved_at = None
 
+        if cal.camera is not None and cal.view is None and self._views is not None and self._views.count:
             from gst_trafficcal.vanishing.view import encode_view
 
             cal = replace(cal, view=encode_view(self._views.view(), self.frame_size[0]))
         self.publish_calibration(cal)
+        if cal.camera is not None and cal.view is not None and self.view_check and self._learner.done:
+            from gst_trafficcal.vanishing.view import decode_view
+
+            self._watch(*decode_view(cal.view))
         if cal.state == "failed":
             self.post_warning(f"vpdetect: calibration failed: {cal.reason}")
         elif self.calibration_file:

@@ -6,7 +6,9 @@ its image size, and its speeds would be silently wrong.  ``vpdetect`` keeps a me
 (:class:`ViewAccumulator`) of the video it calibrates on and saves it in the calibration file (``view``); when
 it loads a calibration it compares the stream's thumbnail with it (:func:`compare_views`: the shift between the
 two images' gradients by phase correlation, and their normalised correlation once aligned).  The gradients, not
-the grey levels, so that daylight, exposure and weather changes are not taken for a move.
+the grey levels, so that daylight, exposure and weather changes are not taken for a move.  While a stream runs,
+:class:`ViewMonitor` keeps comparing a rolling median of the latest thumbnails with the calibration's view, so a
+camera knocked or re-aimed mid-stream is noticed within two seconds or so.
 """
 
 from __future__ import annotations
@@ -29,6 +31,10 @@ MAX_ROTATION_DEG = 0.5
 """Rotation of the image (the camera's roll) that counts as moved."""
 MIN_SIMILARITY = 0.5
 """Normalised correlation of the aligned gradient images below which the view counts as another one."""
+MIN_ALIGN_GAIN = 0.03
+"""How much better the aligned images must correlate than the images as they are for a measured shift, zoom or roll
+to be believed (:attr:`ViewMatch.displaced`): a real move is explained by the alignment; vehicles standing in the
+median thumbnail of heavy traffic are not, and ECC then fits a small transform to them that explains nothing."""
 
 
 @dataclass(frozen=True)
@@ -40,6 +46,18 @@ class ViewMatch:
     rotation_deg: float
     similarity: float  # normalised correlation of the aligned gradient images, -1..1
     moved: bool
+    unaligned: float = 0.0  # normalised correlation of the gradient images as they are
+
+    @property
+    def recognised(self) -> bool:
+        """The same scene (once aligned): whatever moved, the shift, zoom and roll were measured on it."""
+        return self.similarity >= MIN_SIMILARITY
+
+    @property
+    def displaced(self) -> bool:
+        """Moved by a measured shift, zoom or roll of a recognised scene (not merely unrecognisable), which the
+        alignment explains (it raises the correlation by MIN_ALIGN_GAIN at least)."""
+        return self.moved and self.recognised and self.similarity - self.unaligned >= MIN_ALIGN_GAIN
 
     def describe(self) -> str:
         return (f"shifted by ({self.shift[0]:+.0f}, {self.shift[1]:+.0f}) px, zoom {100 * self.zoom:+.1f} %, "
@@ -141,4 +159,77 @@ def compare_views(stored: np.ndarray, current: np.ndarray, frame_width: int) -> 
     scale = frame_width / stored.shape[1]
     moved = bool(np.hypot(tx, ty) > MAX_SHIFT or abs(zoom) > MAX_ZOOM or abs(rotation) > MAX_ROTATION_DEG
                  or sim < MIN_SIMILARITY)
-    return ViewMatch((float(tx * scale), float(ty * scale)), zoom, rotation, sim, moved)
+    return ViewMatch((float(tx * scale), float(ty * scale)), zoom, rotation, sim, moved, _correlation(a, b))
+
+
+@dataclass(frozen=True)
+class ViewEvent:
+    """A change :class:`ViewMonitor` noticed: ``moved`` (``t`` = when the camera moved, stream seconds),
+    ``unrecognised`` (the scene no longer matches the view, ``t`` = since when) or ``recognised`` (it matches
+    again)."""
+
+    kind: str
+    t: float
+    match: ViewMatch
+
+
+class ViewMonitor:
+    """Watches a stream for a camera that moves away from a calibration's view (``stored``, a thumbnail of frames
+    ``frame_width`` wide).
+
+    Every ``every``-th frame's thumbnail joins a rolling window of ``window``; their median (the traffic passing
+    through is not in it) is compared with the stored view.  A move is ``confirm`` comparisons in a row that
+    measure a shift, zoom or roll beyond the bounds on a scene still recognised (:attr:`ViewMatch.displaced`); it is
+    dated to when the window's
+    median turned (more than half of it after the move), which is a little early rather than late.  A scene that
+    is no longer recognised at all (darkness, fog, a covered lens, another scene) is reported as such but not taken
+    for a move: the gradients cannot tell those apart, and recalibrating at dusk would throw a good calibration
+    away for one that fails; that, and seeing the scene again, take five times as many comparisons in a row.  Cost: one :func:`compare_views` (a few ms) per ``every`` frames.
+    """
+
+    def __init__(self, stored: np.ndarray, frame_width: int, every: int = 5, window: int = 9, confirm: int = 5) -> None:
+        if every < 1 or window < 1 or confirm < 1:
+            raise ValueError("every, window and confirm must be at least 1")
+        self.stored, self.frame_width = stored, int(frame_width)
+        self.every, self.window, self.confirm = int(every), int(window), int(confirm)
+        self._n = 0
+        self._thumbs: list[np.ndarray] = []
+        self._times: list[float] = []
+        self._run: list[tuple[float, ViewMatch]] = []  # the current run of comparisons of one kind
+        self._run_kind = ""
+        self.state = "recognised"  # or "unrecognised", "moved" (then the monitor is done)
+        self.last: ViewMatch | None = None
+
+    def wants(self) -> bool:
+        """Whether the next frame is one the monitor samples (the caller may skip reading the others)."""
+        return self.state != "moved" and self._n % self.every == 0
+
+    def skip(self) -> None:
+        """Count a frame that is not sampled (:meth:`wants` said no) without reading it."""
+        self._n += 1
+
+    def add(self, luma: np.ndarray, t: float) -> ViewEvent | None:
+        """Add a frame (its luma plane, at stream time ``t``); returns what changed, if anything."""
+        sample = self.wants()
+        self._n += 1
+        if not sample:
+            return None
+        self._thumbs.append(thumbnail(luma))
+        self._times.append(float(t))
+        del self._thumbs[:-self.window], self._times[:-self.window]
+        if len(self._thumbs) < min(3, self.window):
+            return None
+        current = np.median(np.stack(self._thumbs), axis=0).astype(np.uint8)
+        match = compare_views(self.stored, current, self.frame_width)
+        self.last = match
+        kind = "moved" if match.displaced else "recognised" if match.recognised else "unrecognised"
+        # when the median turned: the first thumbnail of the window's later half
+        turned = self._times[max(0, len(self._times) - len(self._times) // 2 - 2)]
+        if kind != self._run_kind:
+            self._run_kind, self._run = kind, []
+        self._run.append((turned, match))
+        needed = self.confirm if kind == "moved" else 5 * self.confirm  # losing sight of the scene is slower news
+        if kind == self.state or len(self._run) < needed:
+            return None
+        self.state = kind
+        return ViewEvent(kind, self._run[0][0], match)
