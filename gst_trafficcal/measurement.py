@@ -21,6 +21,10 @@ vanishing points was in force) and, whenever it changes, the current calibration
 * **Calibration not there yet**: vehicles that leave before a calibration with scale exists are kept (points and
   timestamps) and measured as soon as one arrives, so one pass over a file measures every vehicle; at the end of
   the stream the ones still waiting are reported unmeasured, with the reason.
+* **A moved camera** (a calibration with ``moved_at``, from vpdetect): what was seen before belongs to the
+  calibration in force then.  Every vehicle in view is cut at the move and measured now with that calibration
+  (or reported unmeasured when it had no scale), as are the vehicles waiting for a scale; the lanes are learnt
+  again; a track id seen before the move is not taken up again after it.
 * A vehicle has left when it has not been seen for ``end_after`` seconds (stream time), so the result does not
   depend on whether the tracker ran upstream or inside the caller.
 * **Direction**: sign of the reference points' motion along the road (world x, towards VP1); **lane**: the
@@ -156,6 +160,7 @@ class SpeedMeter:
         # the typical vehicle height among the vehicles whose 3D boxes are built here late (tracker.TrackerConfig's
         # body-shape choice), with the camera it is in plane units of
         self._late_heights, self._late_camera = TypicalHeight(), None
+        self._retired: set[int] = set()  # ids of the vehicles cut by a camera move (their tracks must not go on)
         self.t: float | None = None
         if calibration is not None:
             self.set_calibration(calibration)
@@ -175,12 +180,41 @@ class SpeedMeter:
         return len(self._pending)
 
     def set_calibration(self, cal: Calibration | None) -> list[MeasuredVehicle]:
-        """Use ``cal`` from now on; returns the vehicles waiting for a scale, measured now if it has one."""
+        """Use ``cal`` from now on; returns the vehicles waiting for a scale, measured now if it has one, and, when
+        ``cal`` says the camera moved, every vehicle seen before the move."""
+        out = []
+        if cal is not None and cal.moved_at is not None and (self.calibration is None
+                                                              or self.calibration.id != cal.id):
+            out = self._camera_moved(float(cal.moved_at))
         self.calibration = cal
         if not self.can_measure or not self._pending:
-            return []
+            return out
         pending, self._pending = self._pending, []
-        return [self._measure(r) for r in pending]
+        return out + [self._measure(r) for r in pending]
+
+    def _camera_moved(self, t_move: float) -> list[MeasuredVehicle]:
+        """End what the previous calibration saw: the vehicles in view, cut at ``t_move``, and the ones waiting for a
+        scale; measured with the calibration in force until now, or unmeasured with the reason."""
+        for rec in list(self._live.values()):
+            n = sum(o.t < t_move for o in rec.observations)  # observations are in time order
+            if n == 0:  # first seen after the move: a vehicle of the new view
+                continue
+            rec.unboxed = [k for k in rec.unboxed if k < n]
+            rec.observations = rec.observations[:n]
+            del self._live[rec.id]
+            self._retired.add(rec.id)
+            rec.last_t = rec.observations[-1].t
+            self._pending.append(rec)
+        pending, self._pending = self._pending, []
+        pending.sort(key=lambda r: (r.last_t, r.id))
+        if self.can_measure:
+            out = [self._measure(r) for r in pending]
+        else:
+            why = (f"the camera moved at {t_move:.1f} s, before the calibration of the view it was seen in "
+                   + ("had vanishing points" if self.camera is None else "had a scale"))
+            out = [self._unmeasured(r, why, self.calibration) for r in pending]
+        self.lanes = LaneModel()  # the lanes lie elsewhere in the new view
+        return out
 
     def update(self, t: float, sightings: Iterable[Sighting]) -> FrameOutput:
         """Add one frame (time ``t``, seconds) of tracked vehicles; vehicles unseen for ``end_after`` s leave."""
@@ -189,6 +223,8 @@ class SpeedMeter:
         self.t = t
         seen = []
         for s in sightings:
+            if s.id in self._retired:  # a track that went on across a camera move: not this vehicle any more
+                continue
             rec = self._live.get(s.id)
             if rec is None:
                 rec = self._live[s.id] = _Record(s.id)

@@ -387,3 +387,51 @@ def test_a_vehicle_lost_for_a_moment_is_measured_as_one(scene, truth):
               for s in sightings(f) if not (s.id == vid and cut <= f.t < cut + 0.4)]
         n += len(meter.update(f.t, ss).finished)
     assert n + len(meter.flush()) == len(truth) + 1
+
+
+def _moved(t: float) -> Calibration:
+    return Calibration(None, SIZE, state="learning", source="vpdetect", reason=f"the camera moved at {t} s",
+                       moved_at=t)
+
+
+def test_a_moved_camera_ends_what_the_old_view_saw_with_its_calibration(scene, truth):
+    """vpdetect says at 12.6 s that the camera moved at 12 s: every vehicle seen before is measured with the old
+    calibration (those in view cut at 12 s, their ids not taken up again), the vehicles after wait for the new
+    calibration (here the same camera at a 10 % larger scale, so that which one measured a vehicle shows)."""
+    old = cal_of(scene.camera)
+    new = cal_of(scene.camera.with_scale(scene.camera.scale * 1.1))
+    meter = SpeedMeter(calibration=old)
+    out = []
+    for f in scene.frames:
+        if meter.calibration is old and f.t >= 12.6:
+            cut = meter.set_calibration(_moved(12.0))
+            assert len(cut) >= 3 and all(m.event.last_timestamp_s < 12.0 for m in cut)
+            out += cut
+        if meter.calibration is not old and meter.calibration is not new and f.t >= 20.0:
+            out += meter.set_calibration(new)
+        out += meter.update(f.t, sightings(f)).finished
+    out += meter.flush()
+    ids = [m.event.id for m in out]
+    assert len(ids) == len(set(ids)), "one event per vehicle: a track cut by the move does not come back"
+    before = [m.event for m in out if m.event.first_timestamp_s < 12.0]
+    after = [m.event for m in out if m.event.first_timestamp_s >= 12.0]
+    assert len(before) >= 10 and len(after) >= 5
+    assert all(e.calibration_id == old.id and e.last_timestamp_s < 12.0 for e in before)
+    assert all(e.calibration_id == new.id for e in after)
+    for e in before + after:  # constant speeds: a cut track measures its vehicle's speed
+        if e.measured:
+            k = 1.0 if e.calibration_id == old.id else 1.1
+            assert e.speed_kmh == pytest.approx(k * truth[e.id][0], abs=0.1), e
+    assert sum(e.measured for e in before) >= 8 and sum(e.measured for e in after) >= 4
+
+
+def test_a_camera_moved_before_the_scale_reports_the_old_views_vehicles_unmeasured(scene, truth):
+    meter = SpeedMeter(calibration=cal_of(scene.camera, scale=False))
+    out = []
+    for f in scene.frames[: 12 * 25]:
+        out += meter.update(f.t, sightings(f)).finished
+    assert out == [] and meter.waiting >= 3
+    out += meter.set_calibration(_moved(11.5))
+    assert meter.waiting == 0 and len(out) >= 6
+    assert all(not m.event.measured and "the camera moved at 11.5 s, before the calibration of the view it was seen "
+               "in had a scale" in m.event.reason for m in out)

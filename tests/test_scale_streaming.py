@@ -132,6 +132,25 @@ def test_vanishing_point_change_drops_evidence(cam, models):
     assert not est.result().converged
 
 
+def test_a_moved_camera_drops_every_piece_of_evidence(cam, models):
+    """After a move, even the same vanishing points start from nothing: what was seen is another view's."""
+    from gst_trafficcal.calibration import Calibration
+    from gst_trafficcal.scale.stage import ScaleStage
+
+    stage = ScaleStage(ScaleEstimator(models, min_vehicles=2, refine_base=False))
+    cal = Calibration(cam.with_scale(None), (1280, 720), state="vps", source="vpdetect")
+    stage.on_calibration(cal)
+    for f, ss in enumerate(vehicle_sightings(cam, models, np.random.default_rng(4), 3)):
+        stage.update(f * 0.1, ss, cal)
+    stage.finish(cal)
+    assert stage.result().converged
+    assert stage.on_calibration(cal) is not None  # the same VPs again: the scale is put back at once
+    moved = Calibration(None, (1280, 720), state="learning", source="vpdetect", moved_at=3.0)
+    assert stage.on_calibration(moved) is None and stage.estimator.camera is None
+    assert stage.on_calibration(cal) is None and not stage.result().converged
+    assert stage.result().n_vehicles == 0
+
+
 def test_base_centre_is_the_projective_centre(cam):
     X = np.array([[x, y, 0.0] for y in (0.0, 1.8) for x in (10.0, 14.5)])  # order ix + 2 iy
     corners = np.vstack([cam.world_to_image(X), cam.world_to_image(X + [0, 0, 1.5])])

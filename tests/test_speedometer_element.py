@@ -366,3 +366,64 @@ def test_real_traffic_braking_for_a_junction_is_measured(tmp_path):
     assert len(judged) >= 20, [e.reason for e in events]
     assert len(measured) >= 0.5 * len(judged), [e.reason for e in judged if e.speed_kmh is None]
     assert all(8.0 < e.speed_kmh < 70.0 for e in measured)  # town traffic at this camera's scale
+
+
+@pytest.fixture(scope="module")
+def kraten_moved(tmp_path_factory):
+    """24 s of kraten_cars.mp4 whose camera is re-aimed at 14 s (the picture shifted 13 px, 2 % of the width),
+    and the clip's calibration as vpdetect would have saved it: with the view of its first 5 s."""
+    import json
+
+    import cv2
+
+    from gst_trafficcal.vanishing.view import ViewAccumulator, encode_view
+
+    work = tmp_path_factory.mktemp("moved")
+    cap = cv2.VideoCapture(str(require_shared(VIDEOS / "kraten_cars.mp4")))
+    writer = cv2.VideoWriter(str(work / "moved.mp4"), cv2.VideoWriter_fourcc(*"mp4v"), 25, (640, 360))
+    view = ViewAccumulator()
+    shift = np.float32([[1, 0, 13], [0, 1, 0]])
+    for i in range(600):
+        ok, frame = cap.read()
+        assert ok
+        if i < 125:
+            view.add(cv2.cvtColor(frame, cv2.COLOR_BGR2GRAY))
+        writer.write(frame if i < 350 else cv2.warpAffine(frame, shift, (640, 360), borderMode=cv2.BORDER_REFLECT))
+    writer.release()
+    cal = dict(KRATEN_CALIBRATION, source="vpdetect", view=encode_view(view.view(), 640))
+    (work / "cal.json").write_text(json.dumps(cal))
+    return work / "moved.mp4", work / "cal.json"
+
+
+@pytest.mark.shared
+@pytest.mark.parametrize("chain", ["tracker", "internal tracking"])
+def test_a_camera_moved_mid_stream_keeps_what_was_measured_before(kraten_moved, tmp_path, chain):
+    """vpdetect notices the re-aimed camera within two seconds and dates the move; the vehicles seen before are
+    measured with the file's calibration and cut at the move, the ones after wait for a new calibration (24 s are
+    too short to learn one, so they are reported unmeasured with the reason); no vehicle is reported twice, and
+    the calibration file is not replaced by anything unfinished."""
+    import shutil
+
+    register_plugin_file(ELEMENTS / "vpdetect.py")
+    clip, stored = kraten_moved
+    cal = tmp_path / "cal.json"
+    shutil.copy(stored, cal)
+    events_file = tmp_path / "events.jsonl"
+    middle = "tracker ! " if chain == "tracker" else ""
+    run = run_pipeline(f"filesrc location={clip} ! decodebin ! videoconvert ! vpdetect calibration-file={cal} ! "
+                       f"vehicledetect model=vehicleseg ! {middle}speedometer events-file={events_file} ! appsink name=sink")
+    moved = [c for c in run.calibrations if c.moved_at is not None]
+    assert len(moved) == 1 and 13.5 <= moved[0].moved_at <= 14.0, [(c.state, c.moved_at) for c in run.calibrations]
+    warned = [w for w in run.warnings if "the camera moved at" in w]
+    assert len(warned) == 2 and "learning a new calibration" in warned[0] and "shifted by (+13" in warned[0]
+    assert "calibration failed: the camera moved at" in warned[1]  # at the end: 10 s of the new view are too few
+    assert load_calibration(cal).id == load_calibration(stored).id  # the new one never converged: file kept
+    file_id = load_calibration(stored).id
+    events = read_events(events_file).events
+    assert len({e.id for e in events}) == len(events)
+    before = [e for e in events if e.first_timestamp_s < moved[0].moved_at]
+    after = [e for e in events if e.first_timestamp_s >= moved[0].moved_at]
+    assert all(e.calibration_id == file_id and e.last_timestamp_s < moved[0].moved_at for e in before)
+    assert sum(e.measured for e in before) >= 8, [e.reason for e in before]
+    assert len(after) >= 3 and not any(e.measured for e in after)
+    assert all(e.reason.startswith("no calibration") for e in after), [e.reason for e in after]

@@ -122,6 +122,26 @@ def test_reference_points_both_directions_and_switch_to_3d_without_losing_tracks
     assert np.all(d[:, 0] == d[:, 1])
 
 
+def test_a_moved_camera_ends_every_track_and_tracking_goes_on_in_2d(scene):
+    """No track continues across a camera move: the ones alive end (returned), the vehicles still in view get new
+    ids, without 3D boxes until the next calibration."""
+    rng = np.random.default_rng(0)
+    tracker = Tracker(TrackerConfig(), camera=scene.camera, image_size=scene.image_size)
+    half = len(scene.frames) // 2
+    for f in scene.frames[:half]:
+        tracker.update(f.t, *detect(f, rng, scene.image_size)[:2])
+    alive = {tr.id for tr in tracker.tracks if tr.ever_confirmed}
+    assert any(tr.last.box3d is not None for tr in tracker.tracks)
+    ended = tracker.camera_moved()
+    assert len(alive) >= 3 and alive <= {tr.id for tr in ended} and tracker.camera is None and not tracker.tracks
+    later = set()
+    for f in scene.frames[half:half + 50]:
+        res = tracker.update(f.t, *detect(f, rng, scene.image_size)[:2])
+        later |= {tr.id for tr in res.tracks if tr.state == TrackState.CONFIRMED}
+        assert all(tr.last.box3d is None for tr in res.tracks)
+    assert later and not later & {tr.id for tr in ended}
+
+
 def test_dropped_frames_use_timestamps():
     scene = simulate(default_camera(), duration=20.0, seed=4, drop=0.3)
     gaps = np.diff([f.t for f in scene.frames])

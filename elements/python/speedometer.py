@@ -13,7 +13,9 @@ same publishing rule, properties ``scale-models``, ``scale-min-vehicles``, ``sca
 with the upstream vanishing points and the λ it finds, so ``vpdetect ! vehicledetect ! speedometer`` measures
 speeds with nothing given and gives the numbers of ``... ! tracker ! bbscale ! speedometer``.  Vehicles that
 leave before a calibration with scale exists are measured as soon as one arrives; at end of stream the ones still
-waiting are written unmeasured, with the reason.
+waiting are written unmeasured, with the reason.  When vpdetect says the camera moved (a calibration with
+``moved_at``), the vehicles seen before are measured with the calibration they were seen under (cut at the move),
+and the scale is found anew for the new view.
 
 Output per frame: a ``"speed"`` {speed_kmh, label, model_name, confidence} structure on the ROI of every vehicle
 with a current estimate.  Per vehicle that leaves: a ``trafficcal-speed`` element message (the event's fields, and
@@ -153,6 +155,10 @@ class Speedometer(TrafficcalTransform):
 
     def on_calibration(self, cal):
         self._upstream = cal
+        if cal.moved_at is not None:  # vpdetect: the camera moved; nothing found for the old view applies now
+            self._scaled = None
+            if self._tracking:  # our own tracking: no track continues across the move
+                self._tracking.camera_moved()
         if self._stage is not None:
             ours = self._stage.on_calibration(cal)
             if ours is not None:

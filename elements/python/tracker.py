@@ -4,7 +4,8 @@ Reads the vehicle ROI metas of each frame, groups the foreground blobs of a movi
 them, and tracks the convex hulls.  Each ROI of a confirmed track gets an ``"object_id"`` {id} structure (as DL
 Streamer's gvatrack) and a ``"trafficcal-vehicle"`` structure; with a calibration (the sticky
 "trafficcal-calibration" event from ``vpdetect``) the latter carries the 3D box and the road-plane reference
-point.  Without one it tracks in 2D, and switches to 3D when the calibration arrives without losing tracks.
+point.  Without one it tracks in 2D, and switches to 3D when the calibration arrives without losing tracks.  When vpdetect
+says the camera moved (a calibration with ``moved_at``) every track ends and tracking starts again in 2D.
 Time comes from buffer PTS.  A bus message ``trafficcal-track`` is posted when a track ends.
 """
 
@@ -77,6 +78,12 @@ class Tracker(TrafficcalTransform):
             return False
         self._pipe = TrackingPipeline(config=config, background=background, min_blob_area=self.min_blob_area)
         self._warned_pts = False
+        return True
+
+    def on_calibration(self, cal):
+        if cal.moved_at is not None and self._pipe is not None:  # the camera moved: no track goes on across it
+            for track in self._pipe.camera_moved():
+                self._post_track(track)
         return True
 
     def do_sink_event(self, event):

@@ -9,7 +9,8 @@ learned vehicle segmenter (shipped), whose ROIs also carry each vehicle's convex
 which the tracker then uses for its 3D boxes. A bad model file stops
 the pipeline at start-up with an error naming it. With ``interval`` N > 1 only every N-th frame is
 analysed; the frames in between carry no vehicle metadata (stale boxes of moving vehicles would
-mislead the tracker, which predicts across the gap itself).
+mislead the tracker, which predicts across the gap itself). When vpdetect says the camera moved (a calibration
+with ``moved_at``) a detector with a background of its own (the built-in one, vehicleseg) learns it again.
 """
 
 from gst_trafficcal.gst._gi import GObject, Gst
@@ -60,6 +61,12 @@ class VehicleDetect(TrafficcalTransform):
             self.post_error(f"vehicledetect: {exc}", code=Gst.CoreError.FAILED)
             return False
         self._frame = 0
+        return True
+
+    def on_calibration(self, cal):
+        reset = getattr(self._detector, "reset", None)  # detectors with a background of their own
+        if cal.moved_at is not None and reset is not None:  # the camera moved: that background is another view's
+            reset()
         return True
 
     def do_stop(self):

@@ -82,6 +82,10 @@ class BackgroundDetector:
         self.last_core: np.ndarray | None = None  # the vehicles' pixels of the last frame (peeled blobs), work size
         self._reset(None)
 
+    def reset(self) -> None:
+        """Forget the background (a new video, or the camera moved): learnt again from the next frame."""
+        self._reset(None)
+
     def _reset(self, shape: tuple[int, int] | None) -> None:
         self.shape = shape
         self.frames = 0

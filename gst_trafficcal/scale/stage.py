@@ -6,7 +6,8 @@ calibration at the same frame:
 
 * an upstream calibration that already has a scale (a calibration file) is left alone;
 * new vanishing points restart the evidence (:meth:`.streaming.ScaleEstimator.set_camera`); the same ones again
-  keep it, and a scale found for them is put back on the calibration at once;
+  keep it, and a scale found for them is put back on the calibration at once; a moved camera (``moved_at``) drops
+  everything seen before;
 * when the estimate converges the calibration is published with λ, and again whenever λ moves by more than
   ``republish`` (0.5 %); at the end of the stream the final estimate, however small the change.
 """
@@ -69,6 +70,10 @@ class ScaleStage:
     def on_calibration(self, cal: Calibration) -> Calibration | None:
         """An upstream calibration (with vanishing points): restart or keep the evidence.  Returns our scaled
         calibration when the same vanishing points come again after the scale was found."""
+        if cal.moved_at is not None:  # another view from here: nothing seen so far measures it
+            self.estimator.restart()
+            self.published = None
+            return None
         if cal.camera is None or upstream_has_scale(cal):
             return None
         self.estimator.set_camera(cal.camera)

@@ -223,6 +223,13 @@ class ScaleEstimator:
         self._result: ScaleResult | None = None
         self._early_heights = TypicalHeight()  # as the tracker's, for the early sightings' body shapes (_boxed)
 
+    def restart(self) -> None:
+        """The camera moved: every piece of evidence so far, open tracks and early sightings included, belongs to
+        another view; start from nothing (no vanishing points until the next :meth:`set_camera`)."""
+        self.camera = None
+        self._tracks, self._waiting = {}, []
+        self._reset()
+
     def set_camera(self, camera: Camera | None) -> None:
         """Use ``camera`` (its vanishing points; any scale is ignored).  A change of VPs drops the evidence."""
         if camera is None:

@@ -45,4 +45,4 @@ class PeeledBackground:
         return self.detector.ready
 
     def reset(self) -> None:
-        self.detector._reset(None)
+        self.detector.reset()

@@ -85,6 +85,13 @@ class TrackingPipeline:
     def pop_finished(self) -> list[Track]:
         return self.tracker.pop_finished()
 
+    def camera_moved(self) -> list[Track]:
+        """The camera moved: every track ends (:meth:`Tracker.camera_moved`) and the background model starts
+        again from the next frame (the old view's background would be foreground everywhere for seconds)."""
+        if self.background is not None:
+            self.background.reset()
+        return self.tracker.camera_moved()
+
 
 def _box_hull(box: np.ndarray) -> np.ndarray:
     x0, y0, x1, y1 = np.asarray(box, np.float64)

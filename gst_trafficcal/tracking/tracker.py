@@ -350,6 +350,14 @@ class Tracker:
         self.tracks = []
         return self.pop_finished()
 
+    def camera_moved(self) -> list[Track]:
+        """The camera moved (another view from now on): every track ends, none continues across the move; back to
+        2D until the next calibration; the static occluders are learnt again.  Returns the finished tracks."""
+        self.set_camera(None)
+        if self.occluders is not None:
+            self.occluders = OccluderMap()
+        return self.flush()
+
     def pop_finished(self) -> list[Track]:
         """Tracks that ended since the last call (only ones that were confirmed at some point)."""
         out = [tr for tr in self.finished if tr.ever_confirmed]
