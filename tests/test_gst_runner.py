@@ -36,6 +36,25 @@ def test_calibration_messages_are_collected():
     assert out.warnings and "calibration failed" in out.warnings[-1]
 
 
+def test_after_a_camera_move_the_run_ends_with_the_new_views_calibration():
+    """The calibration a run ended with is the new view's (here: still learning), never the old view's scale that
+    an element further down posted a moment after the move; each move says what measured the vehicles before."""
+    from gst_trafficcal.calibration import Calibration
+    from gst_trafficcal.geometry import Camera
+    from gst_trafficcal.gst.runner import RunOutcome
+
+    vps = Calibration(Camera((300.0, -60.0), (7000.0, 340.0), (320.0, 180.0)), (640, 360), state="vps")
+    old = vps.with_scale(9.0)
+    moved = Calibration(None, (640, 360), state="learning", reason="the camera moved at 35.0 s", moved_at=35.0)
+    out = RunOutcome(calibrations=[("vpdetect0", vps), ("bbscale0", old), ("vpdetect0", moved),
+                                   ("bbscale0", old.with_scale(9.1))])
+    assert out.calibration is moved and out.moves == [(35.0, old)]
+    new = Calibration(Camera((310.0, -50.0), (6000.0, 330.0), (320.0, 180.0)), (640, 360), state="vps")
+    out.calibrations += [("vpdetect0", new), ("bbscale0", new.with_scale(8.0))]
+    assert out.calibration.id == new.with_scale(8.0).id
+    assert RunOutcome(calibrations=[("vpdetect0", vps), ("bbscale0", old)]).moves == []
+
+
 def test_errors_name_the_element_and_the_cause(tmp_path):
     text = tmp_path / "notes.mp4"
     text.write_text("hello\n" * 100)

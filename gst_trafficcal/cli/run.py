@@ -139,6 +139,7 @@ class RunSummary:
     duration_s: float | None = None
     stopped: str = ""  # "interrupted" (Ctrl-C) or "duration" (--duration): ended before the stream did
     position_s: float | None = None  # how far into the stream the run got
+    moves: list = field(default_factory=list)  # (when the camera moved, s; the calibration before or None)
 
     @property
     def has_scale(self) -> bool:
@@ -209,7 +210,8 @@ def measure_video(video: Path | str, out_dir: Path, description: str, console, l
         except PipelineError as exc:
             raise InputError(f"{video}: {exc}") from None
     summary = RunSummary(outcome.calibration, _read_vehicle_events(paths), outcome.warnings,
-                         duration_s=outcome.duration_s, stopped=outcome.stopped, position_s=outcome.position_s)
+                         duration_s=outcome.duration_s, stopped=outcome.stopped, position_s=outcome.position_s,
+                         moves=outcome.moves)
     if summary.calibration is not None:
         try:
             save_calibration(summary.calibration, paths.calibration)
@@ -263,6 +265,18 @@ def evaluate_run(gt_path: Path, summary: RunSummary, paths: RunPaths):
     ev = evaluate(gt, summary.calibration.camera, prepared=prepare_tracks(results, gt, width=w, height=h))
     paths.evaluation.write_text(json.dumps(ev.to_dict(per_item=False), indent=2))
     return ev
+
+
+def print_moves(console, summary: RunSummary) -> None:
+    """One line per camera move vpdetect noticed: when, and which calibration measured the vehicles before."""
+    since = float("-inf")
+    for t, before in summary.moves:
+        n = sum(since <= e.first_timestamp_s < t for e in summary.events)
+        since = t
+        used = (f"calibration {before.id} (scale {before.camera.scale:.3f} m)" if before is not None
+                else "the calibration then in force")
+        console.print(f"[yellow]The camera moved at {t:.1f} s[/]: the {n} vehicles seen before were measured with "
+                      f"{used}, cut at the move; vpdetect learnt the new view from there", highlight=False)
 
 
 def print_vehicles(console, events: list, speed_limit: float | None = None) -> None:
@@ -408,6 +422,7 @@ def command(video: str, out_dir: Path, calibration_path: Path | None, gt_path: P
         scale = f"scale {c.scale:.3f} m" if c.scale is not None else "no scale"
         console.print(f"[bold]Calibration[/] ({cal.source}, {cal.state}): VP1 ({c.vp1[0]:.1f}, {c.vp1[1]:.1f}), "
                       f"VP2 ({c.vp2[0]:.1f}, {c.vp2[1]:.1f}), f = {c.focal:.0f} px, {scale}", highlight=False)
+    print_moves(console, summary)
     print_vehicles(console, summary.events, speed_limit or None)
     for w in summary.warnings:
         console.print(f"[yellow]warning[/]: {w}", highlight=False)
@@ -440,7 +455,13 @@ def command(video: str, out_dir: Path, calibration_path: Path | None, gt_path: P
     if summary.errors:
         raise InputError("; ".join(summary.errors))
     n = len(summary.events)
-    if cal is None or cal.camera is None:
+    if summary.moves and (cal is None or not summary.has_scale):
+        after = sum(e.first_timestamp_s >= summary.moves[-1][0] for e in summary.events)
+        click.echo(f"trafficcal: warning: the camera moved at {summary.moves[-1][0]:.1f} s and the new view's "
+                   f"calibration was not complete when the run ended: the {after} vehicles since are written "
+                   "unmeasured with the reason; the ones before were measured with the calibration in force then",
+                   err=True)
+    elif cal is None or cal.camera is None:
         why = cal.reason if cal is not None and cal.reason else "the stream ended before it converged"
         click.echo(f"trafficcal: warning: no speeds: the calibration did not converge ({why}); {n} vehicles "
                    "written unmeasured with the reason. Use a longer video, or give --calibration CAL.json "

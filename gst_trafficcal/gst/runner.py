@@ -46,15 +46,39 @@ class RunOutcome:
     @property
     def calibration(self) -> Calibration | None:
         """The calibration the run ended with: the last one posted, preferring one with a scale (the one
-        speedometer measured with) over a later one without."""
-        if not self.calibrations:
+        speedometer measured with) over a later one without; when the camera moved, one of the new view only."""
+        cals = [c for _, c in self.calibrations]
+        moved = [i for i, c in enumerate(cals) if c.moved_at is not None]
+        if moved:  # the new view's: not the old one's, even if an element further down posted it a little later
+            old = {_vps(c) for c in cals[:moved[-1]] if c.camera is not None}
+            cals = [c for c in cals[moved[-1]:] if c.camera is None or _vps(c) not in old]
+        if not cals:
             return None
-        with_scale = [c for _, c in self.calibrations if c.camera is not None and c.camera.scale is not None]
-        return with_scale[-1] if with_scale else self.calibrations[-1][1]
+        with_scale = [c for c in cals if c.camera is not None and c.camera.scale is not None]
+        return with_scale[-1] if with_scale else cals[-1]
+
+    @property
+    def moves(self) -> list[tuple[float, Calibration | None]]:
+        """Each time the camera moved: (when, stream seconds; the calibration with a scale in force before, or
+        None)."""
+        out, before = [], None
+        for _, c in self.calibrations:
+            if c.moved_at is not None:
+                if not out or out[-1][0] != c.moved_at:  # the same news passed on by several elements
+                    out.append((float(c.moved_at), before))
+                before = None
+            elif c.camera is not None and c.camera.scale is not None:
+                before = c
+        return out
 
     def named(self, name: str) -> list[dict[str, Any]]:
         """The fields of every element message with structure ``name``."""
         return [m.fields for m in self.messages if m.name == name]
+
+
+def _vps(cal: Calibration) -> tuple[float, ...]:
+    c = cal.camera
+    return (*map(float, c.vp1), *map(float, c.vp2), *map(float, c.pp))
 
 
 class RunFailed(PipelineError):
