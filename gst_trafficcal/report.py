@@ -134,6 +134,45 @@ def speed_histogram_uri(speeds: np.ndarray, limit_kmh: float | None = None) -> s
         plt.close(fig)
 
 
+DIRECTION_COLOURS = {TOWARDS_VP1: "#3c78d8", AWAY_FROM_VP1: "#e69138", None: "#888888"}
+
+
+def speed_time_uri(events: Sequence[VehicleEvent], limit_kmh: float | None = None) -> str | None:
+    """Each measured vehicle's speed against when it passed (the middle of its time in view; the clock when the
+    events are dated, else stream seconds), coloured by direction, the limit marked: congestion, a quiet night
+    or a faster direction show at a glance.  None with fewer than two measured vehicles."""
+    measured = [e for e in events if e.measured]
+    if len(measured) < 2:
+        return None
+    dated = all(e.first_time and e.last_time for e in measured)
+    if dated:
+        first = [datetime.fromisoformat(e.first_time) for e in measured]
+        when = [f + (datetime.fromisoformat(e.last_time) - f) / 2 for f, e in zip(first, measured)]
+    else:
+        when = [(e.first_timestamp_s + e.last_timestamp_s) / 2 for e in measured]
+    plt = _plt()
+    fig, ax = plt.subplots(figsize=(7, 3.6))
+    try:
+        for d in (TOWARDS_VP1, AWAY_FROM_VP1, None):
+            idx = [i for i, e in enumerate(measured) if e.direction == d]
+            if idx:
+                ax.scatter([when[i] for i in idx], [measured[i].speed_kmh for i in idx], s=14,
+                           color=DIRECTION_COLOURS[d], label=_direction_label(d), linewidths=0)
+        if limit_kmh:
+            ax.axhline(limit_kmh, color="#d62728", lw=2, label=f"limit {limit_kmh:g} km/h")
+        ax.legend(loc="best", fontsize=8)
+        ax.set_xlabel("time of day" if dated else "time in the video [s]")
+        if dated:
+            fig.autofmt_xdate()
+        ax.set_ylabel("speed [km/h]")
+        ax.set_title("Speeds over time")
+        ax.grid(alpha=0.3)
+        fig.tight_layout()
+        return _figure_uri(fig)
+    finally:
+        plt.close(fig)
+
+
 def intervals_uri(names: Sequence[str], vehicles: Sequence[int], v85: Sequence[float | None],
                   limit_kmh: float | None = None) -> str:
     """Vehicles per interval (bars) and their V85 (line, right axis; the limit dashed) as a PNG data URI."""
@@ -231,6 +270,9 @@ def _vehicles_section(events: Sequence[VehicleEvent], limit_kmh: float | None = 
     blocks = []
     if len(speeds):
         blocks.append(_img(speed_histogram_uri(speeds, limit_kmh), "speed histogram"))
+    over_time = speed_time_uri(events, limit_kmh)
+    if over_time is not None:
+        blocks.append(_img(over_time, "speeds over time"))
     tables = [_table(_stats_header(limit_kmh),
                      [_stats_row("all", speeds, limit_kmh)]
                      + [_stats_row(_direction_label(d), np.array([e.speed_kmh for e in measured if e.direction == d]),

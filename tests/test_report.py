@@ -119,8 +119,14 @@ def test_report_without_ground_truth() -> None:
     assert page.headings[:3] == ["gst-trafficcal report", "Calibration", "Vehicles"]
     assert "Evaluation against the ground truth" not in page.headings
     pics = [_decode(u) for u in page.images]
-    assert len(pics) == 2  # calibration picture, speed histogram
+    assert len(pics) == 3  # calibration picture, speed histogram, speeds over time
     assert pics[0].shape == (H, W, 3)
+    # speeds over time: a point per measured vehicle in its direction's colour (BGR of #3c78d8 and #e69138)
+    colour = lambda img, bgr: int(np.sum(np.all(np.abs(img.astype(int) - bgr) <= 12, axis=2)))  # noqa: E731
+    assert colour(pics[2], (216, 120, 60)) > 100 and colour(pics[2], (56, 145, 230)) > 100
+    one_way = [e for e in events if e.direction != "away_from_vp1"]
+    alone = _decode(_parse(render_report(ReportInputs(one_way, _calibration()))).images[-1])
+    assert colour(alone, (216, 120, 60)) > 100 and colour(alone, (56, 145, 230)) == 0
     drawn = np.any(pics[0] != 100, axis=2)
     assert 0.02 < drawn.mean() < 0.6  # the grid and the horizon on the frame
     # numbers of the page = numbers of the inputs
@@ -168,11 +174,11 @@ def test_report_with_a_speed_limit() -> None:
     assert lanes[0][-1] == "over 85 km/h" and sum(int(r[-1]) for r in lanes[1:]) == n
     towards = [e.speed_kmh for e in events if e.measured and e.direction == "towards_vp1"]
     assert stats[2][0] == "towards VP1" and stats[2][-1].startswith(f"{sum(v > 85 for v in towards)} (")
-    # the histogram marks the limit: a red line (matplotlib's C3 red) that the plain histogram lacks
-    hist = _decode(page.images[-1])  # (after the calibration picture)
-    plain = _decode(_parse(render_report(ReportInputs(events, _calibration()))).images[-1])
+    # the histogram and the speeds over time mark the limit: a red line (matplotlib's C3 red) the plain ones lack
+    plain = _parse(render_report(ReportInputs(events, _calibration())))
     red = lambda img: int(np.sum((img[:, :, 2] > 180) & (img[:, :, 1] < 80) & (img[:, :, 0] < 80)))  # noqa: E731
-    assert red(hist) > 100 and red(plain) == 0
+    for k in (1, 2):  # (after the calibration picture)
+        assert red(_decode(page.images[k])) > 100 and red(_decode(plain.images[k])) == 0
     with pytest.raises(InputError, match="speed limit"):
         render_report(ReportInputs(events, speed_limit_kmh=-1))
 
@@ -261,10 +267,11 @@ def test_report_with_brnocompspeed_ground_truth(tmp_path: Path) -> None:
     page = _parse(path.read_text(encoding="utf-8"))
     assert "Evaluation against the ground truth" in page.headings
     pics = [_decode(u) for u in page.images]
-    # calibration picture, speed histogram, traffic per 15 min (the recording's hour), cumulative error plot
-    assert len(pics) == 4
+    # calibration picture, speed histogram, speeds over time, traffic per 15 min (the recording's hour), cumulative
+    # error plot
+    assert len(pics) == 5
     assert pics[0].shape[1] == 1100  # 1920 frames are shrunk
-    assert pics[3].shape == (500, 800, 3)  # the evaluator's plot (8x5 in at 100 dpi)
+    assert pics[4].shape == (500, 800, 3)  # the evaluator's plot (8x5 in at 100 dpi)
     errors = _table_after(page, "metric")
     assert errors[1][0] == "speed [km/h]" and errors[1][1] == str(ev.speed.abs_kmh.n)
     assert errors[1][2] == f"{ev.speed.abs_kmh.mean:.3g}" and errors[1][4] == f"{ev.speed.abs_kmh.p95:.3g}"
@@ -319,8 +326,8 @@ def test_cli_report_from_run_files(tmp_path: Path) -> None:
     counts = [ln.split(",") for ln in (tmp_path / "intervals.csv").read_text().splitlines()[1:]]
     assert sum(int(r[4]) for r in counts if r[2] == "all") == len(events)
     page = _parse((tmp_path / "report.html").read_text(encoding="utf-8"))
-    # calibration picture, histogram, traffic per half minute
-    assert len(page.images) == 3 and _decode(page.images[0]).shape == (H, W, 3)
+    # calibration picture, histogram, speeds over time, traffic per half minute
+    assert len(page.images) == 4 and _decode(page.images[0]).shape == (H, W, 3)
     over = sum(e.speed_kmh > 85 for e in events if e.measured)
     assert _table_after(page, "speed [km/h]")[1][-1].startswith(f"{over} (")
 
@@ -336,7 +343,7 @@ def test_cli_report_with_ground_truth(tmp_path: Path) -> None:
                str(tmp_path / "r.html"))
     assert out.returncode == 0, out.stderr
     page = _parse((tmp_path / "r.html").read_text(encoding="utf-8"))
-    assert "Evaluation against the ground truth" in page.headings and len(page.images) == 3
+    assert "Evaluation against the ground truth" in page.headings and len(page.images) == 4
     gt = load_gt_data(rec / "gt_data.pkl")
     cal = Calibration.from_brno_block(res.calibration.to_dict())
     ev = evaluate(gt, cal.camera, res)
