@@ -2,7 +2,11 @@
 
 from __future__ import annotations
 
+import json
 import sys
+import threading
+import time
+from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 from pathlib import Path
 
 import pytest
@@ -105,3 +109,37 @@ def cuboid_clip(tmp_path_factory) -> Path:
 def cuboid_clip_dense(tmp_path_factory) -> Path:
     """The same clip at 1500 vehicles/h: enough edges on vehicles for VP2 within 8 s."""
     return _render_cuboid_clip(tmp_path_factory, 1500)
+
+
+class Receiver:
+    """A webhook receiver (an in-process HTTP server on localhost): keeps the JSON it is sent; answers with
+    ``statuses`` in turn (then 200) after ``delay`` seconds."""
+
+    def __init__(self, statuses=(), delay=0.0):
+        self.bodies: list[dict] = []
+        self.headers: list[dict] = []
+        self.statuses = list(statuses)
+        self.delay = delay
+        receiver = self
+
+        class Handler(BaseHTTPRequestHandler):
+            def do_POST(self):
+                body = self.rfile.read(int(self.headers["Content-Length"]))
+                time.sleep(receiver.delay)
+                status = receiver.statuses.pop(0) if receiver.statuses else 200
+                if status == 200:
+                    receiver.bodies.append(json.loads(body))
+                    receiver.headers.append(dict(self.headers))
+                self.send_response(status)
+                self.end_headers()
+
+            def log_message(self, *args):
+                pass
+
+        self.server = ThreadingHTTPServer(("127.0.0.1", 0), Handler)
+        self.url = f"http://127.0.0.1:{self.server.server_port}/events"
+        threading.Thread(target=self.server.serve_forever, daemon=True).start()
+
+    def close(self):
+        self.server.shutdown()
+        self.server.server_close()

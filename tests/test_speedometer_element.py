@@ -85,11 +85,22 @@ def limit(clip) -> float:
 
 
 @pytest.fixture(scope="module")
-def implicit(clip, limit, tmp_path_factory):
-    """The short form: detector ! speedometer (it tracks itself), calibration from the clip's true calibration.json."""
+def webhook():
+    from .conftest import Receiver
+
+    receiver = Receiver()
+    yield receiver
+    receiver.close()
+
+
+@pytest.fixture(scope="module")
+def implicit(clip, limit, webhook, tmp_path_factory):
+    """The short form: detector ! speedometer (it tracks itself), calibration from the clip's true calibration.json;
+    every event also posted to a local webhook."""
     out = tmp_path_factory.mktemp("implicit")
     return out, *measure(clip, out, detector(clip), f"calibration-file={clip / 'calibration.json'} "
-                                                    f"frames-file={out / 'frames.jsonl'} speed-limit={limit}")
+                                                    f"frames-file={out / 'frames.jsonl'} speed-limit={limit} "
+                                                    f"events-url={webhook.url}")
 
 
 def test_speeds_match_the_ground_truth(clip, implicit):
@@ -111,9 +122,17 @@ def test_speeds_match_the_ground_truth(clip, implicit):
     assert results.calibration is not None and results.calibration.scale == pytest.approx(cal.camera.brno_scale())
 
 
-def test_every_vehicle_is_in_every_output(implicit, limit):
+def test_every_vehicle_is_in_every_output(implicit, limit, webhook):
     out, run, events, results = implicit
     msgs = [m.fields for m in run.messages if m.name == "trafficcal-speed"]
+    # events-url: the receiver got every message's fields, in order (posted before EOS completed), and the event's
+    # null fields too (a bus message leaves them out)
+    from gst_trafficcal.outputs import EVENT_FIELDS
+
+    assert [{k: v for k, v in b.items() if v is not None} for b in webhook.bodies] == msgs
+    assert all(list(b) == [*EVENT_FIELDS, "over_limit"] for b in webhook.bodies) and len(webhook.bodies) == len(events)
+    assert [m.fields for m in run.messages if m.name == "trafficcal-events-url"] == [
+        {"url": webhook.url, "events": len(events), "sent": len(events), "failed": 0, "dropped": 0}]
     # with speed-limit each message says whether the vehicle was faster
     assert [m["over_limit"] for m in msgs] == [e.speed_kmh is not None and e.speed_kmh > limit for e in events]
     assert {m["over_limit"] for m in msgs} == {True, False}
@@ -427,3 +446,23 @@ def test_a_camera_moved_mid_stream_keeps_what_was_measured_before(kraten_moved, 
     assert sum(e.measured for e in before) >= 8, [e.reason for e in before]
     assert len(after) >= 3 and not any(e.measured for e in after)
     assert all(e.reason.startswith("no calibration") for e in after), [e.reason for e in after]
+
+
+def test_an_events_url_that_does_not_answer_costs_no_vehicle(clip, implicit, tmp_path):
+    """A receiver that is down: warnings (when posting first fails, and how many events were not posted at the
+    end), never an error; the files hold every vehicle.  Not an http(s) URL: an error at start naming it."""
+    import socket
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    _, _, events, _ = implicit
+    url = f"http://127.0.0.1:{port}/hook"
+    run, down, _ = measure(clip, tmp_path / "down", detector(clip),
+                           f"calibration-file={clip / 'calibration.json'} events-url={url}")
+    assert [e.id for e in down] == [e.id for e in events]
+    posting = [w for w in run.warnings if "cannot post vehicle events" in w]
+    assert posting and all(url in w for w in posting)
+    assert any(f"{len(events)} of {len(events)} vehicle events could not be posted to {url}" in w for w in run.warnings)
+    with pytest.raises(PipelineError, match="events-url: 'ftp://host/x' is not an http:// or https:// URL"):
+        measure(clip, tmp_path / "bad", detector(clip), "events-url=ftp://host/x")

@@ -19,7 +19,8 @@ and the scale is found anew for the new view.
 
 Output per frame: a ``"speed"`` {speed_kmh, label, model_name, confidence} structure on the ROI of every vehicle
 with a current estimate.  Per vehicle that leaves: a ``trafficcal-speed`` element message (the event's fields, and
-with ``speed-limit`` a boolean ``over_limit``) and
+with ``speed-limit`` a boolean ``over_limit``), the same as a JSON POST to ``events-url`` (a webhook;
+``gst_trafficcal.publish``: background thread, retries, a warning when it fails — never an error), and
 a line in ``events-file`` (JSON lines) / ``csv-file``; per frame with tracked vehicles, a line in ``frames-file``
 (gvametaconvert's shape: box, track id, ``"trafficcal-vehicle"`` with the reference point and 3D box, ``"speed"``);
 ``results-file`` gets the BrnoCompSpeed results JSON
@@ -67,6 +68,9 @@ class Speedometer(TrafficcalTransform):
                            "(2026-12-05T08:00:00+01:00; without an offset: local time): the events then carry "
                            "first_time and last_time; 'now': the clock at the first frame less its timestamp (live "
                            "sources); empty: none", "", _RW),
+        "events-url": (str, "Events URL", "http(s):// URL that receives each vehicle event as it leaves, one JSON "
+                       "POST per vehicle (a webhook; http://user:password@host/... for basic authentication); sent "
+                       "from a background thread, retried, never holding the video up; empty: none", "", _RW),
         "speed-limit": (float, "Speed limit", "km/h: each trafficcal-speed message also says whether the vehicle "
                         "was faster (over_limit; 0: no limit, no field)", 0.0, 1000.0, 0.0, _RW),
         "tau": (int, "Tau", "Observations between the two points of each speed sample (more for a vehicle that "
@@ -86,6 +90,8 @@ class Speedometer(TrafficcalTransform):
         self._meter = None
         self._outputs = None
         self._frames = None
+        self._poster = None  # EventPoster for events-url
+        self._posted = 0
         self._results_t = None
         self._fps_fixed = False
         self._file_cal = None
@@ -120,6 +126,10 @@ class Speedometer(TrafficcalTransform):
             # opened now so that an unwritable path fails at start; the frame rate is set from the caps
             self._outputs = VehicleOutputs(self.events_file or None, self.csv_file or None,
                                            self.results_file or None, fps=25.0)
+            if self.events_url:
+                from gst_trafficcal.publish import EventPoster
+
+                self._poster = EventPoster(self.events_url)
             if self.frames_file:
                 from gst_trafficcal.outputs import FrameJsonlWriter
 
@@ -346,6 +356,7 @@ class Speedometer(TrafficcalTransform):
             if self.speed_limit > 0:
                 fields["over_limit"] = is_over_limit(event.speed_kmh, self.speed_limit)
             self.post_element_message("trafficcal-speed", fields)
+            self._push(fields)
             if self._outputs is None:
                 continue
             self._fix_fps()
@@ -407,10 +418,33 @@ class Speedometer(TrafficcalTransform):
                                           m.points_px)
                 except InputError:
                     pass
+                self._push(m.event.with_clock(self._start).to_dict())
         self._close(report=post)
+
+    def _push(self, fields):
+        """Hand a vehicle's event to events-url's poster; say so (once per new problem) when posting fails."""
+        if self._poster is None:
+            return
+        self._poster.post(fields)
+        self._posted += 1
+        problem = self._poster.new_problem()
+        if problem:
+            self.post_warning(f"speedometer: cannot post vehicle events: {problem}; retrying with each vehicle, and "
+                              "every vehicle is still written to the files")
 
     def _close(self, report=True):
         from gst_trafficcal.errors import InputError
+
+        if self._poster is not None:
+            poster, self._poster = self._poster, None
+            stats = poster.close(timeout=10.0)
+            self.post_element_message("trafficcal-events-url", {
+                "url": poster.shown_url, "events": self._posted, "sent": stats.sent, "failed": stats.failed,
+                "dropped": stats.dropped})
+            if not stats.complete and report:
+                why = stats.last_error or "not answered in time"
+                self.post_warning(f"speedometer: {stats.failed + stats.dropped} of {self._posted} vehicle events "
+                                  f"could not be posted to {poster.shown_url} ({why}); every vehicle is in the files")
 
         if self._frames is not None:
             frames, self._frames = self._frames, None

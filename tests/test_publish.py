@@ -1,0 +1,107 @@
+"""Vehicle events pushed over HTTP (``publish.py``) to a real local HTTP server."""
+
+from __future__ import annotations
+
+import socket
+import time
+
+import numpy as np
+import pytest
+
+from gst_trafficcal.errors import InputError
+from gst_trafficcal.publish import EventPoster, check_url, redacted
+
+from .conftest import Receiver
+
+
+@pytest.fixture
+def receiver():
+    r = Receiver()
+    yield r
+    r.close()
+
+
+def _closed_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def test_every_event_arrives_in_order_as_json(receiver):
+    poster = EventPoster(receiver.url)
+    for i in range(20):
+        poster.post({"id": i, "speed_kmh": np.float64(50.0 + i), "lane": np.int64(1), "reason": ""})
+    stats = poster.close()
+    assert stats.sent == 20 and stats.complete, stats
+    assert [b["id"] for b in receiver.bodies] == list(range(20))
+    assert receiver.bodies[3] == {"id": 3, "speed_kmh": 53.0, "lane": 1, "reason": ""}
+    assert receiver.headers[0]["Content-Type"] == "application/json"
+
+
+def test_a_receiver_that_fails_for_a_while_gets_the_event_again():
+    r = Receiver(statuses=[503, 500])
+    try:
+        poster = EventPoster(r.url, backoff=0.05)
+        poster.post({"id": 7})
+        stats = poster.close()
+    finally:
+        r.close()
+    assert stats.sent == 1 and stats.complete and [b["id"] for b in r.bodies] == [7]
+
+
+def test_a_refused_event_is_not_retried_and_is_said_once():
+    r = Receiver(statuses=[400, 400])
+    try:
+        poster = EventPoster(r.url, backoff=0.05)
+        poster.post({"id": 1})
+        poster.post({"id": 2})
+        deadline = time.monotonic() + 5
+        while poster.stats().failed < 2 and time.monotonic() < deadline:
+            time.sleep(0.01)
+        problem = poster.new_problem()
+        assert problem == f"{r.url}: HTTP 400 Bad Request" and poster.new_problem() is None
+        stats = poster.close()
+    finally:
+        r.close()
+    assert (stats.sent, stats.failed) == (0, 2) and r.bodies == []
+
+
+def test_an_unreachable_receiver_never_holds_the_caller_up():
+    url = f"http://127.0.0.1:{_closed_port()}/hook"
+    poster = EventPoster(url, retries=2, backoff=0.05, queue_size=5)
+    t0 = time.monotonic()
+    for i in range(50):
+        poster.post({"id": i})
+    assert time.monotonic() - t0 < 0.5  # queued, not sent, by the caller
+    stats = poster.close(timeout=2.0)
+    assert stats.sent == 0 and stats.failed + stats.dropped == 50 and stats.dropped >= 45, stats
+    assert stats.last_error.startswith(f"{url}: ") and "refused" in stats.last_error.lower()
+
+
+def test_a_receiver_that_does_not_answer_costs_at_most_the_close_timeout():
+    r = Receiver(delay=3.0)
+    try:
+        poster = EventPoster(r.url, timeout=10.0)
+        poster.post({"id": 1})
+        poster.post({"id": 2})
+        t0 = time.monotonic()
+        stats = poster.close(timeout=0.5)
+        assert time.monotonic() - t0 < 1.5
+    finally:
+        r.close()
+    assert stats.sent == 0 and stats.dropped == 2
+
+
+def test_credentials_in_the_url_are_basic_auth_and_never_shown(receiver):
+    secret = receiver.url.replace("http://", "http://ops:s%40cret@")
+    poster = EventPoster(secret)
+    poster.post({"id": 1})
+    poster.close()
+    assert receiver.headers[0]["Authorization"] == "Basic b3BzOnNAY3JldA=="  # ops:s@cret
+    assert "cret" not in poster.shown_url and redacted(secret).startswith("http://ops:***@127.0.0.1:")
+
+
+@pytest.mark.parametrize("url", ["ftp://host/x", "localhost:8080/events", "http:///nohost", ""])
+def test_anything_but_an_http_url_is_an_error_naming_it(url):
+    with pytest.raises(InputError, match="is not an http:// or https:// URL"):
+        check_url(url)
