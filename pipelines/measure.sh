@@ -23,7 +23,8 @@
 # Environment (optional):
 #   VPDETECT_OPTS       extra vpdetect properties (e.g. "min-duration=60")
 #   VEHICLEDETECT_OPTS  extra vehicledetect properties (e.g. "model=FastestDet.onnx tiles=2x1")
-#   SPEEDOMETER_OPTS    extra speedometer properties (e.g. "tau=5 min-track-length=10")
+#   SPEEDOMETER_OPTS    extra speedometer properties (e.g. "tau=5 min-track-length=10"; "events-url=https://..."
+#                       POSTs each vehicle's event to your system as it leaves)
 set -euo pipefail
 
 here="$(cd "$(dirname "${BASH_SOURCE[0]}")" && pwd)"

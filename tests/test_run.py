@@ -228,6 +228,26 @@ def test_full_disk_keeps_every_vehicle_already_measured(clip, with_truth, tmp_pa
     assert load_calibration(out / "calibration.json").camera.scale is not None
 
 
+def test_every_vehicle_is_posted_to_the_events_url_whose_password_is_never_shown(clip, tmp_path):
+    from .conftest import Receiver
+
+    receiver = Receiver()
+    try:
+        url = receiver.url.replace("http://", "http://ops:s3cret@")
+        proc = trafficcal("run", clip / "video.mp4", "--out", tmp_path / "out", "--no-overlay", "--calibration",
+                          clip / "calibration.json", "--events-url", url)
+    finally:
+        receiver.close()
+    assert proc.returncode == 0, proc.stdout[-2000:] + proc.stderr[-2000:]
+    events = read_events(tmp_path / "out" / "vehicles.jsonl").events
+    assert [b["id"] for b in receiver.bodies] == [e.id for e in events] and len(events) >= 5
+    assert [b["speed_kmh"] for b in receiver.bodies] == [e.speed_kmh for e in events]
+    assert "s3cret" not in proc.stdout + proc.stderr and "events-url=\"http://ops:***@127.0.0.1:" in proc.stdout
+    line = one_line_error(trafficcal("run", clip / "video.mp4", "--out", tmp_path / "bad", "--events-url",
+                                     "mqtt://broker/topic"))
+    assert line == "trafficcal: error: --events-url: 'mqtt://broker/topic' is not an http:// or https:// URL"
+
+
 def test_unreadable_scale_regression_is_refused_before_the_run(clip, tmp_path):
     reg = tmp_path / "reg.json"
     reg.write_text("[1, 2]")

@@ -98,17 +98,19 @@ def pipeline_description(video: Path | str, paths: RunPaths, calibration: Path |
                          detector: Path | str | None = None,
                          overlay: bool = True, bbscale: bool = False, queues: bool = True,
                          scale_regression: Path | None = None, body_shapes: str = "auto",
-                         speed_limit: float = 0.0, start_time: str = "") -> str:
+                         speed_limit: float = 0.0, start_time: str = "", events_url: str = "") -> str:
     """The gst-launch description ``trafficcal run`` plays (also printed, so it can be re-run by hand).
 
     With ``queues`` two ``queue`` elements split the chain into three streaming threads (decoding; vpdetect and
     vehicledetect; tracker onwards), so the stages run on more than one core; the numbers do not change (every
     element still sees every buffer and the calibration events in stream order).  ``speed_limit`` (km/h, 0: none)
     goes to speedometer (its messages say which vehicles were over it) and trafficoverlay (drawn in red, counted);
-    ``start_time`` (ISO 8601, the date and time the video starts) to speedometer, which then dates every vehicle.
+    ``start_time`` (ISO 8601, the date and time the video starts) to speedometer, which then dates every vehicle;
+    ``events_url`` to speedometer, which POSTs every vehicle's event there.
     """
     limit = f" speed-limit={speed_limit:g}" if speed_limit else ""
     clock = f" start-datetime={quote(start_time)}" if start_time else ""
+    clock += f" events-url={quote(events_url)}" if events_url else ""
     vp = f"vpdetect mode=fixed calibration-file={quote(calibration)}" if calibration else "vpdetect"
     model = model_of(detector)
     det = f"vehicledetect model={quote(model)}" if model else "vehicledetect"
@@ -348,10 +350,16 @@ def print_vehicles(console, events: list, speed_limit: float | None = None) -> N
               help="Stop after this many seconds of video (a live stream otherwise runs until Ctrl-C). Either way the "
                    "run ends as at the end of the stream: every vehicle in view is written and every output "
                    "completed.")
+@click.option("--events-url", default="", metavar="URL",
+              help="Also POST each vehicle's event as JSON to this http(s):// URL as it leaves (a webhook of your "
+                   "traffic or video-management system; http://user:password@host/... for basic authentication). "
+                   "Sent in the background and retried: a receiver that is down never stops the run, and every "
+                   "vehicle is still in the files.")
 @click.option("--no-overlay", is_flag=True, help="Do not encode overlay.mp4 (faster).")
 def command(video: str, out_dir: Path, calibration_path: Path | None, gt_path: Path | None,
             detector: str | None, regression_path: Path | None, body_shapes: str, speed_limit: float,
-            start_time: str, interval_min: float, duration_s: float | None, no_overlay: bool) -> None:
+            start_time: str, interval_min: float, duration_s: float | None, events_url: str,
+            no_overlay: bool) -> None:
     """Calibrate and measure every vehicle of VIDEO (a file, or the URI of a stream: rtsp://, http://, file://)
     in one pass through the GStreamer elements. Ctrl-C (or --duration) ends the run as the end of the stream
     would, with every output complete; a second Ctrl-C stops at once.
@@ -397,13 +405,23 @@ def command(video: str, out_dir: Path, calibration_path: Path | None, gt_path: P
 
         load_regression(regression_path)  # unreadable or not a regression: a one-line error now
     check_detector(detector)
+    if events_url:
+        from ..publish import check_url
+
+        check_url(events_url, "--events-url")  # not an http(s) URL: one line now, not an element error later
     paths = RunPaths(out_dir)
     bbscale = (elements_dir() / "python" / "bbscale.py").exists()
     description = pipeline_description(video, paths, calibration_path, detector, overlay=not no_overlay,
                                        bbscale=bbscale, scale_regression=regression_path, body_shapes=body_shapes,
                                        speed_limit=speed_limit,
-                                       start_time=NOW if live_clock else start.isoformat() if start else "")
-    console.print(f"[bold]Pipeline[/] {description}", highlight=False, soft_wrap=True)
+                                       start_time=NOW if live_clock else start.isoformat() if start else "",
+                                       events_url=events_url)
+    shown = description
+    if events_url:  # no password on the screen
+        from ..publish import redacted
+
+        shown = description.replace(events_url, redacted(events_url))
+    console.print(f"[bold]Pipeline[/] {shown}", highlight=False, soft_wrap=True)
     summary = measure_video(video, out_dir, description, console,
                             keep=(calibration_path,) if calibration_path is not None else (), stop_after_s=duration_s)
     if live_clock:  # the speedometer took the clock at the first frame: the events say when that was
