@@ -350,3 +350,57 @@ def test_start_time_now_is_for_streams(clip, tmp_path):
 def test_a_directory_is_not_a_video(tmp_path):
     proc = trafficcal("run", tmp_path, "--out", tmp_path / "out")
     assert proc.returncode == 2 and "is a directory" in proc.stderr and "Traceback" not in proc.stderr
+
+
+@pytest.mark.shared
+def test_the_calibration_of_a_cameras_first_file_carries_over_to_the_next(tmp_path):
+    """Recordings of one camera in parts: the first (kraten_cars.mp4, 47 s: enough to calibrate) is calibrated and
+    scaled; the second (its first 6 s, too short to calibrate alone) is measured from its first vehicle with that
+    calibration, checked against its view (vpdetect mode auto), bbscale passing the scale on as it is."""
+    from .conftest import VIDEOS, require_shared
+
+    whole = require_shared(VIDEOS / "kraten_cars.mp4")
+    part = tmp_path / "part2.mp4"
+    cap = cv2.VideoCapture(str(whole))
+    writer = cv2.VideoWriter(str(part), cv2.VideoWriter_fourcc(*"mp4v"), 25, (640, 360))
+    for _ in range(150):
+        writer.write(cap.read()[1])
+    writer.release()
+    out = tmp_path / "out"
+    proc = trafficcal("run", whole, part, "--out", out, "--no-overlay")
+    assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
+    first = load_calibration(out / "kraten_cars" / "calibration.json")
+    second = load_calibration(out / "part2" / "calibration.json")
+    assert first.camera.scale is not None and first.source == "vpdetect+bbscale"
+    assert second.source == "vpdetect+bbscale, carried over from kraten_cars.mp4"
+    assert second.camera.scale == first.camera.scale and np.allclose(second.camera.vp2, first.camera.vp2)
+    assert "vpdetect mode=auto calibration-file=" in proc.stdout
+    events = read_events(out / "part2" / "vehicles.jsonl").events
+    assert sum(e.measured for e in events) >= 3 and all(e.calibration_id == second.id for e in events if e.measured)
+    assert "2 of 2 files" in proc.stdout and proc.stdout.count("│ ok ") == 2
+
+
+def test_several_files_one_failing_the_others_still_run(clip, tmp_path):
+    """A file that is not a video fails (its error in the table and at the end, exit code 2); the files before and
+    after it are measured, each into its own folder (the same names numbered)."""
+    bad = tmp_path / "notes.mp4"
+    bad.write_text("not a video")
+    out = tmp_path / "out"
+    proc = trafficcal("run", clip / "video.mp4", bad, clip / "video.mp4", "--out", out, "--no-overlay",
+                      "--calibration", clip / "calibration.json")
+    assert proc.returncode == 2, proc.stdout[-2000:] + proc.stderr[-2000:]
+    assert user_lines(proc.stderr)[-1].startswith("trafficcal: error: notes.mp4: ") and "Traceback" not in proc.stderr
+    one = read_events(out / "video-1" / "vehicles.jsonl").events
+    three = read_events(out / "video-3" / "vehicles.jsonl").events
+    assert len(one) >= 5 and [(e.id, e.speed_kmh) for e in one] == [(e.id, e.speed_kmh) for e in three]
+    assert "3 of 3 files" in proc.stdout and proc.stdout.count("│ ok ") == 2 and "│ failed: " in proc.stdout
+
+
+@pytest.mark.parametrize("args, words", [
+    (["rtsp://cam/1", "rtsp://cam/2"], "a stream (URI) runs alone"),
+    (["{clip}", "{clip}", "--gt", "{gt}"], "--gt is the ground truth of one video"),
+    (["{clip}", "{clip}", "--start-time", "2026-12-05T08:00:00"], "--start-time is the start of one recording"),
+])
+def test_what_several_inputs_cannot_share_is_refused_first(clip, tmp_path, args, words):
+    args = [a.format(clip=clip / "video.mp4", gt=clip / "gt_data.pkl") for a in args]
+    assert words in one_line_error(trafficcal("run", *args, "--out", tmp_path / "out"))

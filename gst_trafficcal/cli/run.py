@@ -98,7 +98,8 @@ def pipeline_description(video: Path | str, paths: RunPaths, calibration: Path |
                          detector: Path | str | None = None,
                          overlay: bool = True, bbscale: bool = False, queues: bool = True,
                          scale_regression: Path | None = None, body_shapes: str = "auto",
-                         speed_limit: float = 0.0, start_time: str = "", events_url: str = "") -> str:
+                         speed_limit: float = 0.0, start_time: str = "", events_url: str = "",
+                         calibration_mode: str = "fixed") -> str:
     """The gst-launch description ``trafficcal run`` plays (also printed, so it can be re-run by hand).
 
     With ``queues`` two ``queue`` elements split the chain into three streaming threads (decoding; vpdetect and
@@ -106,12 +107,14 @@ def pipeline_description(video: Path | str, paths: RunPaths, calibration: Path |
     element still sees every buffer and the calibration events in stream order).  ``speed_limit`` (km/h, 0: none)
     goes to speedometer (its messages say which vehicles were over it) and trafficoverlay (drawn in red, counted);
     ``start_time`` (ISO 8601, the date and time the video starts) to speedometer, which then dates every vehicle;
-    ``events_url`` to speedometer, which POSTs every vehicle's event there.
+    ``events_url`` to speedometer, which POSTs every vehicle's event there.  ``calibration_mode``: vpdetect's mode
+    with ``calibration`` — fixed (a calibration the user gave) or auto (one carried over from an earlier file:
+    learnt anew if the camera moved).
     """
     limit = f" speed-limit={speed_limit:g}" if speed_limit else ""
     clock = f" start-datetime={quote(start_time)}" if start_time else ""
     clock += f" events-url={quote(events_url)}" if events_url else ""
-    vp = f"vpdetect mode=fixed calibration-file={quote(calibration)}" if calibration else "vpdetect"
+    vp = f"vpdetect mode={calibration_mode} calibration-file={quote(calibration)}" if calibration else "vpdetect"
     model = model_of(detector)
     det = f"vehicledetect model={quote(model)}" if model else "vehicledetect"
     chain = [*source_elements(video), f"videoconvert name={STOP_ELEMENT}", "video/x-raw,format=I420",
@@ -319,7 +322,7 @@ def print_vehicles(console, events: list, speed_limit: float | None = None) -> N
 
 
 @click.command(name="run")
-@click.argument("video", metavar="VIDEO|URI")
+@click.argument("videos", metavar="VIDEO|URI...", nargs=-1, required=True)
 @click.option("--out", "out_dir", required=True, type=click.Path(file_okay=False, path_type=Path),
               help="Folder for the outputs (created; earlier outputs there are replaced).")
 @click.option("--calibration", "calibration_path", type=click.Path(path_type=Path), default=None,
@@ -356,7 +359,7 @@ def print_vehicles(console, events: list, speed_limit: float | None = None) -> N
                    "Sent in the background and retried: a receiver that is down never stops the run, and every "
                    "vehicle is still in the files.")
 @click.option("--no-overlay", is_flag=True, help="Do not encode overlay.mp4 (faster).")
-def command(video: str, out_dir: Path, calibration_path: Path | None, gt_path: Path | None,
+def command(videos: tuple[str, ...], out_dir: Path, calibration_path: Path | None, gt_path: Path | None,
             detector: str | None, regression_path: Path | None, body_shapes: str, speed_limit: float,
             start_time: str, interval_min: float, duration_s: float | None, events_url: str,
             no_overlay: bool) -> None:
@@ -368,6 +371,11 @@ def command(video: str, out_dir: Path, calibration_path: Path | None, gt_path: P
     intervals.csv (the traffic count per --interval, lane and direction), overlay.mp4 (unless --no-overlay),
     report.html, and with --gt evaluation.json. Speeds need a scale: from bbscale when installed, else from a
     --calibration file with a scale; without one, vehicles are written with speed null and the reason.
+
+    Several files of one camera (recordings split into parts): each is measured into --out/NAME/ in turn, and the
+    calibration the first ones found (with its scale) carries over to the next — checked against each file's view,
+    so a camera moved in between is calibrated anew; a table of every file ends the run. A file that fails does
+    not stop the others.
     """
     import sys
 
@@ -375,22 +383,20 @@ def command(video: str, out_dir: Path, calibration_path: Path | None, gt_path: P
 
     from ..calibration import load_calibration
     from ..clock import NOW, parse_start_time
-    from ..outputs import stream_start
-    from ..gst.env import elements_dir
-    from ..report import ReportInputs, write_report
-    from ..traffic_stats import interval_rows, write_intervals_csv
 
     console = Console()
-    if not is_uri(video):
-        if not Path(video).is_file():
-            raise click.BadParameter(f"File {video!r} does not exist." if not Path(video).exists() else
-                                     f"{video!r} is a directory.", param_hint="'VIDEO|URI'")
-        video = Path(video)
+    inputs = [check_input(v) for v in videos]
+    if len(inputs) > 1 and any(is_uri(v) for v in inputs):
+        raise InputError("a stream (URI) runs alone: give one URI, or several files")
+    if len(inputs) > 1 and gt_path is not None:
+        raise InputError("--gt is the ground truth of one video: give one file with it")
     live_clock = start_time.strip().lower() == NOW
-    if live_clock and not is_uri(video):
+    if live_clock and not is_uri(inputs[0]):
         raise InputError("--start-time now is for live streams (the clock at the first frame); for a file give the "
                          "date and time the recording starts")
     start = None if live_clock else parse_start_time(start_time, "--start-time")  # bad: one line, before any work
+    if len(inputs) > 1 and start is not None:
+        raise InputError("--start-time is the start of one recording: with several files, run them one by one")
     if calibration_path is not None:
         given = load_calibration(calibration_path)  # unreadable/corrupt: a one-line InputError now, not mid-run
         if given.camera is None:
@@ -409,13 +415,132 @@ def command(video: str, out_dir: Path, calibration_path: Path | None, gt_path: P
         from ..publish import check_url
 
         check_url(events_url, "--events-url")  # not an http(s) URL: one line now, not an element error later
+    options = RunOptions(detector, regression_path, body_shapes, speed_limit, interval_min, duration_s, events_url,
+                         no_overlay, gt_path, live_clock, start)
+    if len(inputs) == 1:
+        summary = run_one(console, inputs[0], out_dir, calibration_path, options)
+        sys.stdout.flush()
+        if summary.stopped == "interrupted":
+            sys.exit(130)  # the shell's code for Ctrl-C; every output above is complete
+        return
+    failed = run_files(console, inputs, out_dir, calibration_path, options)
+    sys.stdout.flush()
+    if failed == "interrupted":
+        sys.exit(130)
+    if failed:
+        raise InputError(failed)
+
+
+def check_input(video: str) -> Path | str:
+    """A URI as it is; a file as a Path (click's usage error when it is missing or a directory)."""
+    if is_uri(video):
+        return video
+    if not Path(video).is_file():
+        raise click.BadParameter(f"File {video!r} does not exist." if not Path(video).exists() else
+                                 f"{video!r} is a directory.", param_hint="'VIDEO|URI'")
+    return Path(video)
+
+
+@dataclass(frozen=True)
+class RunOptions:
+    """The settings of ``trafficcal run`` that every input of it shares."""
+
+    detector: str | None = None
+    regression_path: Path | None = None
+    body_shapes: str = "auto"
+    speed_limit: float = 0.0
+    interval_min: float = 15.0
+    duration_s: float | None = None
+    events_url: str = ""
+    no_overlay: bool = False
+    gt_path: Path | None = None
+    live_clock: bool = False
+    start: Any = None  # datetime of the video's start, or None
+
+
+def run_files(console, videos: list[Path], out_dir: Path, calibration_path: Path | None,
+              options: RunOptions) -> str:
+    """Several files of one camera, each into ``out_dir``/NAME: the calibration with a scale found so far carries
+    over (vpdetect mode auto: checked against each file's view); a table of them at the end.  Returns "" when
+    every file ran, "interrupted" after Ctrl-C, or what failed."""
+    from dataclasses import replace as dc_replace
+
+    from rich.table import Table
+
+    from ..calibration import load_calibration, save_calibration
+    from ..traffic_stats import speed_stats
+
+    names = _output_names(videos)
+    carried = None  # (calibration with a scale, the file it came from)
+    rows, failures = [], []
+    for k, (video, name) in enumerate(zip(videos, names), 1):
+        sub = out_dir / name
+        console.rule(f"[bold]{k}/{len(videos)}[/] {video.name} -> {sub}")
+        given, mode = calibration_path, "fixed"
+        if given is None and carried is not None:
+            sub.mkdir(parents=True, exist_ok=True)
+            given, mode = sub / "calibration.json", "auto"
+            cal, origin = carried
+            # not bbscale's own any more: a scale from a file, which bbscale passes on as it is
+            save_calibration(dc_replace(cal, source=f"{cal.source}, carried over from {origin}"), given)
+        try:
+            summary = run_one(console, video, sub, given, options, calibration_mode=mode)
+        except InputError as exc:
+            failures.append(f"{video.name}: {exc}")
+            rows.append([video.name, "–", "–", "–", "–", "", f"[red]failed[/]: {exc}"])
+            continue
+        measured = [e.speed_kmh for e in summary.events if e.speed_kmh is not None]
+        st = speed_stats(measured)
+        cal = summary.calibration
+        if summary.has_scale and not summary.moves:
+            try:
+                carried = (load_calibration(sub / "calibration.json"), video.name)
+            except InputError:
+                pass
+        how = "" if cal is None else ("carried over" if "carried over" in cal.source else cal.state)
+        rows.append([video.name, str(len(summary.events)), str(st.n), "–" if st.mean is None else f"{st.mean:.1f}",
+                     "–" if st.v85 is None else f"{st.v85:.1f}", how, "interrupted" if summary.stopped else "ok"])
+        if summary.stopped == "interrupted":
+            break
+    table = Table(title=f"{len(rows)} of {len(videos)} files (speeds in km/h)")
+    for col in ("file", "vehicles", "measured", "mean", "V85", "calibration", "status"):
+        table.add_column(col, justify="right" if col in ("vehicles", "measured", "mean", "V85") else "left",
+                         overflow="fold", min_width=len(col))  # a long name wraps rather than being cut
+    for row in rows:
+        table.add_row(*row)
+    console.print(table)
+    if rows and rows[-1][-1] == "interrupted":
+        return "interrupted"
+    return "; ".join(failures)
+
+
+def _output_names(videos: list[Path]) -> list[str]:
+    """A folder name per file: its stem, numbered where two files share one."""
+    stems = [v.stem or "video" for v in videos]
+    return [s if stems.count(s) == 1 else f"{s}-{k}" for k, s in enumerate(stems, 1)]
+
+
+def run_one(console, video: Path | str, out_dir: Path, calibration_path: Path | None, options: RunOptions,
+            calibration_mode: str = "fixed") -> "RunSummary":
+    """One input of ``trafficcal run``: play it, print what it found, write intervals.csv and report.html;
+    returns what it produced (InputError when an output could not be written)."""
+    from ..clock import NOW
+    from ..gst.env import elements_dir
+    from ..outputs import stream_start
+    from ..report import ReportInputs, write_report
+    from ..traffic_stats import interval_rows, write_intervals_csv
+
+    detector, regression_path, body_shapes = options.detector, options.regression_path, options.body_shapes
+    speed_limit, interval_min, duration_s = options.speed_limit, options.interval_min, options.duration_s
+    events_url, no_overlay, gt_path = options.events_url, options.no_overlay, options.gt_path
+    live_clock, start = options.live_clock, options.start
     paths = RunPaths(out_dir)
     bbscale = (elements_dir() / "python" / "bbscale.py").exists()
     description = pipeline_description(video, paths, calibration_path, detector, overlay=not no_overlay,
                                        bbscale=bbscale, scale_regression=regression_path, body_shapes=body_shapes,
                                        speed_limit=speed_limit,
                                        start_time=NOW if live_clock else start.isoformat() if start else "",
-                                       events_url=events_url)
+                                       events_url=events_url, calibration_mode=calibration_mode)
     shown = description
     if events_url:  # no password on the screen
         from ..publish import redacted
@@ -490,6 +615,4 @@ def command(video: str, out_dir: Path, calibration_path: Path | None, gt_path: P
                    "--calibration CAL.json with a scale (e.g. from `trafficcal calibrate-manual`)"
                    + ("; bbscale found none (its warning above says why)" if bbscale else
                       ", or install the bbscale element"), err=True)
-    sys.stdout.flush()
-    if summary.stopped == "interrupted":
-        sys.exit(130)  # the shell's code for Ctrl-C; every output above is complete
+    return summary
