@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -404,3 +405,44 @@ def test_several_files_one_failing_the_others_still_run(clip, tmp_path):
 def test_what_several_inputs_cannot_share_is_refused_first(clip, tmp_path, args, words):
     args = [a.format(clip=clip / "video.mp4", gt=clip / "gt_data.pkl") for a in args]
     assert words in one_line_error(trafficcal("run", *args, "--out", tmp_path / "out"))
+
+
+def test_a_live_stream_that_ends_is_connected_again(clip, rtsp_clip, tmp_path):
+    """--reconnect: the served clip ends after 12 s; the run connects again after a second and goes on until
+    --duration (16 s of video in all), each connection in its own folder, a table of them at the end."""
+    out = tmp_path / "live"
+    proc = trafficcal("run", rtsp_clip, "--out", out, "--reconnect", "--duration", "16", "--no-overlay",
+                      "--calibration", clip / "calibration.json")
+    assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
+    parts = sorted(p for p in out.iterdir() if p.is_dir())
+    assert len(parts) == 2 and all(re.fullmatch(r"\d{8}-\d{6}(-\d+)?", p.name) for p in parts)
+    first = read_events(parts[0] / "vehicles.jsonl").events
+    assert len(first) >= 5 and sum(e.measured for e in first) >= 5
+    assert (parts[1] / "vehicles.jsonl").is_file() and (parts[1] / "report.html").is_file()
+    assert "the stream ended: connecting again in 1 s (Ctrl-C stops)" in proc.stdout
+    assert "2 connections" in proc.stdout and "│ ended " in proc.stdout and "│ ok " in proc.stdout
+
+
+def test_reconnecting_to_a_stream_that_is_not_there_goes_on_until_ctrl_c(clip, tmp_path):
+    """Nothing answers: each attempt fails, the wait doubles, Ctrl-C ends it (130) with the table; a file is read
+    once, so --reconnect with one is refused."""
+    import signal
+    import socket
+    import time
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    proc = subprocess.Popen([sys.executable, "-m", "gst_trafficcal", "run", f"rtsp://127.0.0.1:{port}/none", "--out",
+                             str(tmp_path / "out"), "--reconnect", "--no-overlay"], stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True,
+                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
+    time.sleep(10)
+    assert proc.poll() is None, proc.communicate()
+    proc.send_signal(signal.SIGINT)
+    stdout, stderr = proc.communicate(timeout=60)
+    assert proc.returncode == 130, stdout[-2000:] + stderr[-2000:]
+    assert "connecting again in 1 s" in stdout and "connecting again in 2 s" in stdout and "Traceback" not in stderr
+    assert "│ failed: " in stdout and "connections (speeds in km/h)" in stdout
+    line = one_line_error(trafficcal("run", clip / "video.mp4", "--out", tmp_path / "x", "--reconnect"))
+    assert line == "trafficcal: error: --reconnect is for a live stream (a URI): a file is read to its end once"
