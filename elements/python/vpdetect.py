@@ -190,7 +190,7 @@ class VpDetect(TrafficcalTransform):
             if self._held:
                 self.publish_calibration(cal)
             self._held = False
-            if stored is not None:
+            if match is not None:  # (a view of another aspect ratio is not watched: it would never match)
                 self._watch(stored, width)
             return
         if not self._held:  # mode fixed: the file's calibration stays, the user is told
