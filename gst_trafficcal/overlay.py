@@ -23,7 +23,7 @@ from .drawing import (GRID_ACROSS_BGR, GRID_ALONG_BGR, HORIZON_BGR, RoadGrid, cl
 from .geometry import Camera
 from .lanes import DEFAULT_LANE_WIDTH_M, lane_centres
 from .outputs import AWAY_FROM_VP1, TOWARDS_VP1, direction_name
-from .traffic_stats import is_over_limit
+from .traffic_stats import SpeedLimit, as_limit, is_over_limit
 
 _SHIFT = 4  # fixed-point bits of the coordinates given to cv2 (1/16 pixel)
 
@@ -212,7 +212,7 @@ class OverlayOptions:
     grid_spacing_m: float = 3.0
     thickness: int = 2
     font_scale: float = 0.0  # 0: from the frame height (0.6 at 720 lines)
-    speed_limit_kmh: float = 0.0  # > 0: vehicles faster than this are drawn in Style.speeding_bgr
+    speed_limit_kmh: "float | SpeedLimit" = 0.0  # vehicles faster than their limit are drawn in Style.speeding_bgr
 
 
 @dataclass(frozen=True)
@@ -262,8 +262,9 @@ class VehicleCounter:
     _updates: int = field(default=0, repr=False)
     _lanes_key: tuple[int, int, int] = field(default=(-1, -1, -1), repr=False)
     _lanes: dict[int, int] = field(default_factory=dict, repr=False)
-    speed_limit_kmh: float = 0.0  # > 0: also count the vehicles whose latest speed is over it
-    _speed: dict[int, float] = field(default_factory=dict, repr=False)  # latest known speed of those still around
+    speed_limit_kmh: "float | SpeedLimit" = 0.0  # also count the vehicles whose latest speed is over their limit
+    _speed: dict[int, tuple[float, str]] = field(default_factory=dict, repr=False)  # latest known speed and class of
+    # those still around
     _done_speeding: int = field(default=0, repr=False)
 
     MAX_OFFSETS = 64  # per vehicle (its median is all that is used)
@@ -281,7 +282,7 @@ class VehicleCounter:
             self.seen[m.track_id] = (m.direction or old_dir, m.lane if m.lane is not None else old_lane)
             self._last_seen[m.track_id] = self._updates
             if m.speed_kmh is not None:
-                self._speed[m.track_id] = m.speed_kmh
+                self._speed[m.track_id] = (m.speed_kmh, m.label)
             if metric and m.lane is None and m.ref_point is not None:
                 y = float(camera.to_world(np.asarray(m.ref_point, np.float64))[1])
                 if np.isfinite(y):
@@ -301,7 +302,8 @@ class VehicleCounter:
             self._done_dir[direction] = self._done_dir.get(direction, 0) + 1
             if lane is not None:
                 self._done_lane[lane] = self._done_lane.get(lane, 0) + 1
-            self._done_speeding += is_over_limit(self._speed.pop(i, None), self.speed_limit_kmh)
+            speed, label = self._speed.pop(i, (None, ""))
+            self._done_speeding += is_over_limit(speed, self.speed_limit_kmh, label)
             ys = self.offsets.pop(i, None)
             if ys:
                 self._done_offsets.append(float(np.median(ys)))
@@ -330,7 +332,8 @@ class VehicleCounter:
     @property
     def speeding(self) -> int:
         """Distinct vehicles whose latest known speed was over ``speed_limit_kmh`` (0 without a limit)."""
-        return self._done_speeding + sum(is_over_limit(v, self.speed_limit_kmh) for v in self._speed.values())
+        return self._done_speeding + sum(is_over_limit(v, self.speed_limit_kmh, label)
+                                         for v, label in self._speed.values())
 
     def by_direction(self) -> dict[str | None, int]:
         out = dict(self._done_dir)
@@ -360,8 +363,9 @@ class VehicleCounter:
         lanes = self.by_lane()
         if lanes:
             out.append("  ".join(f"lane {k}: {v}" for k, v in lanes.items()))
-        if self.speed_limit_kmh:
-            out.append(f"over {self.speed_limit_kmh:g} km/h: {self.speeding}")
+        limit = as_limit(self.speed_limit_kmh or None)
+        if limit:
+            out.append(f"over {limit.describe()}: {self.speeding}")
         return out
 
 
@@ -413,7 +417,7 @@ def draw_overlay(canvas: Canvas, marks: Sequence[VehicleMark], camera: Camera | 
             canvas.segments(horizon[None], style.horizon_bgr, th)
 
     def box_color(m: VehicleMark) -> tuple[int, int, int]:
-        if is_over_limit(m.speed_kmh, options.speed_limit_kmh):
+        if is_over_limit(m.speed_kmh, options.speed_limit_kmh, m.label):
             return style.speeding_bgr
         return style.box_color(m.direction)
 
@@ -439,7 +443,8 @@ def draw_overlay(canvas: Canvas, marks: Sequence[VehicleMark], camera: Camera | 
             if lines:
                 top = np.min(m.corners[:, 1]) if m.corners is not None else m.box[1]
                 left = np.min(m.corners[:, 0]) if m.corners is not None else m.box[0]
-                bg = style.speeding_bgr if is_over_limit(m.speed_kmh, options.speed_limit_kmh) else style.text_bg_bgr
+                bg = style.speeding_bgr if is_over_limit(m.speed_kmh, options.speed_limit_kmh, m.label) \
+                    else style.text_bg_bgr
                 canvas.label((left, top - 2), lines, fs, ft, style.text_bgr, bg)
     if options.counters and counter_lines:  # last, to stay readable; translucent: the traffic under it shows
         canvas.label((8, 8), list(counter_lines), fs, ft, style.text_bgr, style.text_bg_bgr,

@@ -28,7 +28,7 @@ from .fileio import atomic_write_text
 from .geometry import Camera
 from .evaluation import ErrorStats, Evaluation, plot_cumulative_errors
 from .outputs import AWAY_FROM_VP1, TOWARDS_VP1, VehicleEvent, unmeasured_by_kind
-from .traffic_stats import check_limit, interval_rows, speed_stats
+from .traffic_stats import SpeedLimit, as_limit, event_stats, interval_rows
 
 MAX_LISTED = 1000
 """At most this many vehicles are listed one per row (all are counted)."""
@@ -112,7 +112,17 @@ def _plt():
     return plt
 
 
-def speed_histogram_uri(speeds: np.ndarray, limit_kmh: float | None = None) -> str:
+def _limit_lines(ax, limit: "SpeedLimit | float | None", horizontal: bool) -> None:
+    """The speed limit on a plot: red, solid for everyone's, dashed for each class with its own."""
+    limit = as_limit(limit)
+    line = ax.axhline if horizontal else ax.axvline
+    if limit.kmh is not None:
+        line(limit.kmh, color="#d62728", lw=2, label=f"limit {limit.kmh:g} km/h")
+    for name, kmh in limit.by_class:
+        line(kmh, color="#d62728", lw=1.2, ls="--", label=f"{name} limit {kmh:g} km/h")
+
+
+def speed_histogram_uri(speeds: np.ndarray, limit_kmh: "SpeedLimit | float | None" = None) -> str:
     """Histogram of measured speeds (km/h) as a PNG data URI; V85 (and the speed limit, when given) marked."""
     plt = _plt()
     fig, ax = plt.subplots(figsize=(7, 3.6))
@@ -121,8 +131,7 @@ def speed_histogram_uri(speeds: np.ndarray, limit_kmh: float | None = None) -> s
         bins = np.arange(lo, max(hi, lo + 5) + 5, 5.0) if hi - lo <= 200 else 40
         ax.hist(speeds, bins=bins, color="#3c78d8", edgecolor="white")
         ax.axvline(float(np.percentile(speeds, 85)), color="#222", ls="--", lw=1.2, label="V85")
-        if limit_kmh:
-            ax.axvline(limit_kmh, color="#d62728", lw=2, label=f"limit {limit_kmh:g} km/h")
+        _limit_lines(ax, limit_kmh, horizontal=False)
         ax.legend(loc="upper right", fontsize=8)
         ax.set_xlabel("speed [km/h]")
         ax.set_ylabel("vehicles")
@@ -137,7 +146,7 @@ def speed_histogram_uri(speeds: np.ndarray, limit_kmh: float | None = None) -> s
 DIRECTION_COLOURS = {TOWARDS_VP1: "#3c78d8", AWAY_FROM_VP1: "#e69138", None: "#888888"}
 
 
-def speed_time_uri(events: Sequence[VehicleEvent], limit_kmh: float | None = None) -> str | None:
+def speed_time_uri(events: Sequence[VehicleEvent], limit_kmh: "SpeedLimit | float | None" = None) -> str | None:
     """Each measured vehicle's speed against when it passed (the middle of its time in view; the clock when the
     events are dated, else stream seconds), coloured by direction, the limit marked: congestion, a quiet night
     or a faster direction show at a glance.  None with fewer than two measured vehicles."""
@@ -158,8 +167,7 @@ def speed_time_uri(events: Sequence[VehicleEvent], limit_kmh: float | None = Non
             if idx:
                 ax.scatter([when[i] for i in idx], [measured[i].speed_kmh for i in idx], s=14,
                            color=DIRECTION_COLOURS[d], label=_direction_label(d), linewidths=0)
-        if limit_kmh:
-            ax.axhline(limit_kmh, color="#d62728", lw=2, label=f"limit {limit_kmh:g} km/h")
+        _limit_lines(ax, limit_kmh, horizontal=True)
         ax.legend(loc="best", fontsize=8)
         ax.set_xlabel("time of day" if dated else "time in the video [s]")
         if dated:
@@ -174,7 +182,7 @@ def speed_time_uri(events: Sequence[VehicleEvent], limit_kmh: float | None = Non
 
 
 def intervals_uri(names: Sequence[str], vehicles: Sequence[int], v85: Sequence[float | None],
-                  limit_kmh: float | None = None) -> str:
+                  limit_kmh: "SpeedLimit | float | None" = None) -> str:
     """Vehicles per interval (bars) and their V85 (line, right axis; the limit dashed) as a PNG data URI."""
     plt = _plt()
     fig, ax = plt.subplots(figsize=(7, 3.6))
@@ -187,8 +195,11 @@ def intervals_uri(names: Sequence[str], vehicles: Sequence[int], v85: Sequence[f
                       fontsize=8)
         right = ax.twinx()
         right.plot(x, [np.nan if v is None else v for v in v85], "o-", color="#222", label="V85")
-        if limit_kmh:
-            right.axhline(limit_kmh, color="#d62728", ls="--", lw=1.5, label=f"limit {limit_kmh:g} km/h")
+        limit = as_limit(limit_kmh)
+        for name, kmh in ((None, limit.kmh), *limit.by_class):
+            if kmh is not None:
+                right.axhline(kmh, color="#d62728", ls="--", lw=1.5 if name is None else 1.0,
+                              label=f"{name + ' ' if name else ''}limit {kmh:g} km/h")
         right.set_ylabel("V85 [km/h]")
         right.legend(loc="best", fontsize=8)
         ax.set_title("Traffic per interval")
@@ -243,15 +254,15 @@ def _calibration_section(cal: Calibration | None, frame: np.ndarray | None, spac
     return "\n".join(out)
 
 
-def _stats_header(limit_kmh: float | None) -> list[str]:
+def _stats_header(limit: SpeedLimit) -> list[str]:
     head = ["speed [km/h]", "n", "mean", "median", "V85", "p95", "max"]
-    return head + ([f"over {limit_kmh:g} km/h"] if limit_kmh else [])
+    return head + ([f"over {limit.describe()}"] if limit else [])
 
 
-def _stats_row(name: str, v: np.ndarray, limit_kmh: float | None = None) -> list[str]:
-    s = speed_stats(v, limit_kmh)
+def _stats_row(name: str, events: Sequence[VehicleEvent], limit: SpeedLimit) -> list[str]:
+    s = event_stats(events, limit)
     row = [name, str(s.n)] + [_num(x) for x in (s.mean, s.median, s.v85, s.p95, s.max)]
-    if limit_kmh:
+    if limit:
         row.append(f"{s.over_limit} ({100 * s.share_over:.0f} %)" if s.n else "0")
     return row
 
@@ -260,7 +271,7 @@ def _direction_label(d: str | None) -> str:
     return {TOWARDS_VP1: "towards VP1", AWAY_FROM_VP1: "away from VP1"}.get(d or "", "unknown")
 
 
-def _vehicles_section(events: Sequence[VehicleEvent], limit_kmh: float | None = None) -> str:
+def _vehicles_section(events: Sequence[VehicleEvent], limit_kmh: SpeedLimit = SpeedLimit()) -> str:
     out = ["<h2>Vehicles</h2>"]
     measured = [e for e in events if e.measured]
     speeds = np.array([e.speed_kmh for e in measured], float)
@@ -274,20 +285,19 @@ def _vehicles_section(events: Sequence[VehicleEvent], limit_kmh: float | None = 
     if over_time is not None:
         blocks.append(_img(over_time, "speeds over time"))
     tables = [_table(_stats_header(limit_kmh),
-                     [_stats_row("all", speeds, limit_kmh)]
-                     + [_stats_row(_direction_label(d), np.array([e.speed_kmh for e in measured if e.direction == d]),
-                                   limit_kmh)
+                     [_stats_row("all", measured, limit_kmh)]
+                     + [_stats_row(_direction_label(d), [e for e in measured if e.direction == d], limit_kmh)
                         for d in (TOWARDS_VP1, AWAY_FROM_VP1) if any(e.direction == d for e in measured)])]
     lanes = Counter(e.lane for e in events)
     lane_meas = Counter(e.lane for e in measured)
     lane_rows = []
     for lane in sorted(lanes, key=lambda v: (v is None, v if v is not None else 0)):
-        st = speed_stats([e.speed_kmh for e in measured if e.lane == lane], limit_kmh)
+        st = event_stats([e for e in measured if e.lane == lane], limit_kmh)
         row = ["unknown" if lane is None else f"lane {lane}", lanes[lane], lane_meas[lane], _num(st.mean),
                _num(st.v85)]
         lane_rows.append(row + ([st.over_limit] if limit_kmh else []))
     tables.append("<h3>Per lane</h3>" + _table(["lane", "vehicles", "measured", "mean speed [km/h]", "V85 [km/h]"]
-                                               + ([f"over {limit_kmh:g} km/h"] if limit_kmh else []), lane_rows))
+                                               + ([f"over {limit_kmh.describe()}"] if limit_kmh else []), lane_rows))
     classes = Counter(e.label or "unknown" for e in events)
     class_rows = []
     for label, n in classes.most_common():
@@ -315,7 +325,7 @@ def _vehicles_section(events: Sequence[VehicleEvent], limit_kmh: float | None = 
 
 
 def _intervals_section(events: Sequence[VehicleEvent], interval_s: float, start: datetime | None,
-                       limit_kmh: float | None) -> str:
+                       limit_kmh: SpeedLimit) -> str:
     """Every vehicle of each interval (per lane and direction: intervals.csv); nothing without timestamps."""
     rows = [r for r in interval_rows(events, interval_s, start, limit_kmh) if r.total]
     if not rows:
@@ -327,7 +337,7 @@ def _intervals_section(events: Sequence[VehicleEvent], interval_s: float, start:
         body.append([f"{r.start} – {r.end}", r.vehicles, s.n, _num(s.mean), _num(s.v85)]
                     + ([s.over_limit] if limit_kmh else []))
     what = f"{interval_s / 60:g} min" + ("" if start is not None else ", from the start of the video")
-    table = _table(head + ([f"over {limit_kmh:g} km/h"] if limit_kmh else []), body)
+    table = _table(head + ([f"over {limit_kmh.describe()}"] if limit_kmh else []), body)
     if len(rows) < 2:
         return f"<h2>Per interval ({_esc(what)})</h2>" + table
     names = [r.start[11:16] if start is not None else r.start for r in rows]  # HH:MM of a date, else stream time
@@ -393,7 +403,7 @@ class ReportInputs:
     title: str = "gst-trafficcal report"
     source: str = ""  # the video
     grid_spacing_m: float = 3.0
-    speed_limit_kmh: float | None = None  # marks the histogram, counts the vehicles over it
+    speed_limit_kmh: "SpeedLimit | float | None" = None  # marks the plots, counts the vehicles over it (per class)
     interval_s: float = 900.0  # the "Per interval" table's interval
     start_time: datetime | None = None  # date and time of stream time 0: intervals aligned to and named by the clock
 
@@ -405,7 +415,7 @@ def render_report(inputs: ReportInputs) -> str:
     if inputs.source:
         parts.append(f'<p class="muted">Video: {_esc(inputs.source)}</p>')
     parts.append(_calibration_section(inputs.calibration, inputs.frame, inputs.grid_spacing_m))
-    limit = check_limit(inputs.speed_limit_kmh)
+    limit = as_limit(inputs.speed_limit_kmh)
     parts.append(_vehicles_section(list(inputs.events), limit))
     parts.append(_intervals_section(list(inputs.events), inputs.interval_s, inputs.start_time, limit))
     if inputs.evaluation is not None:

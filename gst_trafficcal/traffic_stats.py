@@ -42,6 +42,67 @@ class SpeedStats:
         return self.over_limit / self.n
 
 
+@dataclass(frozen=True)
+class SpeedLimit:
+    """A posted speed limit: ``kmh`` for every vehicle, and classes with limits of their own (``by_class``: trucks
+    and buses often have lower ones).  False when there is none at all."""
+
+    kmh: float | None = None
+    by_class: tuple[tuple[str, float], ...] = ()
+
+    def for_label(self, label: str | None) -> float | None:
+        """The limit a vehicle of class ``label`` is held to (None: none)."""
+        return dict(self.by_class).get(label or "", self.kmh)
+
+    def is_over(self, speed_kmh: float | None, label: str | None = None) -> bool:
+        return is_over_limit(speed_kmh, self.for_label(label))
+
+    def __bool__(self) -> bool:
+        return self.kmh is not None or bool(self.by_class)
+
+    def describe(self) -> str:
+        """"80 km/h (truck 60, bus 60)", "truck 60 km/h" — for table headings and messages."""
+        classes = ", ".join(f"{c} {v:g}" for c, v in self.by_class)
+        if self.kmh is None:
+            return f"{classes} km/h" if classes else "no limit"
+        return f"{self.kmh:g} km/h" + (f" ({classes})" if classes else "")
+
+    def properties(self) -> str:
+        """The elements' properties for it: speed-limit and class-limits (empty without a limit)."""
+        out = [f"speed-limit={self.kmh:g}"] if self.kmh is not None else []
+        if self.by_class:
+            out.append("class-limits=" + ",".join(f"{c}={v:g}" for c, v in self.by_class))
+        return " ".join(out)
+
+
+def parse_speed_limit(text: str | float | None, what: str = "speed limit") -> SpeedLimit:
+    """``80``, ``80,truck=60,bus=60`` or ``truck=60`` (km/h; 0 or empty: none) as a :class:`SpeedLimit`;
+    InputError naming ``what`` for anything else."""
+    if text is None or isinstance(text, (int, float)):
+        return SpeedLimit(check_limit(text))
+    kmh, by_class = None, []
+    for part in (p.strip() for p in str(text).split(",")):
+        if not part:
+            continue
+        name, sep, value = part.partition("=")
+        try:
+            v = check_limit(float(value if sep else name))
+        except (ValueError, InputError):
+            raise InputError(f"{what}: {text!r} is not KMH or KMH,CLASS=KMH,... (e.g. 80,truck=60,bus=60)") from None
+        if not sep:
+            kmh = v
+        elif v is not None and name.strip():
+            by_class.append((name.strip().lower(), v))
+        else:
+            raise InputError(f"{what}: {part!r} needs a class name and a positive limit (e.g. truck=60)")
+    return SpeedLimit(kmh, tuple(by_class))
+
+
+def as_limit(limit: "SpeedLimit | float | None") -> SpeedLimit:
+    """A limit given as a number (km/h; None or 0: none) or already a :class:`SpeedLimit`."""
+    return limit if isinstance(limit, SpeedLimit) else SpeedLimit(check_limit(limit))
+
+
 def check_limit(limit_kmh: float | None) -> float | None:
     """The limit as a float; None for none (None or 0); InputError for a negative or non-finite one."""
     if limit_kmh is None or limit_kmh == 0:
@@ -52,21 +113,36 @@ def check_limit(limit_kmh: float | None) -> float | None:
     return limit
 
 
-def is_over_limit(speed_kmh: float | None, limit_kmh: float | None) -> bool:
-    """True when a measured speed exceeds a set limit (a limit of None or 0 means none)."""
-    return bool(limit_kmh) and speed_kmh is not None and np.isfinite(speed_kmh) and speed_kmh > limit_kmh
+def is_over_limit(speed_kmh: float | None, limit_kmh: "SpeedLimit | float | None", label: str | None = None) -> bool:
+    """True when a measured speed exceeds a set limit (a limit of None or 0 means none; a :class:`SpeedLimit`: the
+    one of the vehicle's class ``label``)."""
+    if isinstance(limit_kmh, SpeedLimit):
+        limit_kmh = limit_kmh.for_label(label)
+    return bool(limit_kmh) and speed_kmh is not None and bool(np.isfinite(speed_kmh)) and speed_kmh > limit_kmh
 
 
-def speed_stats(speeds_kmh: Iterable[float], limit_kmh: float | None = None) -> SpeedStats:
-    """Mean, median, V85, 95th percentile and maximum of the finite speeds, and how many exceed ``limit_kmh``."""
-    v = np.asarray([s for s in speeds_kmh if s is not None], np.float64)
-    v = v[np.isfinite(v)]
-    limit = check_limit(limit_kmh)
-    over = int(np.count_nonzero(v > limit)) if limit is not None else None
+def speed_stats(speeds_kmh: Iterable[float], limit_kmh: "SpeedLimit | float | None" = None,
+                labels: Iterable[str | None] | None = None) -> SpeedStats:
+    """Mean, median, V85, 95th percentile and maximum of the finite speeds, and how many exceed the limit — each
+    vehicle its class's when ``labels`` (one per speed) are given."""
+    speeds = list(speeds_kmh)
+    names = list(labels) if labels is not None else [None] * len(speeds)
+    if len(names) != len(speeds):
+        raise ValueError(f"{len(names)} labels for {len(speeds)} speeds")
+    keep = [(float(v), n) for v, n in zip(speeds, names) if v is not None and np.isfinite(v)]
+    v = np.asarray([k[0] for k in keep], np.float64)
+    limit = as_limit(limit_kmh)
+    over = sum(limit.is_over(s, n) for s, n in keep) if limit else None
     if not len(v):
-        return SpeedStats(0, limit_kmh=limit, over_limit=over)
+        return SpeedStats(0, limit_kmh=limit.kmh, over_limit=over)
     p50, p85, p95 = np.percentile(v, [50, 85, 95])
-    return SpeedStats(len(v), float(v.mean()), float(p50), float(p85), float(p95), float(v.max()), limit, over)
+    return SpeedStats(len(v), float(v.mean()), float(p50), float(p85), float(p95), float(v.max()), limit.kmh, over)
+
+
+def event_stats(events: Iterable, limit: "SpeedLimit | float | None" = None) -> SpeedStats:
+    """:func:`speed_stats` of the vehicles' measured speeds, each held to its class's limit."""
+    measured = [e for e in events if e.speed_kmh is not None]
+    return speed_stats([e.speed_kmh for e in measured], limit, [e.label for e in measured])
 
 
 # --------------------------------------------------------------------------- counts per time interval
@@ -118,7 +194,7 @@ def _stream_clock(seconds: float) -> str:
 
 
 def interval_rows(events: Iterable, interval_s: float = 900.0, start: datetime | None = None,
-                  limit_kmh: float | None = None) -> list[IntervalRow]:
+                  limit_kmh: "SpeedLimit | float | None" = None) -> list[IntervalRow]:
     """Counts, speeds (mean, median, V85, max, over the limit) and classes per time interval, lane and direction,
     plus one row with every vehicle of the interval — the traffic count traffic engineers tabulate.
 
@@ -128,7 +204,7 @@ def interval_rows(events: Iterable, interval_s: float = 900.0, start: datetime |
     """
     if not interval_s > 0:
         raise InputError(f"interval must be positive, got {interval_s!r} s")
-    limit = check_limit(limit_kmh)
+    limit = as_limit(limit_kmh)
     offset, midnight = 0.0, None
     if start is not None:
         midnight = start.replace(hour=0, minute=0, second=0, microsecond=0)
@@ -156,12 +232,11 @@ def interval_rows(events: Iterable, interval_s: float = 900.0, start: datetime |
     return rows
 
 
-def _row(name: list[str], lane, direction, events: list, limit: float | None, total: bool = False) -> IntervalRow:
+def _row(name: list[str], lane, direction, events: list, limit: SpeedLimit, total: bool = False) -> IntervalRow:
     classes: dict[str, int] = {}
     for e in events:
         classes[e.label or "unknown"] = classes.get(e.label or "unknown", 0) + 1
-    return IntervalRow(name[0], name[1], lane, direction, len(events),
-                       speed_stats([e.speed_kmh for e in events if e.speed_kmh is not None], limit), classes, total)
+    return IntervalRow(name[0], name[1], lane, direction, len(events), event_stats(events, limit), classes, total)
 
 
 def write_intervals_csv(path: str | Path, rows: Sequence[IntervalRow]) -> Path:

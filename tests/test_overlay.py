@@ -227,6 +227,20 @@ def test_vehicles_over_the_speed_limit_are_drawn_in_red_and_counted() -> None:
         c.update([])
     assert c.speeding == 2 and not c.seen and not c._speed
     assert "over" not in " ".join(VehicleCounter().lines())
+    # a class with a limit of its own: the truck at 70 is over its 60, drawn and counted; the car at 70 is not
+    from gst_trafficcal.traffic_stats import parse_speed_limit
+
+    limit = parse_speed_limit("80,truck=60")
+    truck = VehicleMark((20, 40, 90, 90), 1, "truck", 70.0, direction="towards_vp1")
+    car = VehicleMark((150, 40, 220, 90), 2, "car", 70.0, direction="towards_vp1")
+    img = np.full((H, W, 3), GREY, np.uint8)
+    draw_overlay(canvas_for_bgr(img), [truck, car], None,
+                 OverlayOptions(counters=False, labels=False, speed_limit_kmh=limit))
+    red = np.all(img == STYLE.speeding_bgr, axis=2)
+    assert red[40:91, 20:91].sum() > 100 and not red[:, 130:].any()
+    c = VehicleCounter(speed_limit_kmh=limit)
+    c.update([truck, car])
+    assert c.speeding == 1 and c.lines()[-1] == "over 80 km/h (truck 60): 1"
 
 
 def test_marks_from_the_tracker_structure() -> None:

@@ -316,7 +316,7 @@ def test_cli_report_from_run_files(tmp_path: Path) -> None:
     save_calibration(_calibration(), tmp_path / "calibration.json")
     cv2.imwrite(str(tmp_path / "frame.png"), np.full((H, W, 3), 100, np.uint8))
     out = _cli("--events", str(tmp_path / "vehicles.jsonl"), "--calibration", str(tmp_path / "calibration.json"),
-               "--frame", str(tmp_path / "frame.png"), "--speed-limit", "85", "--interval", "0.5",
+               "--frame", str(tmp_path / "frame.png"), "--speed-limit", "85,truck=75", "--interval", "0.5",
                "--intervals-csv", str(tmp_path / "intervals.csv"), "--out", str(tmp_path / "report.html"))
     assert out.returncode == 0, out.stderr
     n_intervals = len({int(0.5 * (e.first_timestamp_s + e.last_timestamp_s) // 30) for e in events})
@@ -328,8 +328,13 @@ def test_cli_report_from_run_files(tmp_path: Path) -> None:
     page = _parse((tmp_path / "report.html").read_text(encoding="utf-8"))
     # calibration picture, histogram, speeds over time, traffic per half minute
     assert len(page.images) == 4 and _decode(page.images[0]).shape == (H, W, 3)
-    over = sum(e.speed_kmh > 85 for e in events if e.measured)
-    assert _table_after(page, "speed [km/h]")[1][-1].startswith(f"{over} (")
+    over = sum(e.speed_kmh > (75 if e.label == "truck" else 85) for e in events if e.measured)
+    stats = _table_after(page, "speed [km/h]")
+    assert stats[0][-1] == "over 85 km/h (truck 75)" and stats[1][-1].startswith(f"{over} (")
+    assert over != sum(e.speed_kmh > 85 for e in events if e.measured)  # the trucks' own limit counted
+    bad = _cli("--events", str(tmp_path / "vehicles.jsonl"), "--speed-limit", "85,lorry", "--out",
+               str(tmp_path / "r2.html"))
+    assert bad.returncode == 2 and "--speed-limit: '85,lorry' is not KMH or KMH,CLASS=KMH" in bad.stderr
 
 
 def test_cli_report_with_ground_truth(tmp_path: Path) -> None:

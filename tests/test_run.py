@@ -173,6 +173,12 @@ def test_a_bad_detector_is_refused_before_any_work(clip, tmp_path, command):
     assert not out.exists()
 
 
+def test_bad_speed_limit_is_refused_before_the_run(clip, tmp_path):
+    line = one_line_error(trafficcal("run", clip / "video.mp4", "--out", tmp_path, "--speed-limit", "80,trucks"))
+    assert line == ("trafficcal: error: --speed-limit: '80,trucks' is not KMH or KMH,CLASS=KMH,... "
+                    "(e.g. 80,truck=60,bus=60)")
+
+
 def test_bad_start_time_is_refused_before_the_run(clip, tmp_path):
     line = one_line_error(trafficcal("run", clip / "video.mp4", "--out", tmp_path, "--start-time", "8 o'clock"))
     assert "--start-time" in line and "ISO 8601" in line

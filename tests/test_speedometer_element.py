@@ -99,7 +99,8 @@ def implicit(clip, limit, webhook, tmp_path_factory):
     every event also posted to a local webhook."""
     out = tmp_path_factory.mktemp("implicit")
     return out, *measure(clip, out, detector(clip), f"calibration-file={clip / 'calibration.json'} "
-                                                    f"frames-file={out / 'frames.jsonl'} speed-limit={limit} "
+                                                    f"frames-file={out / 'frames.jsonl'} speed-limit={limit + 100} "
+                                                    f"class-limits=car={limit} "
                                                     f"events-url={webhook.url}")
 
 
@@ -133,8 +134,10 @@ def test_every_vehicle_is_in_every_output(implicit, limit, webhook):
     assert all(list(b) == [*EVENT_FIELDS, "over_limit"] for b in webhook.bodies) and len(webhook.bodies) == len(events)
     assert [m.fields for m in run.messages if m.name == "trafficcal-events-url"] == [
         {"url": webhook.url, "events": len(events), "sent": len(events), "failed": 0, "dropped": 0}]
-    # with speed-limit each message says whether the vehicle was faster
-    assert [m["over_limit"] for m in msgs] == [e.speed_kmh is not None and e.speed_kmh > limit for e in events]
+    # with speed-limit each message says whether the vehicle was faster than its limit: cars (most of the clip's
+    # vehicles) held to class-limits' car limit, the others to speed-limit
+    assert [m["over_limit"] for m in msgs] == [
+        e.speed_kmh is not None and e.speed_kmh > (limit if e.label == "car" else limit + 100) for e in events]
     assert {m["over_limit"] for m in msgs} == {True, False}
     assert [m["id"] for m in msgs] == [e.id for e in events] and len(events) >= 15
     assert [e.id for e in read_events_csv(out / "events.csv")] == [e.id for e in events]
@@ -313,7 +316,8 @@ def test_gst_inspect_documents_every_property(tmp_path):
     text = subprocess.run(["gst-inspect-1.0", "speedometer"], env=env, capture_output=True, text=True,
                           timeout=120).stdout
     for prop in ("events-file", "results-file", "csv-file", "frames-file", "calibration-file", "scale", "tau",
-                 "min-track-length", "vehicle-timeout", "scale-models", "scale-min-vehicles", "scale-regression-file"):
+                 "min-track-length", "vehicle-timeout", "scale-models", "scale-min-vehicles", "scale-regression-file",
+                 "start-datetime", "speed-limit", "class-limits", "events-url"):
         assert prop in text
 
 
@@ -466,3 +470,5 @@ def test_an_events_url_that_does_not_answer_costs_no_vehicle(clip, implicit, tmp
     assert any(f"{len(events)} of {len(events)} vehicle events could not be posted to {url}" in w for w in run.warnings)
     with pytest.raises(PipelineError, match="events-url: 'ftp://host/x' is not an http:// or https:// URL"):
         measure(clip, tmp_path / "bad", detector(clip), "events-url=ftp://host/x")
+    with pytest.raises(PipelineError, match="class-limits: 'truck' is not KMH or KMH,CLASS=KMH"):
+        measure(clip, tmp_path / "bad2", detector(clip), "class-limits=truck")

@@ -41,6 +41,28 @@ def test_limits() -> None:
     assert not is_over_limit(200.0, 0.0) and not is_over_limit(200.0, None)
 
 
+def test_a_limit_with_classes_of_their_own() -> None:
+    from gst_trafficcal.traffic_stats import SpeedLimit, parse_speed_limit
+
+    lim = parse_speed_limit("80, Truck=60,bus=70")
+    assert lim == SpeedLimit(80.0, (("truck", 60.0), ("bus", 70.0))) and lim.describe() == "80 km/h (truck 60, bus 70)"
+    assert lim.properties() == "speed-limit=80 class-limits=truck=60,bus=70"
+    assert (lim.for_label("truck"), lim.for_label("car"), lim.for_label(None)) == (60.0, 80.0, 80.0)
+    assert parse_speed_limit("truck=60").describe() == "truck 60 km/h" and parse_speed_limit("truck=60").kmh is None
+    assert not parse_speed_limit("") and not parse_speed_limit("0") and not parse_speed_limit(None)
+    assert parse_speed_limit(90) == SpeedLimit(90.0)
+    for bad in ("fast", "80,truck", "80,truck=-5", "=60", "80,truck=x"):
+        with pytest.raises(InputError, match="--speed-limit"):
+            parse_speed_limit(bad, "--speed-limit")
+    # each vehicle held to its class's limit: the truck at 65 is over, the car at 75 is not
+    speeds, labels = [75.0, 65.0, 85.0, 55.0, None], ["car", "truck", "car", "truck", "bus"]
+    assert speed_stats(speeds, lim, labels).over_limit == 2 and speed_stats(speeds, 80).over_limit == 1
+    assert speed_stats(speeds, parse_speed_limit("truck=60"), labels).over_limit == 1  # cars: no limit
+    assert is_over_limit(65.0, lim, "truck") and not is_over_limit(65.0, lim, "car")
+    with pytest.raises(ValueError, match="2 labels for 3 speeds"):
+        speed_stats([1.0, 2.0, 3.0], lim, ["car", "car"])
+
+
 def _event(i: int, t: float, speed: float | None, lane: int | None = 0, direction: str | None = "towards_vp1",
            label: str = "car"):
     from gst_trafficcal.outputs import VehicleEvent
@@ -71,6 +93,11 @@ def test_counts_per_interval_lane_and_direction() -> None:
     assert total["lane"] == total["direction"] == "all" and total["vehicles"] == 4 and total["measured"] == 3
     assert rows[1].to_dict()["mean_kmh"] is None  # lane 1's only vehicle was not measured
     assert rows[3].to_dict()["bus"] == 1
+    from gst_trafficcal.traffic_stats import parse_speed_limit
+
+    by_class = interval_rows(events, 900, limit_kmh=parse_speed_limit("75,van=85"))  # the van at 90 still over
+    assert by_class[0].to_dict()["over_limit"] == 1 and by_class[3].to_dict()["over_limit"] == 0
+    assert interval_rows(events, 900, limit_kmh=parse_speed_limit("75,van=95"))[0].to_dict()["over_limit"] == 0
 
 
 def test_intervals_are_aligned_to_the_clock_when_the_start_time_is_known(tmp_path) -> None:

@@ -234,6 +234,12 @@ def test_speed_limit_draws_the_faster_vehicle_in_red() -> None:
     assert _near(limited, STYLE.box_unknown_bgr, 10).any()  # the slower car, unchanged
     assert not _near(frame(""), STYLE.speeding_bgr, 10).any()  # no limit, no red
     assert not _near(frame("speed-limit=90"), STYLE.speeding_bgr, 10).any()  # both under it
+    # a truck limit of its own: the truck (81 km/h) over its 70, the car held to the 90 of everyone else
+    by_class = _near(frame("speed-limit=90 class-limits=truck=70"), STYLE.speeding_bgr, 10)
+    assert by_class[int(c[1]):int(c[3]) + 1, int(c[0]):int(c[2]) + 1].sum() > 50
+    cars_only = _near(frame("class-limits=car=50"), STYLE.speeding_bgr, 10)  # the car over 50, trucks unlimited
+    x0, y0, x1, y1 = (int(v) for v in BOX)
+    assert cars_only[y0:y1 + 1, x0:x1 + 1].sum() > 50 and not cars_only[int(c[1]):int(c[3]) + 1, int(c[0]):int(c[2]) + 1].any()
 
 
 def test_plain_detections_without_ids() -> None:
@@ -259,7 +265,7 @@ def test_gst_inspect_documents_every_property(tmp_path: Path) -> None:
     out = subprocess.run(["gst-inspect-1.0", "trafficoverlay"], env=env, capture_output=True, text=True, timeout=120)
     assert out.returncode == 0, out.stderr
     for prop in ("draw-grid", "draw-horizon", "draw-boxes", "draw-labels", "draw-speeds", "draw-counters",
-                 "grid-spacing", "line-thickness", "font-scale", "calibration-file"):
+                 "grid-spacing", "line-thickness", "font-scale", "calibration-file", "speed-limit", "class-limits"):
         assert prop in out.stdout
     assert "Draws the road grid, horizon, 3D vehicle boxes" in out.stdout
 

@@ -125,7 +125,7 @@ def test_gst_launch_documents_every_property():
     out = subprocess.run(["gst-inspect-1.0", "vpdetect"], env=env, capture_output=True, text=True, timeout=120)
     assert out.returncode == 0, out.stderr
     for prop in ("calibration-file", "mode", "min-duration", "max-duration", "downscale", "focal-range", "horizon-max",
-                 "method", "constant-speed"):
+                 "method", "constant-speed", "view-check"):
         assert prop in out.stdout
 
 

@@ -19,7 +19,7 @@ and the scale is found anew for the new view.
 
 Output per frame: a ``"speed"`` {speed_kmh, label, model_name, confidence} structure on the ROI of every vehicle
 with a current estimate.  Per vehicle that leaves: a ``trafficcal-speed`` element message (the event's fields, and
-with ``speed-limit`` a boolean ``over_limit``), the same as a JSON POST to ``events-url`` (a webhook;
+with ``speed-limit`` or ``class-limits`` a boolean ``over_limit``: faster than its class's limit), the same as a JSON POST to ``events-url`` (a webhook;
 ``gst_trafficcal.publish``: background thread, retries, a warning when it fails — never an error), and
 a line in ``events-file`` (JSON lines) / ``csv-file``; per frame with tracked vehicles, a line in ``frames-file``
 (gvametaconvert's shape: box, track id, ``"trafficcal-vehicle"`` with the reference point and 3D box, ``"speed"``);
@@ -73,6 +73,9 @@ class Speedometer(TrafficcalTransform):
                        "from a background thread, retried, never holding the video up; empty: none", "", _RW),
         "speed-limit": (float, "Speed limit", "km/h: each trafficcal-speed message also says whether the vehicle "
                         "was faster (over_limit; 0: no limit, no field)", 0.0, 1000.0, 0.0, _RW),
+        "class-limits": (str, "Class limits", "Classes with speed limits of their own, CLASS=KMH,... (e.g. "
+                         "truck=60,bus=60): over_limit holds their vehicles to these instead of speed-limit", "",
+                         _RW),
         "tau": (int, "Tau", "Observations between the two points of each speed sample (more for a vehicle that "
                 "covers less than 4 m of road in tau observations)", 1, 1000, 5, _RW),
         "min-track-length": (int, "Minimum track length", "Reference points a vehicle needs to be measured "
@@ -91,6 +94,7 @@ class Speedometer(TrafficcalTransform):
         self._outputs = None
         self._frames = None
         self._poster = None  # EventPoster for events-url
+        self._limit = None  # traffic_stats.SpeedLimit from speed-limit and class-limits
         self._posted = 0
         self._results_t = None
         self._fps_fixed = False
@@ -126,6 +130,13 @@ class Speedometer(TrafficcalTransform):
             # opened now so that an unwritable path fails at start; the frame rate is set from the caps
             self._outputs = VehicleOutputs(self.events_file or None, self.csv_file or None,
                                            self.results_file or None, fps=25.0)
+            from gst_trafficcal.traffic_stats import SpeedLimit, parse_speed_limit
+
+            classes = parse_speed_limit(self.class_limits, "class-limits")
+            if classes.kmh is not None:
+                raise ValueError(f"class-limits {self.class_limits!r}: CLASS=KMH pairs only (the limit for every "
+                                 "vehicle is speed-limit)")
+            self._limit = SpeedLimit(self.speed_limit or None, classes.by_class)
             if self.events_url:
                 from gst_trafficcal.publish import EventPoster
 
@@ -353,8 +364,8 @@ class Speedometer(TrafficcalTransform):
         for m in finished:
             event = m.event.with_clock(self._start)
             fields = event.to_dict()
-            if self.speed_limit > 0:
-                fields["over_limit"] = is_over_limit(event.speed_kmh, self.speed_limit)
+            if self._limit:
+                fields["over_limit"] = is_over_limit(event.speed_kmh, self._limit, event.label)
             self.post_element_message("trafficcal-speed", fields)
             self._push(fields)
             if self._outputs is None:

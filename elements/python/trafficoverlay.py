@@ -39,6 +39,8 @@ class TrafficOverlay(TrafficcalTransform):
                        0.0, _RW),
         "speed-limit": (float, "Speed limit", "km/h; vehicles faster than this are drawn in red and counted in the "
                         "counters panel (0: none)", 0.0, 1000.0, 0.0, _RW),
+        "class-limits": (str, "Class limits", "Classes with speed limits of their own, CLASS=KMH,... (e.g. "
+                         "truck=60,bus=60): their vehicles are held to these instead of speed-limit", "", _RW),
         "calibration-file": (str, "Calibration file", "Calibration JSON used for the grid until (or unless) a "
                              "calibration event arrives from upstream; empty: none", "", _RW),
     }
@@ -52,7 +54,20 @@ class TrafficOverlay(TrafficcalTransform):
     def do_start(self):
         from gst_trafficcal.overlay import GridCache, VehicleCounter
 
-        self._counter = VehicleCounter(speed_limit_kmh=self.speed_limit)
+        from gst_trafficcal.errors import InputError
+        from gst_trafficcal.traffic_stats import SpeedLimit, parse_speed_limit
+
+        try:
+            classes = parse_speed_limit(self.class_limits, "class-limits")
+        except InputError as exc:
+            self.post_error(f"trafficoverlay: {exc}")
+            return False
+        if classes.kmh is not None:
+            self.post_error(f"trafficoverlay: class-limits {self.class_limits!r}: CLASS=KMH pairs only (the limit "
+                            "for every vehicle is speed-limit)")
+            return False
+        self._limit = SpeedLimit(self.speed_limit or None, classes.by_class)
+        self._counter = VehicleCounter(speed_limit_kmh=self._limit)
         self._grid_cache = GridCache()
         if self.calibration_file:
             from gst_trafficcal.calibration import load_calibration
@@ -85,7 +100,7 @@ class TrafficOverlay(TrafficcalTransform):
         options = OverlayOptions(grid=self.draw_grid, horizon=self.draw_horizon, boxes=self.draw_boxes,
                                  labels=self.draw_labels, speeds=self.draw_speeds, counters=self.draw_counters,
                                  grid_spacing_m=self.grid_spacing, thickness=self.line_thickness,
-                                 font_scale=self.font_scale, speed_limit_kmh=self.speed_limit)
+                                 font_scale=self.font_scale, speed_limit_kmh=self._limit)
         counter_lines = self._counter.lines() + [f"in view: {len(marks)}"]
         with self.planes(buffer, writable=True) as planes:
             canvas = canvas_for_planes(planes, format_name(self.video_info), *self._yuv)

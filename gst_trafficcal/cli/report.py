@@ -51,9 +51,9 @@ def _frame(image: Path | None, video: Path | None, at_s: float):
 @click.option("--results", "results_path", type=click.Path(path_type=Path),
               help="BrnoCompSpeed results JSON of the run (system.json); needed with --gt for speed errors.")
 @click.option("--title", default="gst-trafficcal report", show_default=True, help="Page title.")
-@click.option("--speed-limit", type=click.FloatRange(min=0), default=0.0, show_default=True,
-              help="Posted speed limit in km/h (0: none): marked on the histogram; the tables count the vehicles "
-                   "over it.")
+@click.option("--speed-limit", default="", metavar="KMH[,CLASS=KMH...]",
+              help="Posted speed limit in km/h, and classes with limits of their own (e.g. 80,truck=60,bus=60): "
+                   "marked on the plots; the tables count the vehicles over their limit.")
 @click.option("--interval", "interval_min", type=click.FloatRange(min=0, min_open=True), default=15.0,
               show_default=True, help="Minutes per interval of the traffic count (aligned to the clock when the "
                                       "events carry dates: speedometer start-datetime=, trafficcal run --start-time).")
@@ -61,14 +61,15 @@ def _frame(image: Path | None, video: Path | None, at_s: float):
               help="Also write the traffic count per interval, lane and direction as CSV.")
 @click.option("--out", "out_path", required=True, type=click.Path(path_type=Path), help="The report.html to write.")
 def command(events_path: Path, calibration_path: Path | None, frame_path: Path | None, video_path: Path | None,
-            frame_time: float, gt_path: Path | None, results_path: Path | None, title: str, speed_limit: float,
+            frame_time: float, gt_path: Path | None, results_path: Path | None, title: str, speed_limit: str,
             interval_min: float, intervals_path: Path | None, out_path: Path) -> None:
     from ..brnocompspeed import load_gt_data, load_results
     from ..calibration import Calibration, load_calibration
     from ..outputs import read_events, stream_start
     from ..report import ReportInputs, write_report
-    from ..traffic_stats import interval_rows, write_intervals_csv
+    from ..traffic_stats import interval_rows, parse_speed_limit, write_intervals_csv
 
+    limit = parse_speed_limit(speed_limit, "--speed-limit")
     log = read_events(events_path)
     cal = load_calibration(calibration_path) if calibration_path is not None else None
     results = load_results(results_path) if results_path is not None else None
@@ -89,10 +90,10 @@ def command(events_path: Path, calibration_path: Path | None, frame_path: Path |
     start = stream_start(log.events)
     path = write_report(out_path, ReportInputs(
         log.events, cal, frame, evaluation, ground_truth_name=str(gt_path or ""), title=title,
-        source=str(video_path or ""), speed_limit_kmh=speed_limit or None, interval_s=60 * interval_min,
+        source=str(video_path or ""), speed_limit_kmh=limit, interval_s=60 * interval_min,
         start_time=start))
     skipped = f" ({log.skipped} broken line(s) skipped)" if log.skipped else ""
     click.echo(f"{path}: {len(log.events)} vehicles{skipped}")
     if intervals_path is not None:
-        rows = interval_rows(log.events, 60 * interval_min, start, speed_limit or None)
+        rows = interval_rows(log.events, 60 * interval_min, start, limit)
         click.echo(f"{write_intervals_csv(intervals_path, rows)}: {sum(r.total for r in rows)} intervals")

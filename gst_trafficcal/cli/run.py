@@ -98,7 +98,7 @@ def pipeline_description(video: Path | str, paths: RunPaths, calibration: Path |
                          detector: Path | str | None = None,
                          overlay: bool = True, bbscale: bool = False, queues: bool = True,
                          scale_regression: Path | None = None, body_shapes: str = "auto",
-                         speed_limit: float = 0.0, start_time: str = "", events_url: str = "",
+                         speed_limit: "SpeedLimit | float" = 0.0, start_time: str = "", events_url: str = "",
                          calibration_mode: str = "fixed") -> str:
     """The gst-launch description ``trafficcal run`` plays (also printed, so it can be re-run by hand).
 
@@ -111,7 +111,10 @@ def pipeline_description(video: Path | str, paths: RunPaths, calibration: Path |
     with ``calibration`` — fixed (a calibration the user gave) or auto (one carried over from an earlier file:
     learnt anew if the camera moved).
     """
-    limit = f" speed-limit={speed_limit:g}" if speed_limit else ""
+    from ..traffic_stats import as_limit
+
+    limit = as_limit(speed_limit or None).properties()
+    limit = f" {limit}" if limit else ""
     clock = f" start-datetime={quote(start_time)}" if start_time else ""
     clock += f" events-url={quote(events_url)}" if events_url else ""
     vp = f"vpdetect mode={calibration_mode} calibration-file={quote(calibration)}" if calibration else "vpdetect"
@@ -284,32 +287,34 @@ def print_moves(console, summary: RunSummary) -> None:
                       f"{used}, cut at the move; vpdetect learnt the new view from there", highlight=False)
 
 
-def print_vehicles(console, events: list, speed_limit: float | None = None) -> None:
+def print_vehicles(console, events: list, speed_limit: "SpeedLimit | float | None" = None) -> None:
     """Counts and speeds (mean, V85, over the limit) per lane and direction, per class, and why vehicles were not
     measured (by kind of reason)."""
     from rich.table import Table
 
     from ..outputs import unmeasured_by_kind
-    from ..traffic_stats import speed_stats
+    from ..traffic_stats import as_limit, event_stats
 
+    speed_limit = as_limit(speed_limit)
     measured = [e for e in events if e.measured]
     table = Table(title=f"{len(events)} vehicles, {len(measured)} measured")
     cols = ("lane", "direction", "vehicles", "measured", "mean km/h", "V85 km/h")
-    for col in cols + ((f"over {speed_limit:g}",) if speed_limit else ()):
+    for col in cols + (("over limit",) if speed_limit else ()):
         table.add_column(col, justify="right")
     groups = Counter((e.lane, e.direction) for e in events)
     for (lane, direction), n in sorted(groups.items(), key=lambda kv: (kv[0][0] is None, kv[0][0] or 0,
                                                                         str(kv[0][1]))):
-        st = speed_stats([e.speed_kmh for e in measured if e.lane == lane and e.direction == direction], speed_limit)
+        st = event_stats([e for e in measured if e.lane == lane and e.direction == direction], speed_limit)
         row = ["?" if lane is None else str(lane), direction or "?", str(n), str(st.n),
                "–" if st.mean is None else f"{st.mean:.1f}", "–" if st.v85 is None else f"{st.v85:.1f}"]
         table.add_row(*row, *([str(st.over_limit)] if speed_limit else []))
     console.print(table)
-    st = speed_stats([e.speed_kmh for e in measured], speed_limit)
+    st = event_stats(measured, speed_limit)
     if st.n:
         line = f"  speeds: mean {st.mean:.1f}, median {st.median:.1f}, V85 {st.v85:.1f}, max {st.max:.1f} km/h"
         if speed_limit:
-            line += f"; {st.over_limit} of {st.n} over the {speed_limit:g} km/h limit ({100 * st.share_over:.0f} %)"
+            line += (f"; {st.over_limit} of {st.n} over the {speed_limit.describe()} limit "
+                     f"({100 * st.share_over:.0f} %)")
         console.print(line, highlight=False, soft_wrap=True)
     classes = Counter(e.label or "unknown" for e in events)
     if classes:
@@ -337,10 +342,11 @@ def print_vehicles(console, events: list, speed_limit: float | None = None) -> N
               help="The tracker's 3D box: auto = car body shapes for a segmenter's outlines (vehicleseg), the plain "
                    "box for the background detector's hulls; box = always the plain box (steadier on outlines that "
                    "keep a soft shadow halo); cars = always the body shapes. See docs/tracking.md.")
-@click.option("--speed-limit", type=click.FloatRange(min=0), default=0.0, show_default=True,
-              help="Posted speed limit in km/h (0: none): the overlay draws vehicles over it in red and counts them, "
-                   "the report and the summary give how many and which share of the measured vehicles were faster "
-                   "(V85, the speed 85 % do not exceed, is always given).")
+@click.option("--speed-limit", default="", metavar="KMH[,CLASS=KMH...]",
+              help="Posted speed limit in km/h, and classes with limits of their own (e.g. 80,truck=60,bus=60; "
+                   "classes: car, van, bus, truck, motorcycle): the overlay draws vehicles over their limit in red "
+                   "and counts them, the report and the summary give how many and which share of the measured "
+                   "vehicles were faster (V85, the speed 85 % do not exceed, is always given).")
 @click.option("--start-time", default="", metavar="ISO8601|now",
               help="Date and time the video starts (e.g. 2026-12-05T08:00:00+01:00; without an offset: this "
                    "machine's local time; 'now' for a live stream: the clock at its first frame): every vehicle then "
@@ -365,7 +371,7 @@ def print_vehicles(console, events: list, speed_limit: float | None = None) -> N
                    "next (checked against the view).")
 @click.option("--no-overlay", is_flag=True, help="Do not encode overlay.mp4 (faster).")
 def command(videos: tuple[str, ...], out_dir: Path, calibration_path: Path | None, gt_path: Path | None,
-            detector: str | None, regression_path: Path | None, body_shapes: str, speed_limit: float,
+            detector: str | None, regression_path: Path | None, body_shapes: str, speed_limit: str,
             start_time: str, interval_min: float, duration_s: float | None, events_url: str,
             reconnect: bool, no_overlay: bool) -> None:
     """Calibrate and measure every vehicle of VIDEO (a file, or the URI of a stream: rtsp://, http://, file://)
@@ -420,7 +426,10 @@ def command(videos: tuple[str, ...], out_dir: Path, calibration_path: Path | Non
         from ..publish import check_url
 
         check_url(events_url, "--events-url")  # not an http(s) URL: one line now, not an element error later
-    options = RunOptions(detector, regression_path, body_shapes, speed_limit, interval_min, duration_s, events_url,
+    from ..traffic_stats import parse_speed_limit
+
+    limit = parse_speed_limit(speed_limit, "--speed-limit")  # a bad one: one line, before any work
+    options = RunOptions(detector, regression_path, body_shapes, limit, interval_min, duration_s, events_url,
                          no_overlay, gt_path, live_clock, start)
     if reconnect:
         if not is_uri(inputs[0]):
@@ -461,7 +470,7 @@ class RunOptions:
     detector: str | None = None
     regression_path: Path | None = None
     body_shapes: str = "auto"
-    speed_limit: float = 0.0
+    speed_limit: Any = None  # traffic_stats.SpeedLimit
     interval_min: float = 15.0
     duration_s: float | None = None
     events_url: str = ""
@@ -635,7 +644,7 @@ def run_one(console, video: Path | str, out_dir: Path, calibration_path: Path | 
         console.print(f"[bold]Calibration[/] ({cal.source}, {cal.state}): VP1 ({c.vp1[0]:.1f}, {c.vp1[1]:.1f}), "
                       f"VP2 ({c.vp2[0]:.1f}, {c.vp2[1]:.1f}), f = {c.focal:.0f} px, {scale}", highlight=False)
     print_moves(console, summary)
-    print_vehicles(console, summary.events, speed_limit or None)
+    print_vehicles(console, summary.events, speed_limit)
     for w in summary.warnings:
         console.print(f"[yellow]warning[/]: {w}", highlight=False)
 
@@ -651,7 +660,7 @@ def run_one(console, video: Path | str, out_dir: Path, calibration_path: Path | 
             console.print(f"[yellow]no evaluation against {gt_path.name}: the calibration has no scale[/]")
     try:
         write_intervals_csv(paths.intervals, interval_rows(summary.events, 60 * interval_min, start,
-                                                           speed_limit or None))
+                                                           speed_limit))
     except InputError as exc:
         summary.errors.append(str(exc))
     try:
@@ -659,7 +668,7 @@ def run_one(console, video: Path | str, out_dir: Path, calibration_path: Path | 
             events=summary.events, calibration=cal, frame=first_frame(video), evaluation=ev,
             ground_truth_name=str(gt_path or ""), title=f"gst-trafficcal run: {getattr(video, 'name', video)}",
             source=str(video),
-            speed_limit_kmh=speed_limit or None, interval_s=60 * interval_min, start_time=start))
+            speed_limit_kmh=speed_limit, interval_s=60 * interval_min, start_time=start))
     except InputError as exc:
         summary.errors.append(str(exc))
     written = [n for n in OUTPUTS if (out_dir / n).exists()]
