@@ -1,0 +1,132 @@
+"""``trafficcal run`` over several inputs: a camera's recordings in parts, or a live stream's connections.
+
+Each part is one :func:`.run.run_one` into a folder of its own; the latest calibration with a scale carries over to
+the next part (vpdetect mode auto: checked against the part's view, so a camera moved in between is calibrated
+anew, and bbscale passes the scale on as it is); a part that fails does not stop the others; a table of the parts
+ends the run.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from ..errors import InputError
+from .run import RunOptions, run_one
+
+
+def run_files(console, videos: list[Path], out_dir: Path, calibration_path: Path | None,
+              options: RunOptions) -> str:
+    """Several files of one camera, each into ``out_dir``/NAME: the calibration with a scale found so far carries
+    over (vpdetect mode auto: checked against each file's view); a table of them at the end.  Returns "" when
+    every file ran, "interrupted" after Ctrl-C, or what failed."""
+    parts = [(v, name, v.name) for v, name in zip(videos, _output_names(videos))]
+    return run_parts(console, parts, len(videos), out_dir, calibration_path, options)
+
+
+def run_stream(console, uri: str, out_dir: Path, calibration_path: Path | None, options: RunOptions) -> str:
+    """A live stream that is connected again whenever it fails or ends (``--reconnect``): each connection into
+    ``out_dir``/YYYYmmdd-HHMMSS (when it started), the calibration carried over like a camera's files; until
+    Ctrl-C or ``--duration`` seconds of video in all."""
+    from datetime import datetime
+
+    def connections():
+        while True:
+            name = f"{datetime.now():%Y%m%d-%H%M%S}"
+            k = 2
+            while (out_dir / name).exists():
+                name = f"{datetime.now():%Y%m%d-%H%M%S}-{k}"
+                k += 1
+            yield uri, name, name
+
+    return run_parts(console, connections(), None, out_dir, calibration_path, options, live=True)
+
+
+RECONNECT_MAX_WAIT = 60.0  # seconds between attempts to connect again, at most (doubling from 1 s)
+HEALTHY_S = 10.0  # a connection that ran this long resets the wait to 1 s
+
+
+def run_parts(console, parts, total: int | None, out_dir: Path, calibration_path: Path | None,
+              options: RunOptions, live: bool = False) -> str:
+    """Each (input, folder name, label) of ``parts`` in turn into ``out_dir``/NAME, the latest calibration with a
+    scale carried over to the next; a failure does not stop the others.  ``live``: the parts are connections to
+    one stream, made again after a wait (1 s, doubling to a minute while they keep failing) until Ctrl-C or
+    ``options.duration_s`` seconds of video in all.  Prints a table of the parts; returns "" when all ran,
+    "interrupted" after Ctrl-C, or what failed (a live run: "", since it ran until it was stopped)."""
+    import time
+    from dataclasses import replace as dc_replace
+
+    from rich.table import Table
+
+    from ..calibration import load_calibration, save_calibration
+    from ..traffic_stats import speed_stats
+
+    carried = None  # (calibration with a scale, the part it came from)
+    rows, failures = [], []
+    used_s, wait = 0.0, 1.0
+    interrupted = False
+    for k, (video, name, label) in enumerate(parts, 1):
+        sub = out_dir / name
+        console.rule(f"[bold]{k}/{total}[/] {label} -> {sub}" if total else f"[bold]connection {k}[/] -> {sub}")
+        given, mode = calibration_path, "fixed"
+        if given is None and carried is not None:
+            sub.mkdir(parents=True, exist_ok=True)
+            given, mode = sub / "calibration.json", "auto"
+            cal, origin = carried
+            # not bbscale's own any more: a scale from a file, which bbscale passes on as it is
+            save_calibration(dc_replace(cal, source=f"{cal.source}, carried over from {origin}"), given)
+        opts = options
+        if live and options.duration_s is not None:
+            opts = dc_replace(options, duration_s=max(options.duration_s - used_s, 1e-3))
+        summary, why = None, ""
+        try:
+            summary = run_one(console, video, sub, given, opts, calibration_mode=mode)
+        except InputError as exc:
+            failures.append(f"{label}: {exc}")
+            rows.append([label, "–", "–", "–", "–", "", f"[red]failed[/]: {exc}"])
+            why = str(exc)
+        if summary is not None:
+            used_s += summary.position_s or 0.0
+            st = speed_stats([e.speed_kmh for e in summary.events if e.speed_kmh is not None])
+            cal = summary.calibration
+            if summary.has_scale:
+                try:
+                    carried = (load_calibration(sub / "calibration.json"), label)
+                except InputError:
+                    pass
+            how = "" if cal is None else ("carried over" if "carried over" in cal.source else cal.state)
+            status = {"interrupted": "interrupted", "duration": "ok"}.get(summary.stopped, "ended" if live else "ok")
+            rows.append([label, str(len(summary.events)), str(st.n), "–" if st.mean is None else f"{st.mean:.1f}",
+                         "–" if st.v85 is None else f"{st.v85:.1f}", how, status])
+            if summary.stopped:
+                interrupted = summary.stopped == "interrupted"
+                break
+            why = "the stream ended"
+            if (summary.position_s or 0.0) >= HEALTHY_S:
+                wait = 1.0
+        if not live:
+            continue
+        console.print(f"[yellow]{why}[/]: connecting again in {wait:g} s (Ctrl-C stops)", highlight=False,
+                      soft_wrap=True)
+        try:
+            time.sleep(wait)
+        except KeyboardInterrupt:
+            interrupted = True
+            break
+        wait = min(2 * wait, RECONNECT_MAX_WAIT)
+    what = "connections" if live else f"of {total} files"
+    table = Table(title=f"{len(rows)} {what} (speeds in km/h)")
+    for col in ("connection" if live else "file", "vehicles", "measured", "mean", "V85", "calibration", "status"):
+        table.add_column(col, justify="right" if col in ("vehicles", "measured", "mean", "V85") else "left",
+                         overflow="fold", min_width=15 if col == "connection" else len(col))  # names wrap, not cut
+    for row in rows:
+        table.add_row(*row)
+    console.print(table)
+    if interrupted:
+        return "interrupted"
+    return "" if live else "; ".join(failures)
+
+
+def _output_names(videos: list[Path]) -> list[str]:
+    """A folder name per file: its stem, numbered where two files share one."""
+    stems = [v.stem or "video" for v in videos]
+    return [s if stems.count(s) == 1 else f"{s}-{k}" for k, s in enumerate(stems, 1)]
