@@ -385,6 +385,9 @@ def test_the_calibration_of_a_cameras_first_file_carries_over_to_the_next(tmp_pa
     events = read_events(out / "part2" / "vehicles.jsonl").events
     assert sum(e.measured for e in events) >= 3 and all(e.calibration_id == second.id for e in events if e.measured)
     assert "2 of 2 files" in proc.stdout and proc.stdout.count("│ ok ") == 2
+    rows = (out / "parts.csv").read_text().splitlines()
+    assert rows[0] == "part,folder,vehicles,measured,mean_kmh,v85_kmh,calibration,status,error"
+    assert [r.split(",")[6] for r in rows[1:]] == [first.id, second.id]
 
 
 def test_several_files_one_failing_the_others_still_run(clip, tmp_path):
@@ -401,6 +404,14 @@ def test_several_files_one_failing_the_others_still_run(clip, tmp_path):
     three = read_events(out / "video-3" / "vehicles.jsonl").events
     assert len(one) >= 5 and [(e.id, e.speed_kmh) for e in one] == [(e.id, e.speed_kmh) for e in three]
     assert "3 of 3 files" in proc.stdout and proc.stdout.count("│ ok ") == 2 and "│ failed: " in proc.stdout
+    import csv
+
+    with open(out / "parts.csv", newline="") as f:  # the same table, machine-readable
+        parts = list(csv.DictReader(f))
+    assert [(r["part"], r["folder"], r["status"]) for r in parts] == [
+        ("video.mp4", "video-1", "ok"), ("notes.mp4", "notes", "failed"), ("video.mp4", "video-3", "ok")]
+    assert parts[0]["vehicles"] == str(len(one)) and parts[0]["measured"] == str(sum(e.measured for e in one))
+    assert parts[1]["error"].startswith(f"{bad}: ") and parts[1]["vehicles"] == ""
 
 
 @pytest.mark.parametrize("args, words", [
@@ -427,6 +438,9 @@ def test_a_live_stream_that_ends_is_connected_again(clip, rtsp_clip, tmp_path):
     assert (parts[1] / "vehicles.jsonl").is_file() and (parts[1] / "report.html").is_file()
     assert "the stream ended: connecting again in 1 s (Ctrl-C stops)" in proc.stdout
     assert "2 connections" in proc.stdout and "│ ended " in proc.stdout and "│ ok " in proc.stdout
+    index = [r.split(",") for r in (out / "parts.csv").read_text().splitlines()[1:]]
+    assert [(r[1], r[7]) for r in index] == [(parts[0].name, "ended"), (parts[1].name, "ok")]
+    assert index[0][2] == str(len(first))
 
 
 def test_reconnecting_to_a_stream_that_is_not_there_goes_on_until_ctrl_c(clip, tmp_path):

@@ -3,7 +3,8 @@
 Each part is one :func:`.run.run_one` into a folder of its own; the latest calibration with a scale carries over to
 the next part (vpdetect mode auto: checked against the part's view, so a camera moved in between is calibrated
 anew, and bbscale passes the scale on as it is); a part that fails does not stop the others; a table of the parts
-ends the run.
+ends the run, and ``--out``/parts.csv (rewritten after each part, so a live session always has an up-to-date index)
+holds the same rows.
 """
 
 from __future__ import annotations
@@ -41,6 +42,8 @@ def run_stream(console, uri: str, out_dir: Path, calibration_path: Path | None, 
     return run_parts(console, connections(), None, out_dir, calibration_path, options, live=True)
 
 
+PARTS_FIELDS = ("part", "folder", "vehicles", "measured", "mean_kmh", "v85_kmh", "calibration", "status", "error")
+"""Columns of parts.csv: one row per file or connection."""
 RECONNECT_MAX_WAIT = 60.0  # seconds between attempts to connect again, at most (doubling from 1 s)
 HEALTHY_S = 10.0  # a connection that ran this long resets the wait to 1 s
 
@@ -61,7 +64,7 @@ def run_parts(console, parts, total: int | None, out_dir: Path, calibration_path
     from ..traffic_stats import speed_stats
 
     carried = None  # (calibration with a scale, the part it came from)
-    rows, failures = [], []
+    rows, failures, records = [], [], []
     used_s, wait = 0.0, 1.0
     interrupted = False
     for k, (video, name, label) in enumerate(parts, 1):
@@ -83,6 +86,8 @@ def run_parts(console, parts, total: int | None, out_dir: Path, calibration_path
         except InputError as exc:
             failures.append(f"{label}: {exc}")
             rows.append([label, "–", "–", "–", "–", "", f"[red]failed[/]: {exc}"])
+            records.append({"part": label, "folder": name, "status": "failed", "error": str(exc)})
+            _write_parts(out_dir / "parts.csv", records)
             why = str(exc)
         if summary is not None:
             used_s += summary.position_s or 0.0
@@ -97,6 +102,11 @@ def run_parts(console, parts, total: int | None, out_dir: Path, calibration_path
             status = {"interrupted": "interrupted", "duration": "ok"}.get(summary.stopped, "ended" if live else "ok")
             rows.append([label, str(len(summary.events)), str(st.n), "–" if st.mean is None else f"{st.mean:.1f}",
                          "–" if st.v85 is None else f"{st.v85:.1f}", how, status])
+            records.append({"part": label, "folder": name, "vehicles": len(summary.events), "measured": st.n,
+                            "mean_kmh": None if st.mean is None else round(st.mean, 2),
+                            "v85_kmh": None if st.v85 is None else round(st.v85, 2),
+                            "calibration": "" if cal is None else cal.id, "status": status})
+            _write_parts(out_dir / "parts.csv", records)
             if summary.stopped:
                 interrupted = summary.stopped == "interrupted"
                 break
@@ -124,6 +134,28 @@ def run_parts(console, parts, total: int | None, out_dir: Path, calibration_path
     if interrupted:
         return "interrupted"
     return "" if live else "; ".join(failures)
+
+
+def _write_parts(path: Path, records: list[dict]) -> None:
+    """parts.csv (PARTS_FIELDS, empty cell = unknown), atomically; a write error is said, not fatal (each part's
+    own outputs are the record)."""
+    import csv
+    import io
+
+    from ..fileio import atomic_write_text
+
+    buf = io.StringIO()
+    w = csv.DictWriter(buf, fieldnames=PARTS_FIELDS, lineterminator="\n")
+    w.writeheader()
+    for r in records:
+        w.writerow({k: "" if r.get(k) is None else r[k] for k in PARTS_FIELDS})
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        atomic_write_text(path, buf.getvalue(), "parts table")
+    except (InputError, OSError) as exc:
+        import click
+
+        click.echo(f"trafficcal: warning: {exc}", err=True)
 
 
 def _output_names(videos: list[Path]) -> list[str]:
