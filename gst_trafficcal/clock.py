@@ -2,17 +2,24 @@
 
 Stream timestamps (buffer PTS, seconds) say when in the video something happened; an NVR or a traffic count
 needs the date and time.  A recording's start time is given (``speedometer start-datetime=``, ``trafficcal run
---start-time``); for a live source ``now`` takes the machine's clock at the first frame, less that frame's
-timestamp (off by the pipeline's latency, typically a fraction of a second).
+--start-time``) or read from its file name, where NVRs and cameras put it (:func:`start_from_name`, ``--start-time
+auto``); for a live source ``now`` takes the machine's clock at the first frame, less that frame's timestamp (off
+by the pipeline's latency, typically a fraction of a second).
 """
 
 from __future__ import annotations
 
+import re
 from datetime import datetime, timedelta
 
 from .errors import InputError
 
 NOW = "now"
+AUTO = "auto"  # trafficcal run --start-time auto: each file's start from the date and time in its name
+
+# 20261205_080000, 2026-12-05_08-00-00, 2026-12-05T08:00:00, 20261205-0800 (seconds optional): how NVRs and
+# cameras name their recordings
+_NAME_TIME = re.compile(r"(?<!\d)(\d{4})-?(\d{2})-?(\d{2})[T_\- ]?(\d{2})[-_:.h]?(\d{2})(?:[-_:.m]?(\d{2}))?(?!\d)")
 
 
 def parse_start_time(text: str | None, where: str = "start time") -> datetime | None:
@@ -43,3 +50,17 @@ def clock_time(start: datetime, timestamp_s: float | None) -> str | None:
     if timestamp_s is None:
         return None
     return (start + timedelta(seconds=float(timestamp_s))).isoformat(timespec="milliseconds")
+
+
+def start_from_name(name: str) -> datetime | None:
+    """The date and time a recording's file name gives (``cam7_20261205_080000.mp4``, ``2026-12-05_08-00-00.mp4``,
+    ``...T08:00:00``; seconds optional), in the machine's local time; None when it holds none.  The last one wins
+    (a camera name may carry digits first)."""
+    found = None
+    for m in _NAME_TIME.finditer(name):
+        y, mo, d, h, mi, sec = (int(g) if g else 0 for g in m.groups())
+        try:
+            found = datetime(y, mo, d, h, mi, sec)
+        except ValueError:  # 20261399_...: digits, not a date
+            continue
+    return None if found is None else found.astimezone()

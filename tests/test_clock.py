@@ -23,3 +23,18 @@ def test_start_times() -> None:
             parse_start_time(bad)
     now = datetime(2026, 12, 5, 8, 0, 10, tzinfo=timezone.utc)
     assert start_from_now(10.0, now) == now - timedelta(seconds=10)
+
+
+def test_a_recordings_start_from_its_file_name() -> None:
+    from datetime import datetime
+
+    from gst_trafficcal.clock import start_from_name
+
+    local = lambda *a: datetime(*a).astimezone()  # noqa: E731
+    assert start_from_name("cam7_20261205_080000.mp4") == local(2026, 12, 5, 8, 0, 0)
+    assert start_from_name("2026-12-05_08-15-30.mp4") == local(2026, 12, 5, 8, 15, 30)
+    assert start_from_name("ch01_2026-12-05T23:59:59.mkv") == local(2026, 12, 5, 23, 59, 59)
+    assert start_from_name("north_20261205-0745.mp4") == local(2026, 12, 5, 7, 45)  # no seconds
+    assert start_from_name("cam2_20261205_080000_20261205_090000.mp4") == local(2026, 12, 5, 9, 0)  # the last one
+    for none in ("video.mp4", "20261399_080000.mp4", "cam_12345678_123456.mp4", "2026120508.mp4"):
+        assert start_from_name(none) is None, none

@@ -414,10 +414,35 @@ def test_several_files_one_failing_the_others_still_run(clip, tmp_path):
     assert parts[1]["error"].startswith(f"{bad}: ") and parts[1]["vehicles"] == ""
 
 
+def test_a_cameras_dated_files_are_counted_together(clip, tmp_path):
+    """--start-time auto: each file dated from its name; --out/intervals.csv counts the vehicles of all of them
+    on one clock (the 12 s clip as two recordings, 07:59:55 and 08:00:20: the 15-minute rows 07:45 and 08:00)."""
+    import shutil
+
+    a, b = tmp_path / "cam7_20261205_075955.mp4", tmp_path / "cam7_2026-12-05_08-00-20.mp4"
+    shutil.copy(clip / "video.mp4", a)
+    shutil.copy(clip / "video.mp4", b)
+    out = tmp_path / "out"
+    proc = trafficcal("run", a, b, "--out", out, "--no-overlay", "--calibration", clip / "calibration.json",
+                      "--start-time", "auto")
+    assert proc.returncode == 0, proc.stdout[-2000:] + proc.stderr[-2000:]
+    first = read_events(out / a.stem / "vehicles.jsonl").events
+    second = read_events(out / b.stem / "vehicles.jsonl").events
+    assert first[0].first_time.startswith("2026-12-05T07:59:5") and second[0].first_time.startswith("2026-12-05T08:00:")
+    rows = [ln.split(",") for ln in (out / "intervals.csv").read_text().splitlines()[1:]]
+    total = [r for r in rows if r[2] == "all"]
+    assert [r[0][11:19] for r in total] == ["07:45:00", "08:00:00"]
+    assert sum(int(r[4]) for r in total) == len(first) + len(second)
+    line = one_line_error(trafficcal("run", a, clip / "video.mp4", "--out", tmp_path / "x", "--start-time", "auto"))
+    assert line == ("trafficcal: error: --start-time auto: no date and time in the name 'video.mp4' (e.g. "
+                    "cam7_20261205_080000.mp4, 2026-12-05_08-00-00.mp4)")
+
+
 @pytest.mark.parametrize("args, words", [
     (["rtsp://cam/1", "rtsp://cam/2"], "a stream (URI) runs alone"),
     (["{clip}", "{clip}", "--gt", "{gt}"], "--gt is the ground truth of one video"),
     (["{clip}", "{clip}", "--start-time", "2026-12-05T08:00:00"], "--start-time is the start of one recording"),
+    (["rtsp://cam/1", "--start-time", "auto"], "--start-time auto reads each file's date and time from its name"),
 ])
 def test_what_several_inputs_cannot_share_is_refused_first(clip, tmp_path, args, words):
     args = [a.format(clip=clip / "video.mp4", gt=clip / "gt_data.pkl") for a in args]

@@ -347,11 +347,12 @@ def print_vehicles(console, events: list, speed_limit: "SpeedLimit | float | Non
                    "classes: car, van, bus, truck, motorcycle): the overlay draws vehicles over their limit in red "
                    "and counts them, the report and the summary give how many and which share of the measured "
                    "vehicles were faster (V85, the speed 85 % do not exceed, is always given).")
-@click.option("--start-time", default="", metavar="ISO8601|now",
+@click.option("--start-time", default="", metavar="ISO8601|now|auto",
               help="Date and time the video starts (e.g. 2026-12-05T08:00:00+01:00; without an offset: this "
-                   "machine's local time; 'now' for a live stream: the clock at its first frame): every vehicle then "
+                   "machine's local time; 'now' for a live stream: the clock at its first frame; 'auto': each "
+                   "file's from the date and time in its name, e.g. cam7_20261205_080000.mp4): every vehicle then "
                    "carries the date and time it passed (first_time, last_time), and intervals.csv is aligned to "
-                   "the clock.")
+                   "the clock (with several files, also one for all of them in --out).")
 @click.option("--interval", "interval_min", type=click.FloatRange(min=0, min_open=True), default=15.0,
               show_default=True, help="Minutes per row of intervals.csv (the traffic count per interval, lane and "
                                       "direction: vehicles, classes, mean speed, V85, over the limit).")
@@ -393,7 +394,7 @@ def command(videos: tuple[str, ...], out_dir: Path, calibration_path: Path | Non
     from rich.console import Console
 
     from ..calibration import load_calibration
-    from ..clock import NOW, parse_start_time
+    from ..clock import AUTO, NOW, parse_start_time
 
     console = Console()
     inputs = [check_input(v) for v in videos]
@@ -405,9 +406,15 @@ def command(videos: tuple[str, ...], out_dir: Path, calibration_path: Path | Non
     if live_clock and not is_uri(inputs[0]):
         raise InputError("--start-time now is for live streams (the clock at the first frame); for a file give the "
                          "date and time the recording starts")
-    start = None if live_clock else parse_start_time(start_time, "--start-time")  # bad: one line, before any work
-    if len(inputs) > 1 and start is not None:
-        raise InputError("--start-time is the start of one recording: with several files, run them one by one")
+    starts = None  # --start-time auto: each file's start from its name
+    if start_time.strip().lower() == AUTO:
+        starts = [names_start(v) for v in inputs]
+        start = starts[0]
+    else:
+        start = None if live_clock else parse_start_time(start_time, "--start-time")  # bad: one line, before work
+    if len(inputs) > 1 and start is not None and starts is None:
+        raise InputError("--start-time is the start of one recording: with several files give --start-time auto "
+                         "(each file's date and time from its name) or run them one by one")
     if calibration_path is not None:
         given = load_calibration(calibration_path)  # unreadable/corrupt: a one-line InputError now, not mid-run
         if given.camera is None:
@@ -449,12 +456,26 @@ def command(videos: tuple[str, ...], out_dir: Path, calibration_path: Path | Non
         return
     from .run_parts import run_files
 
-    failed = run_files(console, inputs, out_dir, calibration_path, options)
+    failed = run_files(console, inputs, out_dir, calibration_path, options, starts)
     sys.stdout.flush()
     if failed == "interrupted":
         sys.exit(130)
     if failed:
         raise InputError(failed)
+
+
+def names_start(video: Path | str) -> Any:
+    """--start-time auto: the date and time in a file's name (a one-line error for a URI or a name without one)."""
+    from ..clock import start_from_name
+
+    if is_uri(video):
+        raise InputError("--start-time auto reads each file's date and time from its name; for a live stream give "
+                         "--start-time now")
+    start = start_from_name(Path(video).name)
+    if start is None:
+        raise InputError(f"--start-time auto: no date and time in the name {Path(video).name!r} (e.g. "
+                         "cam7_20261205_080000.mp4, 2026-12-05_08-00-00.mp4)")
+    return start
 
 
 def check_input(video: str) -> Path | str:

@@ -16,12 +16,13 @@ from .run import RunOptions, run_one
 
 
 def run_files(console, videos: list[Path], out_dir: Path, calibration_path: Path | None,
-              options: RunOptions) -> str:
+              options: RunOptions, starts: list | None = None) -> str:
     """Several files of one camera, each into ``out_dir``/NAME: the calibration with a scale found so far carries
     over (vpdetect mode auto: checked against each file's view); a table of them at the end.  Returns "" when
-    every file ran, "interrupted" after Ctrl-C, or what failed."""
+    every file ran, "interrupted" after Ctrl-C, or what failed.  ``starts``: each file's start (date and time, from
+    its name): every vehicle dated, and ``out_dir``/intervals.csv counts the traffic of all the files."""
     parts = [(v, name, v.name) for v, name in zip(videos, _output_names(videos))]
-    return run_parts(console, parts, len(videos), out_dir, calibration_path, options)
+    return run_parts(console, parts, len(videos), out_dir, calibration_path, options, starts=starts)
 
 
 def run_stream(console, uri: str, out_dir: Path, calibration_path: Path | None, options: RunOptions) -> str:
@@ -49,7 +50,7 @@ HEALTHY_S = 10.0  # a connection that ran this long resets the wait to 1 s
 
 
 def run_parts(console, parts, total: int | None, out_dir: Path, calibration_path: Path | None,
-              options: RunOptions, live: bool = False) -> str:
+              options: RunOptions, live: bool = False, starts: list | None = None) -> str:
     """Each (input, folder name, label) of ``parts`` in turn into ``out_dir``/NAME, the latest calibration with a
     scale carried over to the next; a failure does not stop the others.  ``live``: the parts are connections to
     one stream, made again after a wait (1 s, doubling to a minute while they keep failing) until Ctrl-C or
@@ -65,6 +66,7 @@ def run_parts(console, parts, total: int | None, out_dir: Path, calibration_path
 
     carried = None  # (calibration with a scale, the part it came from)
     rows, failures, records = [], [], []
+    dated = []  # (start of the part, its events) for the intervals of all the parts
     used_s, wait = 0.0, 1.0
     interrupted = False
     for k, (video, name, label) in enumerate(parts, 1):
@@ -77,7 +79,7 @@ def run_parts(console, parts, total: int | None, out_dir: Path, calibration_path
             cal, origin = carried
             # not bbscale's own any more: a scale from a file, which bbscale passes on as it is
             save_calibration(dc_replace(cal, source=f"{cal.source}, carried over from {origin}"), given)
-        opts = options
+        opts = options if starts is None else dc_replace(options, start=starts[k - 1])
         if live and options.duration_s is not None:
             opts = dc_replace(options, duration_s=max(options.duration_s - used_s, 1e-3))
         summary, why = None, ""
@@ -91,6 +93,8 @@ def run_parts(console, parts, total: int | None, out_dir: Path, calibration_path
             why = str(exc)
         if summary is not None:
             used_s += summary.position_s or 0.0
+            if opts.start is not None and not live:
+                dated.append((opts.start, summary.events))
             st = speed_stats([e.speed_kmh for e in summary.events if e.speed_kmh is not None])
             cal = summary.calibration
             if summary.has_scale:
@@ -131,9 +135,35 @@ def run_parts(console, parts, total: int | None, out_dir: Path, calibration_path
     for row in rows:
         table.add_row(*row)
     console.print(table)
+    if len(dated) > 1:
+        _write_day_intervals(console, out_dir / "intervals.csv", dated, options)
     if interrupted:
         return "interrupted"
     return "" if live else "; ".join(failures)
+
+
+def _write_day_intervals(console, path: Path, dated: list, options: RunOptions) -> None:
+    """One intervals.csv for the traffic of every dated part: each part's vehicles put on the clock of the earliest
+    start, then counted per interval as one run's are."""
+    from dataclasses import replace as dc_replace
+
+    from ..traffic_stats import interval_rows, write_intervals_csv
+
+    first = min(start for start, _ in dated)
+    events = []
+    for start, part in dated:
+        shift = (start - first).total_seconds()
+        events += [dc_replace(e, first_timestamp_s=e.first_timestamp_s + shift,
+                              last_timestamp_s=e.last_timestamp_s + shift) for e in part
+                   if e.first_timestamp_s is not None and e.last_timestamp_s is not None]
+    try:
+        rows = interval_rows(events, 60 * options.interval_min, first, options.speed_limit)
+        write_intervals_csv(path, rows)
+    except InputError as exc:
+        console.print(f"[yellow]warning[/]: {exc}", highlight=False)
+        return
+    console.print(f"[bold]Wrote[/] {path}: {len(events)} vehicles of {len(dated)} files in "
+                  f"{len({r.start for r in rows})} intervals of {options.interval_min:g} min", highlight=False)
 
 
 def _write_parts(path: Path, records: list[dict]) -> None:
