@@ -23,6 +23,7 @@
 #   ANALYSIS       replaces the analysis chain "vpdetect ! vehicledetect ! tracker ! speedometer" (e.g. to
 #                  pass element properties); an empty string draws the overlay of CALIBRATION only
 #   OVERLAY_OPTS   extra trafficoverlay properties, e.g. "draw-grid=false grid-spacing=5" or "speed-limit=80"
+#                  ("speed-limit=80 class-limits=truck=60,bus=60": trucks and buses held to limits of their own)
 #                  (vehicles over the limit drawn in red and counted)
 #   ENCODER        encoder element and properties (default "x264enc tune=zerolatency speed-preset=veryfast")
 set -euo pipefail
