@@ -82,8 +82,16 @@ class ViewAccumulator:
         self._n = 0
         self._thumbs: list[np.ndarray] = []
 
+    def wants(self) -> bool:
+        """Whether the next frame is one that is sampled (the caller may skip reading the others)."""
+        return self._n % self.every == 0
+
+    def skip(self) -> None:
+        """Count a frame that is not sampled (:meth:`wants` said no) without reading it."""
+        self._n += 1
+
     def add(self, luma: np.ndarray) -> None:
-        if self._n % self.every == 0:
+        if self.wants():
             self._thumbs.append(thumbnail(luma))
             del self._thumbs[:-self.keep]
         self._n += 1
@@ -191,45 +199,40 @@ class ViewMonitor:
         if every < 1 or window < 1 or confirm < 1:
             raise ValueError("every, window and confirm must be at least 1")
         self.stored, self.frame_width = stored, int(frame_width)
-        self.every, self.window, self.confirm = int(every), int(window), int(confirm)
-        self._n = 0
-        self._thumbs: list[np.ndarray] = []
-        self._times: list[float] = []
-        self._run: list[tuple[float, ViewMatch]] = []  # the current run of comparisons of one kind
-        self._run_kind = ""
+        self.window, self.confirm = int(window), int(confirm)
+        self._views = ViewAccumulator(every, keep=self.window)  # the rolling window
+        self._times: list[float] = []  # ... and when its thumbnails were taken
+        self._run_kind, self._run_start, self._run_len = "", 0.0, 0  # the current run of comparisons of one kind
         self.state = "recognised"  # or "unrecognised", "moved" (then the monitor is done)
         self.last: ViewMatch | None = None
 
     def wants(self) -> bool:
         """Whether the next frame is one the monitor samples (the caller may skip reading the others)."""
-        return self.state != "moved" and self._n % self.every == 0
+        return self.state != "moved" and self._views.wants()
 
     def skip(self) -> None:
         """Count a frame that is not sampled (:meth:`wants` said no) without reading it."""
-        self._n += 1
+        self._views.skip()
 
     def add(self, luma: np.ndarray, t: float) -> ViewEvent | None:
         """Add a frame (its luma plane, at stream time ``t``); returns what changed, if anything."""
-        sample = self.wants()
-        self._n += 1
-        if not sample:
+        if not self.wants():
+            self._views.skip()
             return None
-        self._thumbs.append(thumbnail(luma))
+        self._views.add(luma)
         self._times.append(float(t))
-        del self._thumbs[:-self.window], self._times[:-self.window]
-        if len(self._thumbs) < min(3, self.window):
+        del self._times[:-self.window]
+        if self._views.count < min(3, self.window):
             return None
-        current = np.median(np.stack(self._thumbs), axis=0).astype(np.uint8)
-        match = compare_views(self.stored, current, self.frame_width)
+        match = compare_views(self.stored, self._views.view(), self.frame_width)
         self.last = match
         kind = "moved" if match.displaced else "recognised" if match.recognised else "unrecognised"
-        # when the median turned: the first thumbnail of the window's later half
-        turned = self._times[max(0, len(self._times) - len(self._times) // 2 - 2)]
-        if kind != self._run_kind:
-            self._run_kind, self._run = kind, []
-        self._run.append((turned, match))
+        if kind != self._run_kind:  # a new run, dated when the median turned (the window's later half began)
+            n = len(self._times)
+            self._run_kind, self._run_start, self._run_len = kind, self._times[max(0, n - n // 2 - 2)], 0
+        self._run_len += 1
         needed = self.confirm if kind == "moved" else 5 * self.confirm  # losing sight of the scene is slower news
-        if kind == self.state or len(self._run) < needed:
+        if kind == self.state or self._run_len < needed:
             return None
         self.state = kind
-        return ViewEvent(kind, self._run[0][0], match)
+        return ViewEvent(kind, self._run_start, match)
