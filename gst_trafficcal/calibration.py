@@ -155,6 +155,14 @@ class Calibration:
                    source="brnocompspeed")
 
 
+def same_vanishing_points(a: Calibration | None, b: Calibration | None) -> bool:
+    """Whether two calibrations have the same vanishing points and principal point."""
+    if a is None or b is None or a.camera is None or b.camera is None:
+        return False
+    return bool(np.allclose(a.camera.vp1, b.camera.vp1) and np.allclose(a.camera.vp2, b.camera.vp2)
+                and np.allclose(a.camera.pp, b.camera.pp))
+
+
 def _point(d: dict, key: str, where: str) -> np.ndarray:
     v = d.get(key)
     if not (isinstance(v, (list, tuple)) and len(v) == 2 and all(isinstance(x, (int, float)) for x in v)):

@@ -196,7 +196,7 @@ class Speedometer(TrafficcalTransform):
         if up is not None and up.camera is not None and self.scale > 0:
             return up.with_scale(self.scale, source=f"{up.source}+speedometer-scale")
         if self._scaled is not None:
-            from gst_trafficcal.scale.stage import same_vanishing_points
+            from gst_trafficcal.calibration import same_vanishing_points
 
             if same_vanishing_points(self._scaled, up):
                 return self._scaled

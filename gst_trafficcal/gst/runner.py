@@ -19,7 +19,7 @@ from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from typing import Any
 
-from ..calibration import Calibration
+from ..calibration import Calibration, same_vanishing_points
 from ._gi import Gst
 from .calibration_event import parse_calibration_message
 from .element import register_plugin_file
@@ -50,8 +50,8 @@ class RunOutcome:
         cals = [c for _, c in self.calibrations]
         moved = [i for i, c in enumerate(cals) if c.moved_at is not None]
         if moved:  # the new view's: not the old one's, even if an element further down posted it a little later
-            old = {_vps(c) for c in cals[:moved[-1]] if c.camera is not None}
-            cals = [c for c in cals[moved[-1]:] if c.camera is None or _vps(c) not in old]
+            old = [c for c in cals[:moved[-1]] if c.camera is not None]
+            cals = [c for c in cals[moved[-1]:] if not any(same_vanishing_points(c, o) for o in old)]
         if not cals:
             return None
         with_scale = [c for c in cals if c.camera is not None and c.camera.scale is not None]
@@ -74,11 +74,6 @@ class RunOutcome:
     def named(self, name: str) -> list[dict[str, Any]]:
         """The fields of every element message with structure ``name``."""
         return [m.fields for m in self.messages if m.name == name]
-
-
-def _vps(cal: Calibration) -> tuple[float, ...]:
-    c = cal.camera
-    return (*map(float, c.vp1), *map(float, c.vp2), *map(float, c.pp))
 
 
 class RunFailed(PipelineError):

@@ -149,11 +149,3 @@ def build_stage(models: str = "", min_vehicles: int = 5, regression_file: str = 
         gl = SilhouetteRenderer()
     return ScaleStage(ScaleEstimator(align_models, iou_threshold=iou_threshold, min_vehicles=min_vehicles,
                                      regression=regression, renderer=gl))
-
-
-def same_vanishing_points(a: Calibration | None, b: Calibration | None) -> bool:
-    """Whether two calibrations have the same vanishing points and principal point."""
-    if a is None or b is None or a.camera is None or b.camera is None:
-        return False
-    return bool(np.allclose(a.camera.vp1, b.camera.vp1) and np.allclose(a.camera.vp2, b.camera.vp2)
-                and np.allclose(a.camera.pp, b.camera.pp))
