@@ -112,14 +112,16 @@ def _plt():
     return plt
 
 
-def _limit_lines(ax, limit: "SpeedLimit | float | None", horizontal: bool) -> None:
-    """The speed limit on a plot: red, solid for everyone's, dashed for each class with its own."""
+def _limit_lines(ax, limit: "SpeedLimit | float | None", horizontal: bool, dashed: bool = False) -> None:
+    """The speed limit on a plot: red, solid for everyone's (dashed too with ``dashed``, over other lines), dashed
+    and thinner for each class with its own."""
     limit = as_limit(limit)
     line = ax.axhline if horizontal else ax.axvline
     if limit.kmh is not None:
-        line(limit.kmh, color="#d62728", lw=2, label=f"limit {limit.kmh:g} km/h")
+        line(limit.kmh, color="#d62728", lw=1.5 if dashed else 2, ls="--" if dashed else "-",
+             label=f"limit {limit.kmh:g} km/h")
     for name, kmh in limit.by_class:
-        line(kmh, color="#d62728", lw=1.2, ls="--", label=f"{name} limit {kmh:g} km/h")
+        line(kmh, color="#d62728", lw=1.0 if dashed else 1.2, ls="--", label=f"{name} limit {kmh:g} km/h")
 
 
 def speed_histogram_uri(speeds: np.ndarray, limit_kmh: "SpeedLimit | float | None" = None) -> str:
@@ -195,11 +197,7 @@ def intervals_uri(names: Sequence[str], vehicles: Sequence[int], v85: Sequence[f
                       fontsize=8)
         right = ax.twinx()
         right.plot(x, [np.nan if v is None else v for v in v85], "o-", color="#222", label="V85")
-        limit = as_limit(limit_kmh)
-        for name, kmh in ((None, limit.kmh), *limit.by_class):
-            if kmh is not None:
-                right.axhline(kmh, color="#d62728", ls="--", lw=1.5 if name is None else 1.0,
-                              label=f"{name + ' ' if name else ''}limit {kmh:g} km/h")
+        _limit_lines(right, limit_kmh, horizontal=True, dashed=True)
         right.set_ylabel("V85 [km/h]")
         right.legend(loc="best", fontsize=8)
         ax.set_title("Traffic per interval")

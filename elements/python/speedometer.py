@@ -424,12 +424,12 @@ class Speedometer(TrafficcalTransform):
             self._emit(finished)
         elif self._outputs is not None:  # stopping without EOS (or after an error): keep what can be kept, quietly
             for m in finished:
+                event = m.event.with_clock(self._start)
                 try:
-                    self._outputs.vehicle(m.event.with_clock(self._start), m.times_s if len(m.points_px) else None,
-                                          m.points_px)
+                    self._outputs.vehicle(event, m.times_s if len(m.points_px) else None, m.points_px)
                 except InputError:
                     pass
-                self._push(m.event.with_clock(self._start).to_dict())
+                self._push(event.to_dict())
         self._close(report=post)
 
     def _push(self, fields):
