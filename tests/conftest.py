@@ -111,6 +111,15 @@ def cuboid_clip_dense(tmp_path_factory) -> Path:
     return _render_cuboid_clip(tmp_path_factory, 1500)
 
 
+def closed_port() -> int:
+    """A local TCP port nobody listens on (bound for a moment, then released): connections to it are refused."""
+    import socket
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
 class Receiver:
     """A webhook receiver (an in-process HTTP server on localhost): keeps the JSON it is sent; answers with
     ``statuses`` in turn (then 200) after ``delay`` seconds."""

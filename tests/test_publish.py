@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import socket
 import time
 
 import numpy as np
@@ -11,7 +10,7 @@ import pytest
 from gst_trafficcal.errors import InputError
 from gst_trafficcal.publish import EventPoster, check_url, redacted
 
-from .conftest import Receiver
+from .conftest import Receiver, closed_port
 
 
 @pytest.fixture
@@ -19,12 +18,6 @@ def receiver():
     r = Receiver()
     yield r
     r.close()
-
-
-def _closed_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 def test_every_event_arrives_in_order_as_json(receiver):
@@ -67,7 +60,7 @@ def test_a_refused_event_is_not_retried_and_is_said_once():
 
 
 def test_an_unreachable_receiver_never_holds_the_caller_up():
-    url = f"http://127.0.0.1:{_closed_port()}/hook"
+    url = f"http://127.0.0.1:{closed_port()}/hook"
     poster = EventPoster(url, retries=2, backoff=0.05, queue_size=5)
     t0 = time.monotonic()
     for i in range(50):

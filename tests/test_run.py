@@ -472,14 +472,12 @@ def test_reconnecting_to_a_stream_that_is_not_there_goes_on_until_ctrl_c(clip, t
     """Nothing answers: each attempt fails, the wait doubles, Ctrl-C ends it (130) with the table; a file is read
     once, so --reconnect with one is refused."""
     import signal
-    import socket
     import time
 
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        port = s.getsockname()[1]
-    proc = subprocess.Popen([sys.executable, "-m", "gst_trafficcal", "run", f"rtsp://127.0.0.1:{port}/none", "--out",
-                             str(tmp_path / "out"), "--reconnect", "--no-overlay"], stdout=subprocess.PIPE,
+    from .conftest import closed_port
+
+    proc = subprocess.Popen([sys.executable, "-m", "gst_trafficcal", "run", f"rtsp://127.0.0.1:{closed_port()}/none",
+                             "--out", str(tmp_path / "out"), "--reconnect", "--no-overlay"], stdout=subprocess.PIPE,
                             stderr=subprocess.PIPE, text=True,
                             preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     time.sleep(10)

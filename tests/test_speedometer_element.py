@@ -455,13 +455,10 @@ def test_a_camera_moved_mid_stream_keeps_what_was_measured_before(kraten_moved, 
 def test_an_events_url_that_does_not_answer_costs_no_vehicle(clip, implicit, tmp_path):
     """A receiver that is down: warnings (when posting first fails, and how many events were not posted at the
     end), never an error; the files hold every vehicle.  Not an http(s) URL: an error at start naming it."""
-    import socket
+    from .conftest import closed_port
 
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        port = s.getsockname()[1]
     _, _, events, _ = implicit
-    url = f"http://127.0.0.1:{port}/hook"
+    url = f"http://127.0.0.1:{closed_port()}/hook"
     run, down, _ = measure(clip, tmp_path / "down", detector(clip),
                            f"calibration-file={clip / 'calibration.json'} events-url={url}")
     assert [e.id for e in down] == [e.id for e in events]
