@@ -98,6 +98,16 @@ def parse_speed_limit(text: str | float | None, what: str = "speed limit") -> Sp
     return SpeedLimit(kmh, tuple(by_class))
 
 
+def element_limit(speed_limit: float, class_limits: str) -> SpeedLimit:
+    """The limit of an element's ``speed-limit`` (km/h, 0: none) and ``class-limits`` (``truck=60,bus=60``)
+    properties; InputError naming class-limits when it is not CLASS=KMH pairs."""
+    classes = parse_speed_limit(class_limits, "class-limits")
+    if classes.kmh is not None:
+        raise InputError(f"class-limits {class_limits!r}: CLASS=KMH pairs only (the limit for every vehicle is "
+                         "speed-limit)")
+    return SpeedLimit(check_limit(speed_limit), classes.by_class)
+
+
 def as_limit(limit: "SpeedLimit | float | None") -> SpeedLimit:
     """A limit given as a number (km/h; None or 0: none) or already a :class:`SpeedLimit`."""
     return limit if isinstance(limit, SpeedLimit) else SpeedLimit(check_limit(limit))

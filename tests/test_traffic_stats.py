@@ -61,6 +61,13 @@ def test_a_limit_with_classes_of_their_own() -> None:
     assert is_over_limit(65.0, lim, "truck") and not is_over_limit(65.0, lim, "car")
     with pytest.raises(ValueError, match="2 labels for 3 speeds"):
         speed_stats([1.0, 2.0, 3.0], lim, ["car", "car"])
+    # the elements' speed-limit and class-limits properties
+    from gst_trafficcal.traffic_stats import element_limit
+
+    assert element_limit(80.0, "truck=60,bus=70") == parse_speed_limit("80,truck=60,bus=70")
+    assert not element_limit(0.0, "")
+    with pytest.raises(InputError, match="class-limits '80': CLASS=KMH pairs only"):
+        element_limit(0.0, "80")
 
 
 def _event(i: int, t: float, speed: float | None, lane: int | None = 0, direction: str | None = "towards_vp1",

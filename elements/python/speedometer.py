@@ -130,13 +130,9 @@ class Speedometer(TrafficcalTransform):
             # opened now so that an unwritable path fails at start; the frame rate is set from the caps
             self._outputs = VehicleOutputs(self.events_file or None, self.csv_file or None,
                                            self.results_file or None, fps=25.0)
-            from gst_trafficcal.traffic_stats import SpeedLimit, parse_speed_limit
+            from gst_trafficcal.traffic_stats import element_limit
 
-            classes = parse_speed_limit(self.class_limits, "class-limits")
-            if classes.kmh is not None:
-                raise ValueError(f"class-limits {self.class_limits!r}: CLASS=KMH pairs only (the limit for every "
-                                 "vehicle is speed-limit)")
-            self._limit = SpeedLimit(self.speed_limit or None, classes.by_class)
+            self._limit = element_limit(self.speed_limit, self.class_limits)
             if self.events_url:
                 from gst_trafficcal.publish import EventPoster
 

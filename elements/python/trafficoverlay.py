@@ -55,18 +55,13 @@ class TrafficOverlay(TrafficcalTransform):
         from gst_trafficcal.overlay import GridCache, VehicleCounter
 
         from gst_trafficcal.errors import InputError
-        from gst_trafficcal.traffic_stats import SpeedLimit, parse_speed_limit
+        from gst_trafficcal.traffic_stats import element_limit
 
         try:
-            classes = parse_speed_limit(self.class_limits, "class-limits")
+            self._limit = element_limit(self.speed_limit, self.class_limits)
         except InputError as exc:
             self.post_error(f"trafficoverlay: {exc}")
             return False
-        if classes.kmh is not None:
-            self.post_error(f"trafficoverlay: class-limits {self.class_limits!r}: CLASS=KMH pairs only (the limit "
-                            "for every vehicle is speed-limit)")
-            return False
-        self._limit = SpeedLimit(self.speed_limit or None, classes.by_class)
         self._counter = VehicleCounter(speed_limit_kmh=self._limit)
         self._grid_cache = GridCache()
         if self.calibration_file:
