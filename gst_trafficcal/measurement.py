@@ -24,7 +24,11 @@ vanishing points was in force) and, whenever it changes, the current calibration
 * **A moved camera** (a calibration with ``moved_at``, from vpdetect): what was seen before belongs to the
   calibration in force then.  Every vehicle in view is cut at the move and measured now with that calibration
   (or reported unmeasured when it had no scale), as are the vehicles waiting for a scale; the lanes are learnt
-  again; a track id seen before the move is not taken up again after it.
+  again; a track id seen before the move is not taken up again after it.  A track that began after the move and
+  was not seen again once the move was noticed is no vehicle of either view and is not reported
+  (:attr:`SpeedMeter.discarded` counts them): between a move and its notice (1–3 s) a background-model detector
+  compares the new picture with the old view's background and finds "vehicles" along every edge of the scene,
+  and a tracker that starts again at the notice takes the real ones up anew.
 * A vehicle has left when it has not been seen for ``end_after`` seconds (stream time), so the result does not
   depend on whether the tracker ran upstream or inside the caller.
 * **Direction**: sign of the reference points' motion along the road (world x, towards VP1); **lane**: the
@@ -161,6 +165,8 @@ class SpeedMeter:
         # body-shape choice), with the camera it is in plane units of
         self._late_heights, self._late_camera = TypicalHeight(), None
         self._retired: set[int] = set()  # ids of the vehicles cut by a camera move (their tracks must not go on)
+        self._blind: dict[int, float] = {}  # tracks begun between a move and its notice -> when it was noticed
+        self.discarded = 0  # such tracks never seen after the notice: not reported
         self.t: float | None = None
         if calibration is not None:
             self.set_calibration(calibration)
@@ -197,7 +203,8 @@ class SpeedMeter:
         scale; measured with the calibration in force until now, or unmeasured with the reason."""
         for rec in list(self._live.values()):
             n = sum(o.t < t_move for o in rec.observations)  # observations are in time order
-            if n == 0:  # first seen after the move: a vehicle of the new view
+            if n == 0:  # first seen after the move: a vehicle of the new view if it is still seen after the notice
+                self._blind[rec.id] = self.t if self.t is not None else t_move
                 continue
             rec.unboxed = [k for k in rec.unboxed if k < n]
             rec.observations = rec.observations[:n]
@@ -255,6 +262,10 @@ class SpeedMeter:
         out = []
         for rec in sorted(records, key=lambda r: (r.last_t, r.id)):
             del self._live[rec.id]
+            noticed = self._blind.pop(rec.id, None)
+            if noticed is not None and rec.last_t <= noticed:  # seen only between a camera move and its notice
+                self.discarded += 1
+                continue
             if self.can_measure and self.stitch_gap > 0 and self._stitch(rec):
                 continue  # continued by a later track of the same vehicle: measured with it
             if self.can_measure:

@@ -435,3 +435,37 @@ def test_a_camera_moved_before_the_scale_reports_the_old_views_vehicles_unmeasur
     assert meter.waiting == 0 and len(out) >= 6
     assert all(not m.event.measured and "the camera moved at 11.5 s, before the calibration of the view it was seen "
                "in had a scale" in m.event.reason for m in out)
+
+
+def test_tracks_seen_only_between_a_move_and_its_notice_are_not_vehicles(scene, truth):
+    """The camera moved at 12 s, noticed at 13.6 s; the tracker starts again at the notice (new ids).  What the
+    old view's background made of the shifted picture in between — here the real sightings of 12–13.6 s under
+    ids of their own, plus a one-frame blob — is not reported; the vehicles themselves are, once, under the ids
+    they get after the notice; a track of the window that the tracker carries on past the notice is a vehicle."""
+    meter = SpeedMeter(calibration=cal_of(scene.camera))
+    out, blind_ids, carried = [], set(), None
+    for f in scene.frames:
+        if meter.calibration.moved_at is None and f.t >= 13.6:
+            out += meter.set_calibration(_moved(12.0))
+        ss = []
+        for s in sightings(f):
+            if 12.0 <= f.t < 13.6:  # the window: other ids, a tracker that does not know yet
+                if carried is None and f.t >= 13.0:
+                    carried = s.id + 20_000  # this one goes on after the notice under the same id
+                new = s.id + (20_000 if s.id + 20_000 == carried else 10_000)
+                blind_ids.add(new)
+                s = Sighting(new, s.label, s.t, s.box, s.confidence, corners_px=s.corners_px, hull=s.hull)
+            elif f.t >= 13.6:  # started again at the notice
+                new = carried if s.id + 20_000 == carried else s.id + 30_000
+                s = Sighting(new, s.label, s.t, s.box, s.confidence, corners_px=s.corners_px, hull=s.hull)
+            ss.append(s)
+        if 12.0 <= f.t < 12.04:
+            ss.append(Sighting(99_999, "car", f.t, (10.0, 10.0, 40.0, 30.0), 0.5))  # a blob for one frame
+            blind_ids.add(99_999)
+        out += meter.update(f.t, ss).finished
+    out += meter.flush()
+    ids = {m.event.id for m in out}
+    assert carried in ids and not (ids & (blind_ids - {carried}))
+    assert meter.discarded == len(blind_ids) - 1 >= 3
+    assert all(m.event.first_timestamp_s < 12.0 or m.event.first_timestamp_s >= 13.6 or m.event.id == carried
+               for m in out)

@@ -489,3 +489,26 @@ def test_reconnecting_to_a_stream_that_is_not_there_goes_on_until_ctrl_c(clip, t
     assert "│ failed: " in stdout and "connections (speeds in km/h)" in stdout
     line = one_line_error(trafficcal("run", clip / "video.mp4", "--out", tmp_path / "x", "--reconnect"))
     assert line == "trafficcal: error: --reconnect is for a live stream (a URI): a file is read to its end once"
+
+
+def test_a_camera_move_is_told_with_what_it_cost():
+    """After a run in which the camera moved: a line per move (when, how many vehicles the old calibration
+    measured, which one), and how many tracks of the time between the move and its notice were not counted."""
+    from rich.console import Console
+
+    from gst_trafficcal.calibration import Calibration
+    from gst_trafficcal.cli.run import RunSummary, print_moves
+    from gst_trafficcal.geometry import Camera
+    from gst_trafficcal.outputs import VehicleEvent
+
+    old = Calibration(Camera((900.0, -400.0), (-6000.0, -350.0), (640.0, 360.0), scale=7.5), (1280, 720))
+    events = [VehicleEvent(i, "car", t, t + 2.0, 80.0) for i, t in enumerate([3.0, 10.0, 20.0, 40.0])]
+    console = Console(record=True, width=200)
+    print_moves(console, RunSummary(None, events, moves=[(34.8, old)], discarded=26))
+    text = console.export_text()
+    assert f"The camera moved at 34.8 s: the 3 vehicles seen before were measured with calibration {old.id} " \
+           "(scale 7.500 m)" in text
+    assert "26 tracks seen only between the move and the moment it was noticed were not counted" in text
+    console = Console(record=True, width=200)
+    print_moves(console, RunSummary(None, events))
+    assert console.export_text() == ""

@@ -450,6 +450,16 @@ def test_a_camera_moved_mid_stream_keeps_what_was_measured_before(kraten_moved, 
     assert sum(e.measured for e in before) >= 8, [e.reason for e in before]
     assert len(after) >= 3 and not any(e.measured for e in after)
     assert all(e.reason.startswith("no calibration") for e in after), [e.reason for e in after]
+    # what the detector made of the new picture against the old view's background before the move was noticed
+    # is no vehicle: only tracks still seen after the notice are reported
+    noticed = next(f.pts for f in run.frames if f.calibration is not None and f.calibration.moved_at is not None)
+    assert noticed - moved[0].moved_at <= 2.5
+    assert not [e for e in after if e.last_timestamp_s < noticed - 0.05], [(e.first_timestamp_s, e.last_timestamp_s)
+                                                                           for e in after]
+    discarded = [m.fields["tracks"] for m in run.messages if m.name == "trafficcal-discarded"]
+    assert discarded and discarded[-1] >= 3, discarded
+    print(f"moved {moved[0].moved_at:.2f} noticed {noticed:.2f}: {len(before)} before, {len(after)} after, "
+          f"{discarded[-1]} discarded")
 
 
 def test_an_events_url_that_does_not_answer_costs_no_vehicle(clip, implicit, tmp_path):

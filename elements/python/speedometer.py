@@ -15,7 +15,8 @@ speeds with nothing given and gives the numbers of ``... ! tracker ! bbscale ! s
 leave before a calibration with scale exists are measured as soon as one arrives; at end of stream the ones still
 waiting are written unmeasured, with the reason.  When vpdetect says the camera moved (a calibration with
 ``moved_at``), the vehicles seen before are measured with the calibration they were seen under (cut at the move),
-and the scale is found anew for the new view.
+and the scale is found anew for the new view; tracks seen only between the move and its notice are no vehicles
+(a ``trafficcal-discarded`` message counts them).
 
 Output per frame: a ``"speed"`` {speed_kmh, label, model_name, confidence} structure on the ROI of every vehicle
 with a current estimate.  Per vehicle that leaves: a ``trafficcal-speed`` element message (the event's fields, and
@@ -96,6 +97,7 @@ class Speedometer(TrafficcalTransform):
         self._poster = None  # EventPoster for events-url
         self._limit = None  # traffic_stats.SpeedLimit from speed-limit and class-limits
         self._posted = 0
+        self._discarded = 0  # the meter's tracks seen only between a camera move and its notice, as last posted
         self._results_t = None
         self._fps_fixed = False
         self._file_cal = None
@@ -356,6 +358,10 @@ class Speedometer(TrafficcalTransform):
 
         from gst_trafficcal.traffic_stats import is_over_limit
 
+        if self._meter is not None and self._meter.discarded != self._discarded:
+            self._discarded = self._meter.discarded
+            self.post_element_message("trafficcal-discarded", {
+                "tracks": self._discarded, "why": "seen only between a camera move and its notice"})
         ok = True
         for m in finished:
             event = m.event.with_clock(self._start)

@@ -148,6 +148,7 @@ class RunSummary:
     stopped: str = ""  # "interrupted" (Ctrl-C) or "duration" (--duration): ended before the stream did
     position_s: float | None = None  # how far into the stream the run got
     moves: list = field(default_factory=list)  # (when the camera moved, s; the calibration before or None)
+    discarded: int = 0  # tracks seen only between a camera move and its notice (not vehicles, not reported)
 
     @property
     def has_scale(self) -> bool:
@@ -219,7 +220,8 @@ def measure_video(video: Path | str, out_dir: Path, description: str, console, l
             raise InputError(f"{video}: {exc}") from None
     summary = RunSummary(outcome.calibration, _read_vehicle_events(paths), outcome.warnings,
                          duration_s=outcome.duration_s, stopped=outcome.stopped, position_s=outcome.position_s,
-                         moves=outcome.moves)
+                         moves=outcome.moves,
+                         discarded=max((m["tracks"] for m in outcome.named("trafficcal-discarded")), default=0))
     if summary.calibration is not None:
         try:
             save_calibration(summary.calibration, paths.calibration)
@@ -285,6 +287,10 @@ def print_moves(console, summary: RunSummary) -> None:
                 else "the calibration then in force")
         console.print(f"[yellow]The camera moved at {t:.1f} s[/]: the {n} vehicles seen before were measured with "
                       f"{used}, cut at the move; vpdetect learnt the new view from there", highlight=False)
+    if summary.discarded:
+        console.print(f"{summary.discarded} tracks seen only between the move and the moment it was noticed were not "
+                      "counted as vehicles (the detector still compared the new picture with the old view)",
+                      highlight=False)
 
 
 def print_vehicles(console, events: list, speed_limit: "SpeedLimit | float | None" = None) -> None:
