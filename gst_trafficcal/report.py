@@ -323,17 +323,21 @@ def _vehicles_section(events: Sequence[VehicleEvent], limit_kmh: SpeedLimit = Sp
 
 
 def _intervals_section(events: Sequence[VehicleEvent], interval_s: float, start: datetime | None,
-                       limit_kmh: SpeedLimit) -> str:
-    """Every vehicle of each interval (per lane and direction: intervals.csv); nothing without timestamps."""
-    rows = [r for r in interval_rows(events, interval_s, start, limit_kmh) if r.total]
+                       limit_kmh: SpeedLimit, covered: Sequence[tuple[float, float]] | None = None) -> str:
+    """Every vehicle of each interval (per lane and direction: intervals.csv); nothing without timestamps.  With
+    ``covered`` (the stream time the video spans) every interval it reaches, and how much of it was watched."""
+    rows = [r for r in interval_rows(events, interval_s, start, limit_kmh, covered) if r.total]
     if not rows:
         return ""
     head = ["interval", "vehicles", "measured", "mean [km/h]", "V85 [km/h]"]
     body = []
     for r in rows:
         s = r.speeds
-        body.append([f"{r.start} – {r.end}", r.vehicles, s.n, _num(s.mean), _num(s.v85)]
-                    + ([s.over_limit] if limit_kmh else []))
+        name = f"{r.start} – {r.end}"
+        if r.observed_s is not None and r.observed_s < interval_s - 0.5:
+            name += f" ({r.observed_s / 60:.1f} min watched)" if r.observed_s >= 60 else \
+                f" ({r.observed_s:.0f} s watched)"
+        body.append([name, r.vehicles, s.n, _num(s.mean), _num(s.v85)] + ([s.over_limit] if limit_kmh else []))
     what = f"{interval_s / 60:g} min" + ("" if start is not None else ", from the start of the video")
     table = _table(head + ([f"over {limit_kmh.describe()}"] if limit_kmh else []), body)
     if len(rows) < 2:
@@ -404,6 +408,7 @@ class ReportInputs:
     speed_limit_kmh: "SpeedLimit | float | None" = None  # marks the plots, counts the vehicles over it (per class)
     interval_s: float = 900.0  # the "Per interval" table's interval
     start_time: datetime | None = None  # date and time of stream time 0: intervals aligned to and named by the clock
+    covered: Sequence[tuple[float, float]] | None = None  # stream time (s) the video spans: every interval it reaches
 
 
 def render_report(inputs: ReportInputs) -> str:
@@ -415,7 +420,8 @@ def render_report(inputs: ReportInputs) -> str:
     parts.append(_calibration_section(inputs.calibration, inputs.frame, inputs.grid_spacing_m))
     limit = as_limit(inputs.speed_limit_kmh)
     parts.append(_vehicles_section(list(inputs.events), limit))
-    parts.append(_intervals_section(list(inputs.events), inputs.interval_s, inputs.start_time, limit))
+    parts.append(_intervals_section(list(inputs.events), inputs.interval_s, inputs.start_time, limit,
+                                    inputs.covered))
     if inputs.evaluation is not None:
         parts.append(_evaluation_section(inputs.evaluation, inputs.ground_truth_name))
     parts.append("</body></html>\n")

@@ -161,7 +161,8 @@ CLASS_COLUMNS = ("car", "van", "bus", "truck", "motorcycle")
 """Vehicle classes with a column of their own in the interval table (others are counted under ``other``)."""
 
 INTERVAL_FIELDS: tuple[str, ...] = (
-    "interval_start", "interval_end", "lane", "direction", "vehicles", "measured", "mean_kmh", "median_kmh",
+    "interval_start", "interval_end", "observed_s", "lane", "direction", "vehicles", "measured", "mean_kmh",
+    "median_kmh",
     "v85_kmh", "max_kmh", "over_limit", *CLASS_COLUMNS, "other",
 )
 
@@ -179,12 +180,14 @@ class IntervalRow:
     speeds: SpeedStats
     classes: dict[str, int]
     total: bool = False
+    observed_s: float | None = None  # seconds of the interval the video covers (None: not known)
 
     def to_dict(self) -> dict[str, object]:
         """The CSV row (keys :data:`INTERVAL_FIELDS`; None for an unknown lane, direction or speed)."""
         s = self.speeds
         d: dict[str, object] = {
             "interval_start": self.start, "interval_end": self.end,
+            "observed_s": None if self.observed_s is None else round(self.observed_s, 1),
             "lane": "all" if self.total else self.lane, "direction": "all" if self.total else self.direction,
             "vehicles": self.vehicles, "measured": s.n,
             "mean_kmh": _round(s.mean), "median_kmh": _round(s.median), "v85_kmh": _round(s.v85),
@@ -204,13 +207,19 @@ def _stream_clock(seconds: float) -> str:
 
 
 def interval_rows(events: Iterable, interval_s: float = 900.0, start: datetime | None = None,
-                  limit_kmh: "SpeedLimit | float | None" = None) -> list[IntervalRow]:
+                  limit_kmh: "SpeedLimit | float | None" = None,
+                  covered: Sequence[tuple[float, float]] | None = None) -> list[IntervalRow]:
     """Counts, speeds (mean, median, V85, max, over the limit) and classes per time interval, lane and direction,
     plus one row with every vehicle of the interval — the traffic count traffic engineers tabulate.
 
     A vehicle belongs to the interval of the middle of its time in view.  With ``start`` (the date and time of
     stream time 0) intervals are aligned to the clock (15 min: :00, :15, :30, :45) and named by date and time;
     without it they count from the start of the stream.  Vehicles without timestamps are left out.
+
+    ``covered``: the spans of stream time (s) the video covers.  Then every interval they reach has its row of all
+    vehicles even when none passed (a count of zero, not a gap), and each row says how many seconds of its interval
+    were watched (``observed_s``: less than the interval at the ends of a recording, across a gap between files or
+    while a live stream was down) — a count over part of an interval is not comparable with a whole one.
     """
     if not interval_s > 0:
         raise InputError(f"interval must be positive, got {interval_s!r} s")
@@ -225,6 +234,14 @@ def interval_rows(events: Iterable, interval_s: float = 900.0, start: datetime |
             continue
         t = offset + 0.5 * (e.first_timestamp_s + e.last_timestamp_s)
         groups.setdefault(int(np.floor(t / interval_s)), []).append(e)
+    observed: dict[int, float] = {}
+    for a, b in covered or ():
+        a, b = offset + float(a), offset + float(b)
+        for k in range(int(np.floor(a / interval_s)), int(np.ceil(b / interval_s))):
+            seen = min(b, (k + 1) * interval_s) - max(a, k * interval_s)
+            if seen > 0:
+                observed[k] = observed.get(k, 0.0) + seen
+                groups.setdefault(k, [])
     rows = []
     for k in sorted(groups):
         a, b = k * interval_s, (k + 1) * interval_s
@@ -233,20 +250,32 @@ def interval_rows(events: Iterable, interval_s: float = 900.0, start: datetime |
         else:
             name = [_stream_clock(a), _stream_clock(b)]
         members = groups[k]
+        seen = min(observed.get(k, 0.0), interval_s) if covered is not None else None
         keys = sorted({(e.lane, e.direction) for e in members},
                       key=lambda kv: (kv[0] is None, kv[0] or 0, kv[1] or "~"))
         for lane, direction in keys:
             sub = [e for e in members if e.lane == lane and e.direction == direction]
-            rows.append(_row(name, lane, direction, sub, limit))
-        rows.append(_row(name, None, None, members, limit, total=True))
+            rows.append(_row(name, lane, direction, sub, limit, observed_s=seen))
+        rows.append(_row(name, None, None, members, limit, total=True, observed_s=seen))
     return rows
 
 
-def _row(name: list[str], lane, direction, events: list, limit: SpeedLimit, total: bool = False) -> IntervalRow:
+def last_boundary(t: float, interval_s: float, start: datetime | None = None) -> float:
+    """The stream time (s) of the latest interval boundary at or before stream time ``t`` (intervals aligned as
+    :func:`interval_rows` aligns them)."""
+    offset = 0.0
+    if start is not None:
+        offset = (start - start.replace(hour=0, minute=0, second=0, microsecond=0)).total_seconds()
+    return float(np.floor((offset + t) / interval_s) * interval_s - offset)
+
+
+def _row(name: list[str], lane, direction, events: list, limit: SpeedLimit, total: bool = False,
+         observed_s: float | None = None) -> IntervalRow:
     classes: dict[str, int] = {}
     for e in events:
         classes[e.label or "unknown"] = classes.get(e.label or "unknown", 0) + 1
-    return IntervalRow(name[0], name[1], lane, direction, len(events), event_stats(events, limit), classes, total)
+    return IntervalRow(name[0], name[1], lane, direction, len(events), event_stats(events, limit), classes, total,
+                       observed_s)
 
 
 def write_intervals_csv(path: str | Path, rows: Sequence[IntervalRow]) -> Path:
@@ -257,3 +286,60 @@ def write_intervals_csv(path: str | Path, rows: Sequence[IntervalRow]) -> Path:
     for r in rows:
         w.writerow({k: "" if v is None else v for k, v in r.to_dict().items()})
     return atomic_write_text(path, buf.getvalue(), "interval table")
+
+
+class IntervalTable:
+    """``intervals.csv`` kept while a stream plays: the speedometer's vehicles (:meth:`vehicle`) and frame times
+    (:meth:`frame`) in; the file rewritten (atomically) once an interval has ended and ``grace_s`` more have passed
+    (time for the vehicles in view at its end to leave), and at the end (:meth:`close`) with every interval, the
+    last one partial.  A live stream measured for days has its counts on disk as they come, and a process that is
+    killed loses only the intervals not yet closed."""
+
+    def __init__(self, path: str | Path, interval_s: float = 900.0, start: datetime | None = None,
+                 limit: "SpeedLimit | float | None" = None, grace_s: float = 30.0) -> None:
+        if not interval_s > 0:
+            raise InputError(f"interval must be positive, got {interval_s!r} s")
+        self.path = Path(path)
+        self.interval_s, self.start, self.limit, self.grace_s = float(interval_s), start, limit, float(grace_s)
+        self.events: list = []
+        self.first_t: float | None = None
+        self.last_t: float | None = None
+        self._dt = 0.0  # the last frame's duration: the video covers it too
+        self._written_until: float | None = None  # stream time up to which the file holds closed intervals
+
+    def frame(self, t: float) -> bool:
+        """A frame at stream time ``t`` (s); True when the file was rewritten."""
+        if self.first_t is None:
+            self.first_t = t
+        if self.last_t is not None and t > self.last_t:
+            self._dt = t - self.last_t
+        self.last_t = max(t, self.last_t if self.last_t is not None else t)
+        closed = last_boundary(t - self.grace_s, self.interval_s, self.start)
+        if closed <= self.first_t or (self._written_until is not None and closed <= self._written_until):
+            return False
+        self._written_until = closed
+        self._write(closed)
+        return True
+
+    def vehicle(self, event) -> None:
+        self.events.append(event)
+
+    def set_start(self, start: datetime | None) -> None:
+        """The date and time of stream time 0, when it becomes known at the first frame (a live clock)."""
+        self.start = start
+
+    def close(self) -> None:
+        """Every interval the stream reached, the open one too (its ``observed_s`` says how much of it)."""
+        if self.first_t is not None:
+            self._write(self.last_t + self._dt)
+        else:
+            write_intervals_csv(self.path, [])
+
+    def _write(self, until: float) -> None:
+        def middle(e) -> float:
+            return 0.5 * (e.first_timestamp_s + e.last_timestamp_s)
+
+        events = [e for e in self.events if e.first_timestamp_s is not None and e.last_timestamp_s is not None
+                  and middle(e) < until]
+        write_intervals_csv(self.path, interval_rows(events, self.interval_s, self.start, self.limit,
+                                                     covered=[(self.first_t, until)]))

@@ -6,7 +6,9 @@
 #
 # INPUT        a video file or any URI uridecodebin plays: file:///..., http(s)://..., rtsp://user:pw@cam/stream
 # OUT_DIR      created if needed; receives vehicles.jsonl (one JSON object per vehicle when it leaves),
-#              vehicles.csv (the same as CSV) and system.json (BrnoCompSpeed results: camera_calibration + cars)
+#              vehicles.csv (the same as CSV), system.json (BrnoCompSpeed results: camera_calibration + cars)
+#              and intervals.csv (the traffic count per 15 minutes, lane and direction, rewritten as each
+#              interval closes; SPEEDOMETER_OPTS="interval=5" for 5 minutes)
 # CALIBRATION  optional calibration JSON (ours, e.g. from calibrate.sh or `trafficcal calibrate-manual`, or any
 #              file with a BrnoCompSpeed camera_calibration block): vpdetect uses it instead of learning. Speeds
 #              need a scale: from the file, or from bbscale/speedometer; without one, vehicles are written with
@@ -78,7 +80,7 @@ events="$out_dir/vehicles.jsonl"
 pipeline=(uridecodebin "uri=$uri" ! videoconvert ! video/x-raw,format=I420
           ! "${vp[@]}" ${VPDETECT_OPTS:-} ! vehicledetect ${VEHICLEDETECT_OPTS:-}
           ! speedometer "events-file=$events" "csv-file=$out_dir/vehicles.csv" "results-file=$out_dir/system.json"
-            "${clock[@]}" ${SPEEDOMETER_OPTS:-} ! fakesink)
+            "intervals-file=$out_dir/intervals.csv" "${clock[@]}" ${SPEEDOMETER_OPTS:-} ! fakesink)
 echo "measure: gst-launch-1.0 -e ${pipeline[*]}" >&2
 
 rc=0

@@ -118,6 +118,8 @@ def test_measure_writes_vehicles_and_matches_trafficcal_run(clip, tmp_path):
     assert len(events) >= 10 and len(measured) >= 4, events
     assert f"{len(events)} vehicles ({len(measured)} with a speed)" in proc.stdout
     assert [e.to_dict() for e in read_events_csv(out / "vehicles.csv")] == [e.to_dict() for e in events]
+    counts = (out / "intervals.csv").read_text().splitlines()  # the 12 s clip: one quarter hour, watched 12 s
+    assert len(counts) >= 2 and counts[-1].startswith(f"0:00:00,0:15:00,12.0,all,all,{len(events)},{len(measured)},")
     truth = load_calibration(clip / "calibration.json").camera
     results = load_results(out / "system.json")
     assert results.calibration.scale == pytest.approx(truth.brno_scale())

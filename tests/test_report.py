@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import base64
+import csv
 import json
 from collections import Counter
 from html.parser import HTMLParser
@@ -323,8 +324,10 @@ def test_cli_report_from_run_files(tmp_path: Path) -> None:
     assert out.stdout.strip().splitlines() == [
         f"{tmp_path / 'report.html'}: {len(events)} vehicles (1 broken line(s) skipped)",
         f"{tmp_path / 'intervals.csv'}: {n_intervals} intervals"]
-    counts = [ln.split(",") for ln in (tmp_path / "intervals.csv").read_text().splitlines()[1:]]
-    assert sum(int(r[4]) for r in counts if r[2] == "all") == len(events)
+    with open(tmp_path / "intervals.csv", newline="") as f:
+        counts = list(csv.DictReader(f))
+    assert sum(int(r["vehicles"]) for r in counts if r["lane"] == "all") == len(events)
+    assert {r["observed_s"] for r in counts} == {""}  # the events alone do not say what the video covered
     page = _parse((tmp_path / "report.html").read_text(encoding="utf-8"))
     # calibration picture, histogram, speeds over time, traffic per half minute
     assert len(page.images) == 4 and _decode(page.images[0]).shape == (H, W, 3)

@@ -111,7 +111,9 @@ def test_run_writes_every_output(clip, with_truth):
     want = [(r0, n) for r0, n in (("2026-12-05T07:45:00+01:00", sum(m < eight for m in mids)),
                                   ("2026-12-05T08:00:00+01:00", sum(m >= eight for m in mids))) if n]
     assert [(r["interval_start"], int(r["vehicles"])) for r in rows] == want and len(want) == 2
+    assert [float(r["observed_s"]) for r in rows] == pytest.approx([5.0, 7.0], abs=0.1)  # 07:59:55 to 08:00:07
     assert "Per interval (15 min)" in report and "first seen" in report
+    assert "(5 s watched)" in report and "(7 s watched)" in report  # two quarter hours, each watched in part
 
 
 def test_stream_ending_before_calibration_converges(clip, tmp_path):
@@ -429,10 +431,14 @@ def test_a_cameras_dated_files_are_counted_together(clip, tmp_path):
     first = read_events(out / a.stem / "vehicles.jsonl").events
     second = read_events(out / b.stem / "vehicles.jsonl").events
     assert first[0].first_time.startswith("2026-12-05T07:59:5") and second[0].first_time.startswith("2026-12-05T08:00:")
-    rows = [ln.split(",") for ln in (out / "intervals.csv").read_text().splitlines()[1:]]
-    total = [r for r in rows if r[2] == "all"]
-    assert [r[0][11:19] for r in total] == ["07:45:00", "08:00:00"]
-    assert sum(int(r[4]) for r in total) == len(first) + len(second)
+    import csv
+
+    with open(out / "intervals.csv", newline="") as f:
+        total = [r for r in csv.DictReader(f) if r["lane"] == "all"]
+    assert [r["interval_start"][11:19] for r in total] == ["07:45:00", "08:00:00"]
+    assert sum(int(r["vehicles"]) for r in total) == len(first) + len(second)
+    # watched: 07:59:55-08:00:07 and 08:00:20-08:00:32 (12 s each), 5 s before 08:00 and 19 s after
+    assert [float(r["observed_s"]) for r in total] == pytest.approx([5.0, 19.0], abs=0.2)
     line = one_line_error(trafficcal("run", a, clip / "video.mp4", "--out", tmp_path / "x", "--start-time", "auto"))
     assert line == ("trafficcal: error: --start-time auto: no date and time in the name 'video.mp4' (e.g. "
                     "cam7_20261205_080000.mp4, 2026-12-05_08-00-00.mp4)")

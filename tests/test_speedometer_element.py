@@ -101,7 +101,8 @@ def implicit(clip, limit, webhook, tmp_path_factory):
     return out, *measure(clip, out, detector(clip), f"calibration-file={clip / 'calibration.json'} "
                                                     f"frames-file={out / 'frames.jsonl'} speed-limit={limit + 100} "
                                                     f"class-limits=car={limit} "
-                                                    f"events-url={webhook.url}")
+                                                    f"events-url={webhook.url} "
+                                                    f"intervals-file={out / 'intervals.csv'} interval=0.05")
 
 
 def test_speeds_match_the_ground_truth(clip, implicit):
@@ -309,6 +310,37 @@ def test_unwritable_output_is_an_error_at_start(clip, tmp_path):
     with pytest.raises(PipelineError, match="a-file/events.jsonl"):
         run_pipeline(f"{source(clip)} ! {detector(clip)} ! speedometer events-file={blocker / 'events.jsonl'} "
                      "! appsink name=sink")
+    with pytest.raises(PipelineError, match="a-file/intervals.csv"):
+        run_pipeline(f"{source(clip)} ! {detector(clip)} ! speedometer intervals-file={blocker / 'intervals.csv'} "
+                     "! appsink name=sink")
+
+
+def test_intervals_file_counts_every_vehicle_of_every_watched_interval(clip, implicit, limit):
+    """intervals-file with 3 s intervals (interval=0.05 min): a row of all vehicles for every 3 s of the clip, even
+    those without one, counting each vehicle once, in the interval of the middle of its time in view; the seconds
+    watched add up to the clip."""
+    import csv
+
+    import cv2
+
+    from gst_trafficcal.traffic_stats import interval_rows, parse_speed_limit
+
+    out, _, events, _ = implicit
+    with open(out / "intervals.csv", newline="") as f:
+        rows = list(csv.DictReader(f))
+    total = [r for r in rows if r["lane"] == "all"]
+    cap = cv2.VideoCapture(str(clip / "video.mp4"))
+    duration = cap.get(cv2.CAP_PROP_FRAME_COUNT) / cap.get(cv2.CAP_PROP_FPS)
+    cap.release()
+    assert len(total) == int(np.ceil(duration / 3.0 - 1e-9)) >= 4
+    assert sum(float(r["observed_s"]) for r in total) == pytest.approx(duration, abs=0.05)
+    assert sum(int(r["vehicles"]) for r in total) == len(events)
+    want = interval_rows(events, 3.0, limit_kmh=parse_speed_limit(f"{limit + 100},car={limit}"),
+                         covered=[(0.0, duration)])
+    cells = [{k: "" if v is None else str(v) for k, v in w.to_dict().items()} for w in want]
+    keys = ("interval_start", "lane", "direction", "vehicles", "measured", "over_limit", "car", "van")
+    assert [[r[k] for k in keys] for r in rows] == [[c[k] for k in keys] for c in cells]
+    assert any(int(r["over_limit"] or 0) for r in total)
 
 
 def test_gst_inspect_documents_every_property(tmp_path):
@@ -317,7 +349,7 @@ def test_gst_inspect_documents_every_property(tmp_path):
                           timeout=120).stdout
     for prop in ("events-file", "results-file", "csv-file", "frames-file", "calibration-file", "scale", "tau",
                  "min-track-length", "vehicle-timeout", "scale-models", "scale-min-vehicles", "scale-regression-file",
-                 "start-datetime", "speed-limit", "class-limits", "events-url"):
+                 "start-datetime", "speed-limit", "class-limits", "events-url", "intervals-file", "interval"):
         assert prop in text
 
 

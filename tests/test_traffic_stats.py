@@ -129,3 +129,56 @@ def test_intervals_are_aligned_to_the_clock_when_the_start_time_is_known(tmp_pat
     with pytest.raises(InputError, match="interval"):
         interval_rows([], 0)
 
+
+
+def test_every_watched_interval_has_a_row_and_says_how_much_of_it_was_watched() -> None:
+    """A recording of 0–25 min and another of 50–61:40: the quarter hours they reach each have a row of all
+    vehicles, zero when none passed; the 25–45 min nobody watched have none; observed_s says how much of each
+    quarter was watched (the ends are partial)."""
+    from datetime import datetime
+
+    from gst_trafficcal.traffic_stats import interval_rows, last_boundary
+
+    events = [_event(1, 10, 50.0), _event(2, 100, 70.0), _event(3, 3010, 60.0)]
+    rows = [r for r in interval_rows(events, 900, covered=[(0, 1500), (3000, 3700)]) if r.total]
+    assert [(r.start, r.vehicles, r.observed_s) for r in rows] == [
+        ("0:00:00", 2, 900.0), ("0:15:00", 0, 600.0), ("0:45:00", 1, 600.0), ("1:00:00", 0, 100.0)]
+    assert rows[1].to_dict()["mean_kmh"] is None and rows[1].to_dict()["observed_s"] == 600.0
+    assert [r.observed_s for r in interval_rows(events, 900)] == [None] * 4  # not known: no empty rows either
+    start = datetime.fromisoformat("2026-12-05T07:58:30+01:00")  # on the clock: 07:45, 08:00 and 08:15
+    rows = [r for r in interval_rows([], 900, start, covered=[(0.0, 1200.0)]) if r.total]
+    assert [(r.start[11:16], r.vehicles, r.observed_s) for r in rows] == [
+        ("07:45", 0, 90.0), ("08:00", 0, 900.0), ("08:15", 0, 210.0)]
+    assert last_boundary(1000.0, 900, start) == 990.0 and last_boundary(80.0, 900, start) == -810.0
+    assert last_boundary(1000.0, 900) == 900.0
+
+
+def test_the_interval_table_is_on_disk_as_the_intervals_close(tmp_path) -> None:
+    """A stream of 2000 s at 1 frame/s, a vehicle every 100 s: nothing on disk before the first quarter hour
+    has ended and 30 s more have passed; then that quarter (9 vehicles, 900 s watched); after the second, both;
+    at the end all three, the last one 200 s watched."""
+    import csv
+
+    from gst_trafficcal.traffic_stats import IntervalTable
+
+    path = tmp_path / "intervals.csv"
+    table = IntervalTable(path, 900, grace_s=30)
+    written = []
+    for t in range(2000):
+        if t % 100 == 50:
+            table.vehicle(_event(t, t - 5, 60.0))
+        if table.frame(float(t)):
+            written.append(t)
+            with open(path, newline="") as f:
+                rows = [r for r in csv.DictReader(f) if r["lane"] == "all"]
+            assert [(r["interval_start"], r["vehicles"], r["observed_s"]) for r in rows] == [
+                ("0:00:00", "9", "900.0"), ("0:15:00", "9", "900.0")][:len(written)]
+    assert written == [930, 1830]
+    table.close()
+    with open(path, newline="") as f:
+        rows = [r for r in csv.DictReader(f) if r["lane"] == "all"]
+    assert [(r["interval_start"], r["vehicles"], r["observed_s"]) for r in rows] == [
+        ("0:00:00", "9", "900.0"), ("0:15:00", "9", "900.0"), ("0:30:00", "2", "200.0")]
+    empty = IntervalTable(tmp_path / "none.csv", 900)
+    empty.close()
+    assert (tmp_path / "none.csv").read_text().startswith("interval_start,interval_end,observed_s,")

@@ -25,7 +25,10 @@ with ``speed-limit`` or ``class-limits`` a boolean ``over_limit``: faster than i
 a line in ``events-file`` (JSON lines) / ``csv-file``; per frame with tracked vehicles, a line in ``frames-file``
 (gvametaconvert's shape: box, track id, ``"trafficcal-vehicle"`` with the reference point and 3D box, ``"speed"``);
 ``results-file`` gets the BrnoCompSpeed results JSON
-(rewritten atomically now and then and at end of stream).  A failed write (full disk) stops the pipeline with an
+(rewritten atomically now and then and at end of stream); ``intervals-file`` the traffic count per ``interval``
+minutes, lane and direction (:class:`gst_trafficcal.traffic_stats.IntervalTable`: rewritten as each interval
+closes, so a live stream's counts are on disk as they come, and at the end; every watched interval has a row,
+zero when no vehicle passed, and says how many seconds of it were watched).  A failed write (full disk) stops the pipeline with an
 error naming the file; every vehicle written before stays in the files.
 """
 
@@ -52,6 +55,11 @@ class Speedometer(TrafficcalTransform):
                         "('speed'), in gvametaconvert's shape (empty: none)", "", _RW),
         "results-file": (str, "Results file", "BrnoCompSpeed results JSON (camera_calibration + cars with "
                          "frames/posX/posY), rewritten atomically (empty: none)", "", _RW),
+        "intervals-file": (str, "Intervals file", "CSV traffic count per interval, lane and direction (counts, "
+                           "speeds, V85, over the limit, classes, seconds watched), rewritten as each interval "
+                           "closes and at the end of the stream (empty: none)", "", _RW),
+        "interval": (float, "Interval", "Minutes per row of intervals-file (aligned to the clock with "
+                     "start-datetime)", 0.01, 10080.0, 15.0, _RW),
         "calibration-file": (str, "Calibration file", "Calibration JSON used when no calibration with scale "
                              "comes from upstream (empty: none)", "", _RW),
         "scale": (float, "Scale", "Scene scale (metres per road-plane unit = camera height in metres) applied "
@@ -95,6 +103,7 @@ class Speedometer(TrafficcalTransform):
         self._outputs = None
         self._frames = None
         self._poster = None  # EventPoster for events-url
+        self._intervals = None  # traffic_stats.IntervalTable for intervals-file
         self._limit = None  # traffic_stats.SpeedLimit from speed-limit and class-limits
         self._posted = 0
         self._discarded = 0  # the meter's tracks seen only between a camera move and its notice, as last posted
@@ -135,6 +144,11 @@ class Speedometer(TrafficcalTransform):
             from gst_trafficcal.traffic_stats import element_limit
 
             self._limit = element_limit(self.speed_limit, self.class_limits)
+            if self.intervals_file:
+                from gst_trafficcal.traffic_stats import IntervalTable, write_intervals_csv
+
+                write_intervals_csv(self.intervals_file, [])  # an unwritable path fails now, not in an hour
+                self._intervals = IntervalTable(self.intervals_file, 60.0 * self.interval, self._start, self._limit)
             if self.events_url:
                 from gst_trafficcal.publish import EventPoster
 
@@ -229,6 +243,8 @@ class Speedometer(TrafficcalTransform):
 
             if self.start_datetime.strip().lower() == NOW:
                 self._start = start_from_now(t)
+                if self._intervals is not None:
+                    self._intervals.set_start(self._start)
         if self._tracking is None:
             upstream = _tracker_upstream(self)
             self._tracking = False if upstream is not None else self._tracking_pipeline()
@@ -263,6 +279,8 @@ class Speedometer(TrafficcalTransform):
         if not self._emit(out.finished):
             return Gst.FlowReturn.ERROR
         if self._frames is not None and labelled and not self._write_frame(buffer, t):
+            return Gst.FlowReturn.ERROR
+        if self._intervals is not None and not self._guarded_write(self._intervals.frame, t):
             return Gst.FlowReturn.ERROR
         if out.finished and self.results_file and (self._results_t is None or t - self._results_t >= _RESULTS_EVERY):
             self._results_t = t
@@ -370,6 +388,8 @@ class Speedometer(TrafficcalTransform):
                 fields["over_limit"] = is_over_limit(event.speed_kmh, self._limit, event.label)
             self.post_element_message("trafficcal-speed", fields)
             self._push(fields)
+            if self._intervals is not None:
+                self._intervals.vehicle(event)
             if self._outputs is None:
                 continue
             self._fix_fps()
@@ -432,6 +452,8 @@ class Speedometer(TrafficcalTransform):
                 except InputError:
                     pass
                 self._push(event.to_dict())
+                if self._intervals is not None:
+                    self._intervals.vehicle(event)
         self._close(report=post)
 
     def _push(self, fields):
@@ -459,6 +481,14 @@ class Speedometer(TrafficcalTransform):
                 self.post_warning(f"speedometer: {stats.failed + stats.dropped} of {self._posted} vehicle events "
                                   f"could not be posted to {poster.shown_url} ({why}); every vehicle is in the files")
 
+        if self._intervals is not None:
+            intervals, self._intervals = self._intervals, None
+            try:
+                intervals.close()
+            except InputError as exc:
+                if report and not self._failed:
+                    self.post_error(f"speedometer: {exc}")
+                self._failed = True
         if self._frames is not None:
             frames, self._frames = self._frames, None
             try:

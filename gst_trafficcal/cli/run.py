@@ -99,7 +99,7 @@ def pipeline_description(video: Path | str, paths: RunPaths, calibration: Path |
                          overlay: bool = True, bbscale: bool = False, queues: bool = True,
                          scale_regression: Path | None = None, body_shapes: str = "auto",
                          speed_limit: "SpeedLimit | float" = 0.0, start_time: str = "", events_url: str = "",
-                         calibration_mode: str = "fixed") -> str:
+                         calibration_mode: str = "fixed", interval_min: float = 15.0) -> str:
     """The gst-launch description ``trafficcal run`` plays (also printed, so it can be re-run by hand).
 
     With ``queues`` two ``queue`` elements split the chain into three streaming threads (decoding; vpdetect and
@@ -107,7 +107,8 @@ def pipeline_description(video: Path | str, paths: RunPaths, calibration: Path |
     element still sees every buffer and the calibration events in stream order).  ``speed_limit`` (km/h, 0: none)
     goes to speedometer (its messages say which vehicles were over it) and trafficoverlay (drawn in red, counted);
     ``start_time`` (ISO 8601, the date and time the video starts) to speedometer, which then dates every vehicle;
-    ``events_url`` to speedometer, which POSTs every vehicle's event there.  ``calibration_mode``: vpdetect's mode
+    ``events_url`` to speedometer, which POSTs every vehicle's event there; speedometer keeps intervals.csv (a row
+    per ``interval_min`` minutes, lane and direction) as the intervals close.  ``calibration_mode``: vpdetect's mode
     with ``calibration`` — fixed (a calibration the user gave) or auto (one carried over from an earlier file:
     learnt anew if the camera moved).
     """
@@ -126,7 +127,8 @@ def pipeline_description(video: Path | str, paths: RunPaths, calibration: Path |
     if bbscale:
         chain.append(f"bbscale regression-file={quote(scale_regression)}" if scale_regression else "bbscale")
     chain.append(f"speedometer events-file={quote(paths.events)} csv-file={quote(paths.csv)} "
-                 f"results-file={quote(paths.results)}{limit}{clock}")
+                 f"results-file={quote(paths.results)} intervals-file={quote(paths.intervals)} "
+                 f"interval={interval_min:g}{limit}{clock}")
     if overlay:
         chain += [f"trafficoverlay{limit}", "videoconvert", "video/x-raw,format=I420", "queue max-size-buffers=8",
                   "x264enc speed-preset=veryfast tune=zerolatency", "mp4mux",
@@ -149,6 +151,11 @@ class RunSummary:
     position_s: float | None = None  # how far into the stream the run got
     moves: list = field(default_factory=list)  # (when the camera moved, s; the calibration before or None)
     discarded: int = 0  # tracks seen only between a camera move and its notice (not vehicles, not reported)
+
+    @property
+    def watched_s(self) -> float | None:
+        """Seconds of video the run went through (the stream's duration when it ended by itself)."""
+        return self.position_s if self.stopped else self.duration_s or self.position_s
 
     @property
     def has_scale(self) -> bool:
@@ -359,7 +366,7 @@ def print_vehicles(console, events: list, speed_limit: "SpeedLimit | float | Non
                    "file's from the date and time in its name, e.g. cam7_20261205_080000.mp4): every vehicle then "
                    "carries the date and time it passed (first_time, last_time), and intervals.csv is aligned to "
                    "the clock (with several files, also one for all of them in --out).")
-@click.option("--interval", "interval_min", type=click.FloatRange(min=0, min_open=True), default=15.0,
+@click.option("--interval", "interval_min", type=click.FloatRange(min=0.01, max=10080), default=15.0,
               show_default=True, help="Minutes per row of intervals.csv (the traffic count per interval, lane and "
                                       "direction: vehicles, classes, mean speed, V85, over the limit).")
 @click.option("--duration", "duration_s", type=click.FloatRange(min=0, min_open=True), default=None,
@@ -519,8 +526,6 @@ def run_one(console, video: Path | str, out_dir: Path, calibration_path: Path | 
     from ..gst.env import elements_dir
     from ..outputs import stream_start
     from ..report import ReportInputs, write_report
-    from ..traffic_stats import interval_rows, write_intervals_csv
-
     detector, regression_path, body_shapes = options.detector, options.regression_path, options.body_shapes
     speed_limit, interval_min, duration_s = options.speed_limit, options.interval_min, options.duration_s
     events_url, no_overlay, gt_path = options.events_url, options.no_overlay, options.gt_path
@@ -531,7 +536,8 @@ def run_one(console, video: Path | str, out_dir: Path, calibration_path: Path | 
                                        bbscale=bbscale, scale_regression=regression_path, body_shapes=body_shapes,
                                        speed_limit=speed_limit,
                                        start_time=NOW if live_clock else start.isoformat() if start else "",
-                                       events_url=events_url, calibration_mode=calibration_mode)
+                                       events_url=events_url, calibration_mode=calibration_mode,
+                                       interval_min=interval_min)
     shown = description
     if events_url:  # no password on the screen
         from ..publish import redacted
@@ -572,16 +578,12 @@ def run_one(console, video: Path | str, out_dir: Path, calibration_path: Path | 
         elif ev is None:
             console.print(f"[yellow]no evaluation against {gt_path.name}: the calibration has no scale[/]")
     try:
-        write_intervals_csv(paths.intervals, interval_rows(summary.events, 60 * interval_min, start,
-                                                           speed_limit))
-    except InputError as exc:
-        summary.errors.append(str(exc))
-    try:
         write_report(paths.report, ReportInputs(
             events=summary.events, calibration=cal, frame=first_frame(video), evaluation=ev,
             ground_truth_name=str(gt_path or ""), title=f"gst-trafficcal run: {getattr(video, 'name', video)}",
             source=str(video),
-            speed_limit_kmh=speed_limit, interval_s=60 * interval_min, start_time=start))
+            speed_limit_kmh=speed_limit, interval_s=60 * interval_min, start_time=start,
+            covered=[(0.0, summary.watched_s)] if summary.watched_s else None))
     except InputError as exc:
         summary.errors.append(str(exc))
     written = [n for n in OUTPUTS if (out_dir / n).exists()]

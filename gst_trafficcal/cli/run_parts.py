@@ -66,7 +66,7 @@ def run_parts(console, parts, total: int | None, out_dir: Path, calibration_path
 
     carried = None  # (calibration with a scale, the part it came from)
     rows, failures, records = [], [], []
-    dated = []  # (start of the part, its events) for the intervals of all the parts
+    dated = []  # (start of the part, its events, seconds of it watched) for the intervals of all the parts
     used_s, wait = 0.0, 1.0
     interrupted = False
     for k, (video, name, label) in enumerate(parts, 1):
@@ -94,7 +94,7 @@ def run_parts(console, parts, total: int | None, out_dir: Path, calibration_path
         if summary is not None:
             used_s += summary.position_s or 0.0
             if opts.start is not None and not live:
-                dated.append((opts.start, summary.events))
+                dated.append((opts.start, summary.events, summary.watched_s))
             st = speed_stats([e.speed_kmh for e in summary.events if e.speed_kmh is not None])
             cal = summary.calibration
             if summary.has_scale:
@@ -144,20 +144,24 @@ def run_parts(console, parts, total: int | None, out_dir: Path, calibration_path
 
 def _write_day_intervals(console, path: Path, dated: list, options: RunOptions) -> None:
     """One intervals.csv for the traffic of every dated part: each part's vehicles put on the clock of the earliest
-    start, then counted per interval as one run's are."""
+    start, then counted per interval as one run's are; the stretches the files cover say how much of each interval
+    was watched (a gap between recordings shows as less, an interval no file reaches has no row)."""
     from dataclasses import replace as dc_replace
 
     from ..traffic_stats import interval_rows, write_intervals_csv
 
-    first = min(start for start, _ in dated)
-    events = []
-    for start, part in dated:
+    first = min(start for start, _, _ in dated)
+    events, covered = [], []
+    for start, part, watched in dated:
         shift = (start - first).total_seconds()
         events += [dc_replace(e, first_timestamp_s=e.first_timestamp_s + shift,
                               last_timestamp_s=e.last_timestamp_s + shift) for e in part
                    if e.first_timestamp_s is not None and e.last_timestamp_s is not None]
+        if watched:
+            covered.append((shift, shift + watched))
     try:
-        rows = interval_rows(events, 60 * options.interval_min, first, options.speed_limit)
+        rows = interval_rows(events, 60 * options.interval_min, first, options.speed_limit,
+                             covered=covered if len(covered) == len(dated) else None)
         write_intervals_csv(path, rows)
     except InputError as exc:
         console.print(f"[yellow]warning[/]: {exc}", highlight=False)
