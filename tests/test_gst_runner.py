@@ -39,6 +39,8 @@ def test_calibration_messages_are_collected():
 def test_after_a_camera_move_the_run_ends_with_the_new_views_calibration():
     """The calibration a run ended with is the new view's (here: still learning), never the old view's scale that
     an element further down posted a moment after the move; each move says what measured the vehicles before."""
+    from dataclasses import replace
+
     from gst_trafficcal.calibration import Calibration
     from gst_trafficcal.geometry import Camera
     from gst_trafficcal.gst.runner import RunOutcome
@@ -48,11 +50,18 @@ def test_after_a_camera_move_the_run_ends_with_the_new_views_calibration():
     moved = Calibration(None, (640, 360), state="learning", reason="the camera moved at 35.0 s", moved_at=35.0)
     out = RunOutcome(calibrations=[("vpdetect0", vps), ("bbscale0", old), ("vpdetect0", moved),
                                    ("bbscale0", old.with_scale(9.1))])
-    assert out.calibration is moved and out.moves == [(35.0, old)]
+    assert out.calibration is moved and out.moves == [(35.0, old, None)]
     new = Calibration(Camera((310.0, -50.0), (6000.0, 330.0), (320.0, 180.0)), (640, 360), state="vps")
     out.calibrations += [("vpdetect0", new), ("bbscale0", new.with_scale(8.0))]
     assert out.calibration.id == new.with_scale(8.0).id
     assert RunOutcome(calibrations=[("vpdetect0", vps), ("bbscale0", old)]).moves == []
+    # back at the first view (a PTZ preset): vpdetect announces its calibration again with the move, bbscale puts
+    # the scale it found for it back on: the run ends with that, although the old view had the same one
+    back = replace(vps, moved_at=60.0)
+    out.calibrations += [("vpdetect0", back), ("bbscale0", replace(old, moved_at=60.0))]
+    assert out.calibration.id == old.id and out.calibration.moved_at == 60.0
+    t, before, known = out.moves[-1]
+    assert (t, before.id, known.id, known.moved_at) == (60.0, new.with_scale(8.0).id, old.id, 60.0)
 
 
 def test_errors_name_the_element_and_the_cause(tmp_path):

@@ -505,15 +505,19 @@ def test_a_camera_move_is_told_with_what_it_cost():
     from gst_trafficcal.calibration import Calibration
     from gst_trafficcal.cli.run import RunSummary, print_moves
     from gst_trafficcal.geometry import Camera
+    from gst_trafficcal.gst.runner import Move
     from gst_trafficcal.outputs import VehicleEvent
 
     old = Calibration(Camera((900.0, -400.0), (-6000.0, -350.0), (640.0, 360.0), scale=7.5), (1280, 720))
     events = [VehicleEvent(i, "car", t, t + 2.0, 80.0) for i, t in enumerate([3.0, 10.0, 20.0, 40.0])]
-    console = Console(record=True, width=200)
-    print_moves(console, RunSummary(None, events, moves=[(34.8, old)], discarded=26))
+    console = Console(record=True, width=400)
+    print_moves(console, RunSummary(None, events, moves=[Move(34.8, old), Move(38.0, None, old)], discarded=26))
     text = console.export_text()
     assert f"The camera moved at 34.8 s: the 3 vehicles seen before were measured with calibration {old.id} " \
-           "(scale 7.500 m)" in text
+           "(scale 7.500 m), cut at the move; vpdetect learnt the new view from there" in text
+    assert "The camera moved at 38.0 s: the 0 vehicles seen before were measured with the calibration then in " \
+           f"force, cut at the move; it went back to a view calibrated before: calibration {old.id} (scale 7.500 " \
+           "m) measured from there at once" in text
     assert "26 tracks seen only between the move and the moment it was noticed were not counted" in text
     console = Console(record=True, width=200)
     print_moves(console, RunSummary(None, events))

@@ -151,6 +151,32 @@ def test_a_moved_camera_drops_every_piece_of_evidence(cam, models):
     assert stage.result().n_vehicles == 0
 
 
+def test_a_camera_back_at_a_view_it_had_gets_that_scale_at_once(cam, models):
+    """vpdetect announces a known view again after a move (a PTZ preset): the scale found for those vanishing
+    points is put on right away, with the move, while the evidence is gathered anew; a view never scaled gets
+    none; a calibration that brings its own scale is left alone."""
+    from dataclasses import replace
+
+    from gst_trafficcal.calibration import Calibration
+    from gst_trafficcal.scale.stage import ScaleStage
+
+    stage = ScaleStage(ScaleEstimator(models, min_vehicles=2, refine_base=False))
+    cal = Calibration(cam.with_scale(None), (1280, 720), state="vps", source="vpdetect")
+    stage.on_calibration(cal)
+    for f, ss in enumerate(vehicle_sightings(cam, models, np.random.default_rng(4), 3)):
+        stage.update(f * 0.1, ss, cal)
+    ours = stage.finish(cal)
+    assert ours is not None and ours.camera.scale == stage.result().scale
+    other = Calibration(Camera(cam.vp1 + [40.0, 0.0], cam.vp2, cam.pp), (1280, 720), state="vps", source="vpdetect")
+    assert stage.on_calibration(replace(other, moved_at=5.0)) is None  # another view, never scaled
+    back = stage.on_calibration(replace(cal, moved_at=9.0))
+    assert back is not None and back.moved_at == 9.0 and back.camera.scale == ours.camera.scale
+    assert back.source == "vpdetect+bbscale" and back.id == ours.id
+    assert stage.result().n_vehicles == 0 and stage.estimator.camera is not None  # evidence anew, on these VPs
+    given = Calibration(cam.with_scale(7.0), (1280, 720), source="file", moved_at=12.0)
+    assert stage.on_calibration(given) is None
+
+
 def test_base_centre_is_the_projective_centre(cam):
     X = np.array([[x, y, 0.0] for y in (0.0, 1.8) for x in (10.0, 14.5)])  # order ix + 2 iy
     corners = np.vstack([cam.world_to_image(X), cam.world_to_image(X + [0, 0, 1.5])])

@@ -423,31 +423,37 @@ def test_real_traffic_braking_for_a_junction_is_measured(tmp_path):
     assert all(8.0 < e.speed_kmh < 70.0 for e in measured)  # town traffic at this camera's scale
 
 
-@pytest.fixture(scope="module")
-def kraten_moved(tmp_path_factory):
-    """24 s of kraten_cars.mp4 whose camera is re-aimed at 14 s (the picture shifted 13 px, 2 % of the width),
-    and the clip's calibration as vpdetect would have saved it: with the view of its first 5 s."""
+def re_aimed_kraten(work: Path, frames: int, shifted: range) -> tuple[Path, Path]:
+    """The first ``frames`` of kraten_cars.mp4 with the picture shifted 13 px (2 % of the width: the camera
+    re-aimed) on the frames ``shifted``, and the clip's calibration as vpdetect would have saved it: with the view
+    of its first 5 s."""
     import json
 
     import cv2
 
     from gst_trafficcal.vanishing.view import ViewAccumulator, encode_view
 
-    work = tmp_path_factory.mktemp("moved")
     cap = cv2.VideoCapture(str(require_shared(VIDEOS / "kraten_cars.mp4")))
     writer = cv2.VideoWriter(str(work / "moved.mp4"), cv2.VideoWriter_fourcc(*"mp4v"), 25, (640, 360))
     view = ViewAccumulator()
     shift = np.float32([[1, 0, 13], [0, 1, 0]])
-    for i in range(600):
+    for i in range(frames):
         ok, frame = cap.read()
         assert ok
         if i < 125:
             view.add(cv2.cvtColor(frame, cv2.COLOR_BGR2GRAY))
-        writer.write(frame if i < 350 else cv2.warpAffine(frame, shift, (640, 360), borderMode=cv2.BORDER_REFLECT))
+        writer.write(cv2.warpAffine(frame, shift, (640, 360), borderMode=cv2.BORDER_REFLECT) if i in shifted
+                     else frame)
     writer.release()
     cal = dict(KRATEN_CALIBRATION, source="vpdetect", view=encode_view(view.view(), 640))
     (work / "cal.json").write_text(json.dumps(cal))
     return work / "moved.mp4", work / "cal.json"
+
+
+@pytest.fixture(scope="module")
+def kraten_moved(tmp_path_factory):
+    """24 s of kraten_cars.mp4 whose camera is re-aimed at 14 s."""
+    return re_aimed_kraten(tmp_path_factory.mktemp("moved"), 600, range(350, 600))
 
 
 @pytest.mark.shared
@@ -492,6 +498,50 @@ def test_a_camera_moved_mid_stream_keeps_what_was_measured_before(kraten_moved, 
     assert discarded and discarded[-1] >= 3, discarded
     print(f"moved {moved[0].moved_at:.2f} noticed {noticed:.2f}: {len(before)} before, {len(after)} after, "
           f"{discarded[-1]} discarded")
+
+
+@pytest.mark.shared
+def test_a_camera_back_at_its_calibrated_view_measures_again_at_once(tmp_path):
+    """A PTZ camera leaves its preset at 10 s and comes back at 20 s (kraten_cars.mp4 shifted 13 px between):
+    vpdetect notices both moves; the second takes it back to the view the file's calibration was made on, so that
+    calibration is announced again at once (no learning); the vehicles of 10–20 s are the unknown view's
+    (unmeasured, with the reason), those after 20 s are measured with the file's calibration again."""
+    import shutil
+
+    from gst_trafficcal.outputs import read_events
+
+    register_plugin_file(ELEMENTS / "vpdetect.py")
+    clip, stored = re_aimed_kraten(tmp_path, 750, range(250, 500))
+    cal = tmp_path / "cal.json"
+    shutil.copy(stored, tmp_path / "stored.json")
+    events_file = tmp_path / "events.jsonl"
+    run = run_pipeline(f"filesrc location={clip} ! decodebin ! videoconvert ! vpdetect calibration-file={cal} ! "
+                       f"vehicledetect model=vehicleseg ! tracker ! speedometer events-file={events_file} ! "
+                       "appsink name=sink")
+    moved = [c for c in run.calibrations if c.moved_at is not None]
+    file_id = load_calibration(tmp_path / "stored.json").id
+    assert [c.camera is None for c in moved] == [True, False], [(c.state, c.moved_at) for c in run.calibrations]
+    assert 9.5 <= moved[0].moved_at <= 10.0 and 19.5 <= moved[1].moved_at <= 20.0
+    assert moved[1].id == file_id and moved[1].camera.scale is not None
+    views = [m.fields for m in run.messages if m.name == "trafficcal-view"]
+    assert [v["state"] for v in views] == ["moved", "moved", "returned"] or \
+        [v["state"] for v in views] == ["moved", "returned"], views
+    assert views[-1]["calibration_id"] == file_id
+    assert any("to a view it was calibrated on before" in w for w in run.warnings), run.warnings
+    assert not any("calibration failed" in w for w in run.warnings)  # nothing was left to learn
+    assert load_calibration(cal).id == file_id
+    events = read_events(events_file).events
+    assert len({e.id for e in events}) == len(events)
+    before = [e for e in events if e.first_timestamp_s < moved[0].moved_at]
+    away = [e for e in events if moved[0].moved_at <= e.first_timestamp_s < moved[1].moved_at]
+    back = [e for e in events if e.first_timestamp_s >= moved[1].moved_at]
+    assert sum(e.measured for e in before) >= 3 and all(e.calibration_id == file_id for e in before)
+    assert away and not any(e.measured for e in away), [(e.first_timestamp_s, e.reason) for e in away]
+    assert all("before the calibration of the view it was seen in had vanishing points" in e.reason for e in away)
+    assert sum(e.measured for e in back) >= 3, [e.reason for e in back]
+    assert all(e.calibration_id == file_id for e in back if e.measured)
+    print(f"moved {moved[0].moved_at:.2f}, back {moved[1].moved_at:.2f}: {len(before)} / {len(away)} / {len(back)} "
+          f"vehicles, measured {sum(e.measured for e in before)} / {sum(e.measured for e in back)}")
 
 
 def test_an_events_url_that_does_not_answer_costs_no_vehicle(clip, implicit, tmp_path):

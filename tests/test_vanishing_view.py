@@ -151,3 +151,39 @@ def test_a_scene_no_longer_recognised_is_said_but_not_taken_for_a_move(kraten):
     events = _watch(kraten, lambda f: f[:, ::-1].copy())
     assert [e.kind for e, _ in events] == ["unrecognised"], events
     assert not events[0][0].match.recognised and 15.0 <= events[0][1] <= 17.5
+
+
+def test_a_library_of_views_tells_which_preset_the_camera_shows(kraten):
+    """Two presets of one camera (kraten_cars.mp4 and the same picture 40 px to the right): each median view is
+    found as itself — through traffic, a little light or a tenth of a degree of a PTZ's imprecise return — and a
+    view excluded or another scene as none; ReturnWatcher confirms the preset when a stream comes back to it and
+    dates the return like the monitor."""
+    from gst_trafficcal.vanishing.view import ReturnWatcher, ViewLibrary
+
+    def median(frames):
+        acc = ViewAccumulator()
+        for f in frames:
+            acc.add(f)
+        return acc.view()
+
+    other = lambda f: np.roll(f, 40, axis=1)  # noqa: E731
+    library = ViewLibrary()
+    library.add("home", median(kraten[:125]), 640)
+    library.add("preset2", median([other(f) for f in kraten[:125]]), 640)
+    assert len(library) == 2
+    later = kraten[250:375]
+    assert library.find(median(later))[0] == "home"
+    assert library.find(median([other(f) for f in later]))[0] == "preset2"
+    assert library.find(median([_rotated((0.8 * f).astype(np.uint8), 0.1) for f in later]))[0] == "home"
+    assert library.find(median(later), exclude="home") is None
+    assert library.find(median([f[:, ::-1].copy() for f in later])) is None
+    assert library.find(None) is None
+    # a stream learning an unknown view (shifted 13 px) comes back to preset 2 at 10 s
+    watcher = ReturnWatcher(library)
+    found = None
+    for i, f in enumerate(kraten):
+        out = watcher.add(other(f) if i >= 250 else np.roll(f, 13, axis=1), i / 25.0)
+        if out is not None and found is None:
+            found = (out, i / 25.0)
+    (key, t, match), noticed = found
+    assert key == "preset2" and 9.5 <= t <= 10.0 and noticed <= 12.0 and not match.moved

@@ -14,6 +14,11 @@ calibration in force is watched (``ViewMonitor``): a camera knocked or re-aimed 
 two later; modes auto and learn then announce a "learning" calibration with ``moved_at`` (when it moved), which
 tells the elements downstream that what they saw before belongs to the previous calibration, and learn anew; mode
 fixed warns.  Each change is also a ``trafficcal-view`` bus message.
+
+Every view the element has had a calibration for in this stream (the file's, each one learnt) is remembered
+(``ViewLibrary``): when the camera moves to one of them — a PTZ camera back at a preset, a knocked camera put
+back — that calibration is announced again at once (with ``moved_at``; bbscale gives it back the scale it found
+for it), also while a new view is being learnt, instead of learning it anew for minutes.
 """
 
 from gst_trafficcal.gst._gi import GObject, Gst
@@ -72,6 +77,10 @@ class VpDetect(TrafficcalTransform):
         self._held = False  # ... and not published yet (mode auto: held until the check is done)
         self._monitor = None  # ViewMonitor watching the calibration in force for a moved camera
         self._moved_at = None  # when the camera moved, while the new view is being learnt
+        self._library = None  # ViewLibrary: every view calibrated in this stream, by calibration id
+        self._known = {}  # ... and those calibrations
+        self._in_force = None  # id of the calibration whose view is watched
+        self._return = None  # ReturnWatcher: while learning, a known view seen again
 
     def on_caps(self, info):
         from gst_trafficcal.calibration import Calibration, load_calibration
@@ -124,6 +133,10 @@ class VpDetect(TrafficcalTransform):
         from gst_trafficcal.vanishing.view import ViewAccumulator
 
         self._views = ViewAccumulator(keep=60)
+        if self._library:
+            from gst_trafficcal.vanishing.view import ReturnWatcher
+
+            self._return = ReturnWatcher(self._library)
         try:
             width = self.frame_size[0]
             d = self.downscale
@@ -166,6 +179,12 @@ class VpDetect(TrafficcalTransform):
                 if self._views.count >= VIEW_CHECK_SAMPLES:
                     self._check_view()
                 return Gst.FlowReturn.OK
+            back = None
+            if self._return is not None:  # a view calibrated before, seen again: no need to learn it
+                back = self._return.add(y, t)
+            if back is not None:
+                self._switch_to(*back)
+                return Gst.FlowReturn.OK
             changed = learner.add(y, t)
         if changed:
             self._publish(learner.calibration)
@@ -186,12 +205,14 @@ class VpDetect(TrafficcalTransform):
         match = compare_views(stored, current, width) if stored is not None and current is not None else None
         if match is not None and stored.shape != current.shape:  # another aspect ratio than the file's
             match = None
+        if match is not None:
+            self._remember(cal, stored, width)
         if match is None or not match.moved:
             if self._held:
                 self.publish_calibration(cal)
             self._held = False
             if match is not None:  # (a view of another aspect ratio is not watched: it would never match)
-                self._watch(stored, width)
+                self._watch(stored, width, cal.id)
             return
         if not self._held:  # mode fixed: the file's calibration stays, the user is told
             self.post_warning(f"vpdetect: the camera view differs from the one {self.calibration_file} was "
@@ -204,11 +225,41 @@ class VpDetect(TrafficcalTransform):
                           "replace the file)")
         self._start_learning()
 
-    def _watch(self, stored, width):
-        """Watch the calibration in force (its view: thumbnail ``stored`` of ``width``-px frames) from now on."""
+    def _watch(self, stored, width, key):
+        """Watch the calibration in force (id ``key``; its view: thumbnail ``stored`` of ``width``-px frames) from
+        now on."""
         from gst_trafficcal.vanishing.view import ViewMonitor
 
         self._monitor = ViewMonitor(stored, width, every=max(1, round(self._fps / 5)))  # 5 comparisons a second
+        self._in_force = key
+
+    def _remember(self, cal, stored, width):
+        """A calibration with its view: used again whenever the stream shows that view after a move."""
+        from gst_trafficcal.vanishing.view import ViewLibrary
+
+        if self._library is None:
+            self._library = ViewLibrary()
+        self._library.add(cal.id, stored, width)
+        self._known[cal.id] = cal
+
+    def _switch_to(self, key, t, match):
+        """The camera moved (at ``t``) to the view of known calibration ``key``: announce it again, watch it."""
+        from dataclasses import replace
+
+        from gst_trafficcal.calibration import save_calibration
+
+        cal = self._known[key]
+        self._learner, self._return, self._moved_at, self._views = None, None, None, None
+        self.post_warning(f"vpdetect: the camera moved at {t:.1f} s to a view it was calibrated on before "
+                          f"({match.describe()} against it): using calibration {cal.id} again")
+        self.post_element_message("trafficcal-view", {
+            "state": "returned", "t": float(t), "calibration_id": cal.id, "shift_x": match.shift[0],
+            "shift_y": match.shift[1], "zoom": float(match.zoom), "rotation_deg": float(match.rotation_deg),
+            "similarity": float(match.similarity)})
+        self.publish_calibration(replace(cal, moved_at=float(t)))
+        if self.calibration_file and self.mode != "fixed":
+            save_calibration(cal, self.calibration_file)  # the file holds the calibration in force
+        self._watch(*self._library.views[key], key)
 
     def _monitor_frame(self, buffer, t):
         from gst_trafficcal.vanishing.frames import luma
@@ -235,10 +286,15 @@ class VpDetect(TrafficcalTransform):
     def _camera_moved(self, event):
         from gst_trafficcal.calibration import Calibration
 
+        current = self._monitor.current()
         self._monitor = None
         what = f"the camera moved at {event.t:.1f} s ({event.match.describe()})"
         if self.mode == "fixed":
             self.post_warning(f"vpdetect: {what}: speeds from here on are wrong; recalibrate (mode=auto or learn)")
+            return
+        found = self._library.find(current, exclude=self._in_force) if self._library else None
+        if found is not None:
+            self._switch_to(found[0], event.t, found[1])
             return
         self.post_warning(f"vpdetect: {what}: learning a new calibration"
                           + (f" (it will replace {self.calibration_file})" if self.calibration_file else ""))
@@ -277,7 +333,10 @@ class VpDetect(TrafficcalTransform):
         if cal.camera is not None and cal.view is not None and self.view_check and self._learner.done:
             from gst_trafficcal.vanishing.view import decode_view
 
-            self._watch(*decode_view(cal.view))
+            stored, width = decode_view(cal.view)
+            self._remember(cal, stored, width)
+            self._return = None
+            self._watch(stored, width, cal.id)
         if cal.state == "failed":
             self.post_warning(f"vpdetect: calibration failed: {cal.reason}")
         elif self.calibration_file:

@@ -149,7 +149,7 @@ class RunSummary:
     duration_s: float | None = None
     stopped: str = ""  # "interrupted" (Ctrl-C) or "duration" (--duration): ended before the stream did
     position_s: float | None = None  # how far into the stream the run got
-    moves: list = field(default_factory=list)  # (when the camera moved, s; the calibration before or None)
+    moves: list = field(default_factory=list)  # gst.runner.Move: when the camera moved, the calibrations around it
     discarded: int = 0  # tracks seen only between a camera move and its notice (not vehicles, not reported)
 
     @property
@@ -287,13 +287,17 @@ def evaluate_run(gt_path: Path, summary: RunSummary, paths: RunPaths):
 def print_moves(console, summary: RunSummary) -> None:
     """One line per camera move vpdetect noticed: when, and which calibration measured the vehicles before."""
     since = float("-inf")
-    for t, before in summary.moves:
+    for t, before, known in summary.moves:
         n = sum(since <= e.first_timestamp_s < t for e in summary.events)
         since = t
         used = (f"calibration {before.id} (scale {before.camera.scale:.3f} m)" if before is not None
                 else "the calibration then in force")
+        then = ("vpdetect learnt the new view from there" if known is None else
+                f"it went back to a view calibrated before: calibration {known.id}"
+                + (f" (scale {known.camera.scale:.3f} m)" if known.camera.scale is not None else "")
+                + " measured from there at once")
         console.print(f"[yellow]The camera moved at {t:.1f} s[/]: the {n} vehicles seen before were measured with "
-                      f"{used}, cut at the move; vpdetect learnt the new view from there", highlight=False)
+                      f"{used}, cut at the move; {then}", highlight=False)
     if summary.discarded:
         console.print(f"{summary.discarded} tracks seen only between the move and the moment it was noticed were not "
                       "counted as vehicles (the detector still compared the new picture with the old view)",

@@ -17,7 +17,7 @@ import threading
 import time
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, NamedTuple
 
 from ..calibration import Calibration, same_vanishing_points
 from ._gi import Gst
@@ -27,9 +27,17 @@ from .env import elements_dir
 from .meta import structure_to_dict
 from .pipeline import BusMessage, PipelineError
 
-__all__ = ["PipelineError", "RunFailed", "RunOutcome", "ensure_elements", "missing_elements", "run_pipeline_file"]
+__all__ = ["Move", "PipelineError", "RunFailed", "RunOutcome", "ensure_elements", "missing_elements", "run_pipeline_file"]
 
 Progress = Callable[[float, "float | None"], None]
+
+
+class Move(NamedTuple):
+    """A camera move vpdetect announced during a run."""
+
+    t: float  # when the camera moved (stream seconds)
+    before: Calibration | None  # the calibration with a scale in force until then, if any
+    known: Calibration | None = None  # the calibration of a view seen before, taken up again (None: learnt anew)
 
 
 @dataclass
@@ -51,22 +59,27 @@ class RunOutcome:
         moved = [i for i, c in enumerate(cals) if c.moved_at is not None]
         if moved:  # the new view's: not the old one's, even if an element further down posted it a little later
             old = [c for c in cals[:moved[-1]] if c.camera is not None]
-            cals = [c for c in cals[moved[-1]:] if not any(same_vanishing_points(c, o) for o in old)]
+            t = cals[moved[-1]].moved_at  # (a view seen before and taken up again carries the move itself)
+            cals = [c for c in cals[moved[-1]:]
+                    if c.moved_at == t or not any(same_vanishing_points(c, o) for o in old)]
         if not cals:
             return None
         with_scale = [c for c in cals if c.camera is not None and c.camera.scale is not None]
         return with_scale[-1] if with_scale else cals[-1]
 
     @property
-    def moves(self) -> list[tuple[float, Calibration | None]]:
-        """Each time the camera moved: (when, stream seconds; the calibration with a scale in force before, or
-        None)."""
+    def moves(self) -> list[Move]:
+        """Each time the camera moved: when, the calibration with a scale in force before, and the known view's
+        calibration vpdetect took up again (the one with the most said about it, e.g. bbscale's with the scale)."""
         out, before = [], None
         for _, c in self.calibrations:
             if c.moved_at is not None:
-                if not out or out[-1][0] != c.moved_at:  # the same news passed on by several elements
-                    out.append((float(c.moved_at), before))
-                before = None
+                known = c if c.camera is not None else None
+                if not out or out[-1].t != c.moved_at:  # the same news passed on by several elements
+                    out.append(Move(float(c.moved_at), before, known))
+                elif known is not None and (out[-1].known is None or known.camera.scale is not None):
+                    out[-1] = out[-1]._replace(known=known)
+                before = known if known is not None and known.camera.scale is not None else None
             elif c.camera is not None and c.camera.scale is not None:
                 before = c
         return out

@@ -7,7 +7,8 @@ calibration at the same frame:
 * an upstream calibration that already has a scale (a calibration file) is left alone;
 * new vanishing points restart the evidence (:meth:`.streaming.ScaleEstimator.set_camera`); the same ones again
   keep it, and a scale found for them is put back on the calibration at once; a moved camera (``moved_at``) drops
-  everything seen before;
+  everything seen before — and when it moved to a view whose vanishing points this stage has given a scale before
+  (vpdetect announces a known view again: a PTZ preset), that scale is put on at once, the evidence gathered anew;
 * when the estimate converges the calibration is published with λ, and again whenever λ moves by more than
   ``republish`` (0.5 %); at the end of the stream the final estimate, however small the change.
 """
@@ -19,7 +20,7 @@ from typing import Any, Iterable, Mapping
 
 import numpy as np
 
-from ..calibration import Calibration
+from ..calibration import Calibration, same_vanishing_points
 from .estimate import DEFAULT_IOU_THRESHOLD
 from .streaming import ScaleEstimator, ScaleResult, Sighting, base_centre, load_align_models
 
@@ -66,6 +67,7 @@ class ScaleStage:
 
     def __post_init__(self) -> None:
         self.published: float | None = None
+        self.known: list[Calibration] = []  # every calibration this stage gave a scale, the latest per view
 
     def on_calibration(self, cal: Calibration) -> Calibration | None:
         """An upstream calibration (with vanishing points): restart or keep the evidence.  Returns our scaled
@@ -73,7 +75,16 @@ class ScaleStage:
         if cal.moved_at is not None:  # another view from here: nothing seen so far measures it
             self.estimator.restart()
             self.published = None
-            return None
+            if cal.camera is None or upstream_has_scale(cal):
+                return None
+            self.estimator.set_camera(cal.camera)
+            before = next((k for k in reversed(self.known) if same_vanishing_points(k, cal)), None)
+            if before is None:
+                return None
+            self.published = float(before.camera.scale)  # a view seen before: its scale again, right away
+            source = cal.source if cal.source.endswith(SOURCE_SUFFIX) else f"{cal.source}+{SOURCE_SUFFIX}"
+            return cal.with_scale(self.published, confidence={**cal.confidence, **before.confidence},
+                                  source=source)
         if cal.camera is None or upstream_has_scale(cal):
             return None
         self.estimator.set_camera(cal.camera)
@@ -129,7 +140,9 @@ class ScaleStage:
         conf = dict(cal.confidence)
         conf["scale"] = float(r.confidence)
         source = cal.source if cal.source.endswith(SOURCE_SUFFIX) else f"{cal.source}+{SOURCE_SUFFIX}"
-        return cal.with_scale(float(r.scale), confidence=conf, source=source)
+        ours = cal.with_scale(float(r.scale), confidence=conf, source=source)
+        self.known = [k for k in self.known if not same_vanishing_points(k, ours)] + [ours]
+        return ours
 
 
 def build_stage(models: str = "", min_vehicles: int = 5, regression_file: str = "",

@@ -219,6 +219,10 @@ class ViewMonitor:
         """Count a frame that is not sampled (:meth:`wants` said no) without reading it."""
         self._views.skip()
 
+    def current(self) -> np.ndarray | None:
+        """The median of the rolling window: the scene as the stream shows it now (traffic removed)."""
+        return self._views.view()
+
     def add(self, luma: np.ndarray, t: float) -> ViewEvent | None:
         """Add a frame (its luma plane, at stream time ``t``); returns what changed, if anything."""
         if not self.wants():
@@ -241,3 +245,70 @@ class ViewMonitor:
             return None
         self.state = kind
         return ViewEvent(kind, self._run_start, match)
+
+
+class ViewLibrary:
+    """The views a stream has been calibrated on, by key (a calibration's id): a PTZ camera's presets, a camera
+    knocked and put back.  :meth:`find` tells which of them, if any, a thumbnail shows — the same view within the
+    bounds of :func:`compare_views` (not moved), the most similar one if several."""
+
+    def __init__(self) -> None:
+        self.views: dict[str, tuple[np.ndarray, int]] = {}
+
+    def __len__(self) -> int:
+        return len(self.views)
+
+    def add(self, key: str, view: np.ndarray, frame_width: int) -> None:
+        self.views[key] = (view, int(frame_width))
+
+    def find(self, current: np.ndarray | None, exclude: str | None = None) -> tuple[str, ViewMatch] | None:
+        best = None
+        if current is None:
+            return None
+        for key, (view, width) in self.views.items():
+            if key == exclude or view.shape != current.shape:
+                continue
+            match = compare_views(view, current, width)
+            if not match.moved and (best is None or match.similarity > best[1].similarity):
+                best = (key, match)
+        return best
+
+
+class ReturnWatcher:
+    """While a new view is being learnt: watches for the stream to show one of the ``library``'s views again
+    (the PTZ camera went back to a preset before the new one was learnt).  Sampled and dated like
+    :class:`ViewMonitor`: every ``every``-th frame into a rolling window of ``window``, whose median must be the
+    same known view in ``confirm`` comparisons in a row."""
+
+    def __init__(self, library: ViewLibrary, every: int = 5, window: int = 9, confirm: int = 5) -> None:
+        self.library, self.window, self.confirm = library, int(window), int(confirm)
+        self._views = ViewAccumulator(every, keep=self.window)
+        self._times: list[float] = []
+        self._key, self._start, self._run = None, 0.0, 0
+
+    def wants(self) -> bool:
+        return self._views.wants()
+
+    def skip(self) -> None:
+        self._views.skip()
+
+    def add(self, luma: np.ndarray, t: float) -> tuple[str, float, ViewMatch] | None:
+        """Add a frame (luma plane, stream time ``t``); returns (key, when the camera got there, the match) once a
+        known view is confirmed."""
+        if not self.wants():
+            self._views.skip()
+            return None
+        self._views.add(luma)
+        self._times.append(float(t))
+        del self._times[:-self.window]
+        if self._views.count < min(3, self.window):
+            return None
+        found = self.library.find(self._views.view())
+        key = found[0] if found is not None else None
+        if key != self._key:
+            n = len(self._times)
+            self._key, self._start, self._run = key, self._times[max(0, n - n // 2 - 2)], 0
+        self._run += 1
+        if key is None or self._run < self.confirm:
+            return None
+        return key, self._start, found[1]
