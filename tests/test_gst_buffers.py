@@ -349,3 +349,19 @@ def test_yuv_to_bgr_follows_the_caps_colorimetry(colorimetry: str) -> None:
     info = video_info_from_caps(caps.replace(colorimetry, other))
     with frame_bgr(buffer_from_planes(planes, info), info) as wrong:
         assert np.percentile(np.abs(wrong.astype(int) - out["videoconvert"]), 99) > 10
+
+
+def test_the_stream_clock_never_goes_back():
+    """Timestamps as they come: a plain stream is its timestamps; parts joined (each from 0 again) and a seek back
+    go on one frame interval after the last buffer; unset timestamps stay unset."""
+    from gst_trafficcal.gst.buffers import StreamClock
+
+    clock = StreamClock()
+    times = [clock(0.04 * k) for k in range(100)]
+    assert times == [round(0.04 * k, 9) for k in range(100)] and clock.jumps == []
+    again = [clock(0.04 * k) for k in range(50)]  # a second part from 0
+    assert again[0] == pytest.approx(4.0) and np.allclose(np.diff(again), 0.04) and clock.jumps == [(0.0, 4.0)]
+    assert clock(1.0) == pytest.approx(5.96 + 0.04)  # a seek back to 1 s
+    assert clock(1.04) == pytest.approx(6.04) and len(clock.jumps) == 2
+    assert clock(None) is None
+    assert clock(1.04) == pytest.approx(6.04)  # the same timestamp twice is not a jump

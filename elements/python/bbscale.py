@@ -87,14 +87,13 @@ class BBScale(TrafficcalTransform):
             self.publish_calibration(ours)
 
     def transform_frame(self, buffer):
-        from gst_trafficcal.gst.buffers import pts_seconds
         from gst_trafficcal.gst.meta import read_vehicle_rois
         from gst_trafficcal.scale.stage import sighting_from_fields, upstream_has_scale
 
         cal = self.calibration
         if upstream_has_scale(cal):
             return Gst.FlowReturn.OK
-        t = pts_seconds(buffer)
+        t = self.buffer_t
         if t is None:
             if not self._warned_pts:
                 self._warned_pts = True

@@ -117,6 +117,7 @@ class Speedometer(TrafficcalTransform):
         self._flushed = False
         self._failed = False
         self._last_pts = None
+        self._jumps = 0  # timestamp jumps back already said
         self._dts = []
         self._own_stage = None  # bbscale's stage, built at start
         self._stage = None  # ... in use: no bbscale upstream, no scale given (decided at the first frame)
@@ -226,15 +227,19 @@ class Speedometer(TrafficcalTransform):
 
     # ------------------------------------------------------------------ frames
     def transform_frame(self, buffer):
-        from gst_trafficcal.gst.buffers import pts_seconds
         from gst_trafficcal.gst.meta import read_vehicle_rois, update_roi_params
         from gst_trafficcal.measurement import END_AFTER_MARGIN, Sighting, speed_params
 
         if self._failed:
             return Gst.FlowReturn.ERROR
-        t = pts_seconds(buffer)
+        t = self.buffer_t
         if t is None:
             return Gst.FlowReturn.OK  # no time, no speed: passed through
+        if len(self.stream_clock.jumps) > self._jumps:  # timestamps went back (joined parts, a seek): said once each
+            self._jumps = len(self.stream_clock.jumps)
+            back, given = self.stream_clock.jumps[-1]
+            self.post_warning(f"speedometer: the timestamps went back to {back:.3f} s (parts joined, a seek back); "
+                              f"the vehicles' times go on from {given:.3f} s")
         if self._last_pts is not None and t > self._last_pts and len(self._dts) < 50:
             self._dts.append(t - self._last_pts)  # the frame rate of variable-rate caps, for BrnoCompSpeed
         self._last_pts = t

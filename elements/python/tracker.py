@@ -101,12 +101,11 @@ class Tracker(TrafficcalTransform):
 
     def transform_frame(self, buffer):
         from gst_trafficcal.detection.records import Detections
-        from gst_trafficcal.gst.buffers import pts_seconds
         from gst_trafficcal.gst.meta import (OBJECT_ID, add_vehicle_roi, detections_from_rois, read_vehicle_rois,
                                              update_roi_params)
         from gst_trafficcal.tracking.vehicle_meta import vehicle_fields
 
-        t = pts_seconds(buffer)
+        t = self.buffer_t
         if t is None:
             if not self._warned_pts:
                 self._warned_pts = True

@@ -75,14 +75,13 @@ class VehicleDetect(TrafficcalTransform):
 
     def transform_frame(self, buffer):
         from gst_trafficcal.detection.factory import detect
-        from gst_trafficcal.gst.buffers import pts_seconds
         from gst_trafficcal.gst.meta import add_vehicle_roi, hull_params
 
         frame, self._frame = self._frame, self._frame + 1
         if frame % self.interval:
             return Gst.FlowReturn.OK
         with (self.bgr(buffer) if self.model else self.gray(buffer)) as image:
-            detections = detect(self._detector, image, pts_seconds(buffer))
+            detections = detect(self._detector, image, self.buffer_t)
         for d in detections:
             add_vehicle_roi(buffer, self.frame_size, d.box, d.label, d.score, d.class_id, params=hull_params(d.hull))
         return Gst.FlowReturn.OK

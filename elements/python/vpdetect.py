@@ -157,12 +157,11 @@ class VpDetect(TrafficcalTransform):
         return self._learner is None and not self._held
 
     def transform_frame(self, buffer):
-        from gst_trafficcal.gst.buffers import pts_seconds
         from gst_trafficcal.vanishing.frames import luma
 
         learner = self._learner
         checking = self._loaded is not None
-        t = pts_seconds(buffer)
+        t = self.buffer_t
         if t is None:
             t = self._frames / self._fps
         self._frames += 1

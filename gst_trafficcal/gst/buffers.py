@@ -350,3 +350,33 @@ def pts_seconds(buffer: Gst.Buffer) -> float | None:
     """Presentation timestamp of ``buffer`` in seconds, None when unset (use this, not frame counts)."""
     pts = buffer.pts
     return None if pts == Gst.CLOCK_TIME_NONE else pts / Gst.SECOND
+
+
+class StreamClock:
+    """The elements' time of each buffer (seconds): its timestamp, but never going backwards.
+
+    Timestamps that go back — recordings joined by ``concat`` (each part's start at 0 again), a seek back — would
+    undo every speed and track; instead the time goes on one frame interval (the median of the last ones) after the
+    last buffer, and stays that far ahead of the timestamps from then on.  Every element applies the same rule to
+    the same buffers, so their times agree.  A plain file or live stream is its timestamps exactly."""
+
+    def __init__(self) -> None:
+        self.offset = 0.0
+        self.last: float | None = None
+        self.jumps: list[tuple[float, float]] = []  # (timestamp gone back to, the time it was given instead)
+        self._steps: list[float] = []
+
+    def __call__(self, pts_s: float | None) -> float | None:
+        if pts_s is None:
+            return None
+        t = pts_s + self.offset
+        if self.last is not None:
+            if t < self.last:
+                step = float(np.median(self._steps)) if self._steps else 0.04
+                self.offset += self.last + step - t
+                self.jumps.append((pts_s, self.last + step))
+                t = self.last + step
+            elif t > self.last:
+                self._steps = (self._steps + [t - self.last])[-25:]
+        self.last = t = round(t, 9)  # nanoseconds, as the timestamps (no float residue from the offset)
+        return t

@@ -8,7 +8,7 @@ A subclass sets ``__gstmetadata__`` (and ``__gproperties__`` if any), implements
 
         def transform_frame(self, buffer):
             with self.gray(buffer) as gray:          # HxW uint8 view, valid inside the block
-                result = library_call(gray, pts_seconds(buffer))
+                result = library_call(gray, self.buffer_t)
             if result.calibration_changed:
                 self.publish_calibration(result.calibration)
             return Gst.FlowReturn.OK
@@ -25,6 +25,9 @@ What the base does:
 - properties declared in ``__gproperties__`` are plain attributes initialised to their defaults
   (``"min-score"`` <-> ``self.min_score``): no ``do_get_property``/``do_set_property`` needed;
 - ``self.video_info`` / ``self.frame_size`` cached from the negotiated caps (hook :meth:`on_caps`);
+- ``self.buffer_t``: the time of the buffer being transformed, in seconds — its timestamp, never going backwards
+  (:class:`~gst_trafficcal.gst.buffers.StreamClock`: parts joined by ``concat``, a seek back), the same in every
+  element; None when the buffer has no timestamp;
 - keeps the latest calibration received from upstream in ``self.calibration`` (hook
   :meth:`on_calibration`) and forwards the sticky event downstream;
 - :meth:`publish_calibration` sends a new calibration downstream (sticky event, before the next
@@ -49,8 +52,8 @@ import numpy as np
 
 from ..calibration import Calibration
 from ._gi import GLib, GObject, Gst, GstBase, GstVideo
-from .buffers import (SUPPORTED_FORMATS, format_name, frame_bgr, frame_gray, frame_planes, video_caps_string,
-                      video_info_from_caps)
+from .buffers import (SUPPORTED_FORMATS, StreamClock, format_name, frame_bgr, frame_gray, frame_planes,
+                      pts_seconds, video_caps_string, video_info_from_caps)
 from .calibration_event import calibration_event, calibration_message, parse_calibration_event
 from .meta import make_structure
 
@@ -80,6 +83,8 @@ class TrafficcalTransform(GstBase.BaseTransform):
         self.video_info: GstVideo.VideoInfo | None = None
         self.frame_size: tuple[int, int] | None = None
         self.calibration: Calibration | None = None
+        self.stream_clock = StreamClock()
+        self.buffer_t: float | None = None
         self._pending_calibration: Calibration | None = None
         self._refused_caps: set[str] = set()
         for pspec in self.list_properties():  # property "min-score" <-> attribute self.min_score
@@ -214,6 +219,7 @@ class TrafficcalTransform(GstBase.BaseTransform):
 
     def do_transform_ip(self, buffer: Gst.Buffer) -> Gst.FlowReturn:
         self._push_pending_calibration()
+        self.buffer_t = self.stream_clock(pts_seconds(buffer))
         try:
             return self.transform_frame(buffer)
         except Exception as exc:  # a Python exception must stop the pipeline with a readable error
@@ -223,6 +229,7 @@ class TrafficcalTransform(GstBase.BaseTransform):
     def do_stop(self) -> bool:
         self.video_info = None
         self.frame_size = None
+        self.stream_clock = StreamClock()
         return True
 
 
