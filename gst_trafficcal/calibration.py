@@ -185,3 +185,51 @@ def load_calibration(path: str | Path) -> Calibration:
 def save_calibration(cal: Calibration, path: str | Path) -> Path:
     """Write the calibration atomically (a crash never leaves half a file)."""
     return atomic_write_text(path, json.dumps(cal.to_dict(), indent=2) + "\n", "calibration")
+
+
+# --------------------------------------------------------------------------- a camera's views (PTZ presets)
+
+def view_key(cal: Calibration) -> str:
+    """The file name stem of ``cal`` in a views folder: its vanishing points' id (with or without a scale, one
+    file per view)."""
+    return cal.with_scale(None).id if cal.camera is not None else cal.id
+
+
+def load_views(folder: str | Path, image_size: tuple[int, int]) -> tuple[list[Calibration], list[str]]:
+    """The calibrations of a camera's views kept in ``folder`` (``*.json``, each with vanishing points and the
+    ``view`` it was learnt on) for frames of ``image_size``; and a line per file that is not one (unreadable,
+    another frame size, no view).  A missing folder holds none."""
+    found, skipped = [], []
+    root = Path(folder)
+    for path in sorted(root.glob("*.json")) if root.is_dir() else []:
+        try:
+            cal = load_calibration(path)
+        except InputError as exc:
+            skipped.append(str(exc))
+            continue
+        if cal.camera is None or cal.view is None:
+            skipped.append(f"{path}: no vanishing points or no view")
+        elif tuple(cal.image_size) != tuple(image_size):
+            skipped.append(f"{path}: a calibration of {cal.image_size[0]}x{cal.image_size[1]} frames")
+        else:
+            found.append(cal)
+    return found, skipped
+
+
+def save_view(cal: Calibration, folder: str | Path) -> Path | None:
+    """Keep ``cal`` (with vanishing points and its view) in the views folder as ``<view_key>.json``; a calibration
+    of the same view with a scale already there is not replaced by one without.  Returns the path written, or None."""
+    if cal.camera is None or cal.view is None:
+        return None
+    path = Path(folder) / f"{view_key(cal)}.json"
+    if cal.camera.scale is None and path.is_file():
+        try:
+            if load_calibration(path).camera.scale is not None:
+                return None
+        except (InputError, AttributeError):
+            pass  # broken: replaced
+    try:
+        Path(folder).mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise InputError(f"{folder}: cannot create the views folder ({exc.strerror or exc})") from None
+    return save_calibration(replace(cal, moved_at=None), path)

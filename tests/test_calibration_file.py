@@ -87,3 +87,35 @@ def test_missing_file_and_wrong_side_vps(tmp_path):
                                 "vp2": [3000, 200], "pp": [960, 540], "scale": 5.0}))
     with pytest.raises(GeometryError, match="imaginary focal"):
         load_calibration(path)
+
+
+def test_a_cameras_views_are_kept_one_file_per_view(tmp_path):
+    """A views folder (vpdetect views-dir): one JSON per view, named by its vanishing points; a calibration of that
+    view with a scale is not replaced by one without; loading skips, and says why, what is not a usable view."""
+    from dataclasses import replace
+
+    from gst_trafficcal.calibration import load_views, save_view, view_key
+    from gst_trafficcal.vanishing.view import encode_view
+
+    view = encode_view(np.full((90, 160), 128, np.uint8), 1920)
+    scaled = replace(_calibration(), view=view, moved_at=30.0)
+    bare = scaled.with_scale(None)
+    other = replace(_calibration(scale=6.0).with_scale(None), camera=Camera(
+        _calibration().camera.vp1 + [300.0, 0.0], _calibration().camera.vp2, _calibration().camera.pp), view=view)
+    folder = tmp_path / "views"
+    assert view_key(scaled) == view_key(bare) == bare.id
+    assert save_view(bare, folder) == folder / f"{bare.id}.json"
+    assert save_view(scaled, folder) == folder / f"{bare.id}.json"  # the scale comes: replaced
+    assert save_view(bare, folder) is None  # ... and not lost again
+    assert save_view(other, folder) is not None and save_view(_calibration(), folder) is None  # no view: not kept
+    (folder / "broken.json").write_text("{")
+    save_calibration(replace(other, image_size=(1280, 720)), folder / "small.json")
+    found, skipped = load_views(folder, (1920, 1080))
+    assert sorted(c.id for c in found) == sorted([scaled.id, other.id])
+    assert all(c.moved_at is None for c in found)  # a view, not a move
+    assert len(skipped) == 2 and any("broken.json" in s for s in skipped) and \
+        any("small.json: a calibration of 1280x720 frames" in s for s in skipped)
+    assert load_views(tmp_path / "none", (1920, 1080)) == ([], [])
+    (tmp_path / "file").write_text("")
+    with pytest.raises(InputError, match="cannot create the views folder"):
+        save_view(bare, tmp_path / "file" / "views")

@@ -390,6 +390,13 @@ def test_the_calibration_of_a_cameras_first_file_carries_over_to_the_next(tmp_pa
     rows = (out / "parts.csv").read_text().splitlines()
     assert rows[0] == "part,folder,vehicles,measured,mean_kmh,v85_kmh,calibration,status,error"
     assert [r.split(",")[6] for r in rows[1:]] == [first.id, second.id]
+    # the camera's view is kept, with its scale, for the parts (or connections) that show it again
+    from gst_trafficcal.calibration import load_views
+
+    views, skipped = load_views(out / "views", (640, 360))
+    assert skipped == [] and [v.camera.scale for v in views] == [first.camera.scale]
+    assert views[0].source.startswith("vpdetect+bbscale, ") and views[0].source.endswith(" from kraten_cars.mp4")
+    assert "views-dir=" in proc.stdout
 
 
 def test_several_files_one_failing_the_others_still_run(clip, tmp_path):

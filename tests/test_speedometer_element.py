@@ -573,6 +573,36 @@ def test_a_camera_back_at_its_calibrated_view_measures_again_at_once(tmp_path):
           f"vehicles, measured {sum(e.measured for e in before)} / {sum(e.measured for e in back)}")
 
 
+@pytest.mark.shared
+def test_a_views_folder_calibrates_the_view_the_stream_shows_from_the_start(kraten_moved, tmp_path):
+    """No calibration file, a views folder holding the calibration of kraten's view (a camera's preset, kept by an
+    earlier run): the stream's first seconds are recognised as that view and its calibration is used from the start
+    (not as a move: nothing seen is cut); the re-aim at 14 s is then noticed as usual, and the new view, too short
+    to learn, is not added to the folder."""
+    from gst_trafficcal.calibration import save_view, view_key
+
+    register_plugin_file(ELEMENTS / "vpdetect.py")
+    clip, stored = kraten_moved
+    known = load_calibration(stored)
+    views = tmp_path / "views"
+    save_view(known, views)
+    events_file = tmp_path / "events.jsonl"
+    run = run_pipeline(f"filesrc location={clip} ! decodebin ! videoconvert ! vpdetect views-dir={views} ! "
+                       f"vehicledetect model=vehicleseg ! speedometer events-file={events_file} ! appsink name=sink")
+    with_camera = [c for c in run.calibrations if c.camera is not None]
+    assert with_camera and with_camera[0].id == known.id and with_camera[0].moved_at is None
+    first = next(f.pts for f in run.frames if f.calibration is not None and f.calibration.camera is not None)
+    assert first <= 3.0, first
+    assert any("the stream shows a view calibrated before" in w and known.id in w for w in run.warnings)
+    moved = [c for c in run.calibrations if c.moved_at is not None]
+    assert len(moved) == 1 and 13.5 <= moved[0].moved_at <= 14.0 and moved[0].camera is None
+    events = read_events(events_file).events
+    before = [e for e in events if e.first_timestamp_s < moved[0].moved_at]
+    assert sum(e.measured for e in before) >= 8 and all(e.calibration_id == known.id for e in before)
+    assert not any("camera moved" in e.reason for e in before if e.last_timestamp_s < moved[0].moved_at - 2.0)
+    assert [p.name for p in views.iterdir()] == [f"{view_key(known)}.json"]
+
+
 def test_an_events_url_that_does_not_answer_costs_no_vehicle(clip, implicit, tmp_path):
     """A receiver that is down: warnings (when posting first fails, and how many events were not posted at the
     end), never an error; the files hold every vehicle.  Not an http(s) URL: an error at start naming it."""

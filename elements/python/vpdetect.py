@@ -18,7 +18,9 @@ fixed warns.  Each change is also a ``trafficcal-view`` bus message.
 Every view the element has had a calibration for in this stream (the file's, each one learnt) is remembered
 (``ViewLibrary``): when the camera moves to one of them — a PTZ camera back at a preset, a knocked camera put
 back — that calibration is announced again at once (with ``moved_at``; bbscale gives it back the scale it found
-for it), also while a new view is being learnt, instead of learning it anew for minutes.
+for it), also while a new view is being learnt, instead of learning it anew for minutes.  With ``views-dir`` the
+views outlive the pipeline: every calibration in the folder (one JSON per view, ``calibration.save_view``) is
+known from the start — the stream's first seconds pick the one it shows — and each one learnt is added to it.
 """
 
 from gst_trafficcal.gst._gi import GObject, Gst
@@ -58,6 +60,10 @@ class VpDetect(TrafficcalTransform):
         "view-check": (bool, "View check", "Compare the stream with the scene the calibration in force was learnt "
                        "on: a loaded calibration in the first seconds, and any calibration all along the stream; if "
                        "the camera has moved, warn, and (mode fixed excepted) learn anew", True, _RW),
+        "views-dir": (str, "Views folder", "Folder of calibrations of this camera's views (PTZ presets; one JSON "
+                      "per view, with the view it was learnt on): known from the start, so the view the stream "
+                      "shows — at the start or after a move — gets its calibration at once; each calibration learnt "
+                      "is added (empty: views are remembered for this stream only)", "", _RW),
         "constant-speed": (bool, "Constant speed", "Move VP1 along the lanes to where the tracked points' "
                            "perspective acceleration puts it, taking vehicles to keep their speed for the second or "
                            "two a point is tracked (the lane lines alone place VP1 poorly along the lanes, which "
@@ -81,6 +87,7 @@ class VpDetect(TrafficcalTransform):
         self._known = {}  # ... and those calibrations
         self._in_force = None  # id of the calibration whose view is watched
         self._return = None  # ReturnWatcher: while learning, a known view seen again
+        self._views_loaded = False  # views-dir read
 
     def on_caps(self, info):
         from gst_trafficcal.calibration import Calibration, load_calibration
@@ -96,6 +103,7 @@ class VpDetect(TrafficcalTransform):
         if self.mode == "fixed" and not path:
             self.post_error("vpdetect: mode=fixed needs calibration-file")
             return
+        self._load_views()
         from pathlib import Path
 
         if path and self.mode != "learn" and (self.mode == "fixed" or Path(path).exists()):
@@ -213,6 +221,11 @@ class VpDetect(TrafficcalTransform):
             if match is not None:  # (a view of another aspect ratio is not watched: it would never match)
                 self._watch(stored, width, cal.id)
             return
+        found = self._library.find(current, exclude=cal.id) if self._library and self._held else None
+        if found is not None:  # the camera shows another view it has a calibration for
+            self._held = False
+            self._switch_to(*found[:1], None, found[1])
+            return
         if not self._held:  # mode fixed: the file's calibration stays, the user is told
             self.post_warning(f"vpdetect: the camera view differs from the one {self.calibration_file} was "
                               f"calibrated on ({match.describe()}): the camera may have moved and speeds may be "
@@ -232,30 +245,60 @@ class VpDetect(TrafficcalTransform):
         self._monitor = ViewMonitor(stored, width, every=max(1, round(self._fps / 5)))  # 5 comparisons a second
         self._in_force = key
 
+    def _load_views(self):
+        """views-dir's calibrations for this frame size, once per stream (unusable files: a warning each)."""
+        from gst_trafficcal.calibration import load_views
+        from gst_trafficcal.vanishing.view import decode_view
+
+        if self._views_loaded or not self.views_dir:
+            return
+        self._views_loaded = True
+        found, skipped = load_views(self.views_dir, tuple(self.frame_size))
+        for why in skipped:
+            self.post_warning(f"vpdetect: views-dir: {why}: not used")
+        for cal in found:
+            try:
+                self._remember(cal, *decode_view(cal.view, str(self.views_dir)))
+            except Exception as exc:  # a broken thumbnail: that view is not known
+                self.post_warning(f"vpdetect: views-dir: {exc}: not used")
+
     def _remember(self, cal, stored, width):
         """A calibration with its view: used again whenever the stream shows that view after a move."""
+        from gst_trafficcal.calibration import same_vanishing_points
         from gst_trafficcal.vanishing.view import ViewLibrary
 
         if self._library is None:
             self._library = ViewLibrary()
+        for key, old in list(self._known.items()):  # one entry per view: the one with a scale if either has one
+            if key != cal.id and same_vanishing_points(old, cal):
+                if old.camera.scale is not None and cal.camera.scale is None:
+                    return
+                del self._known[key], self._library.views[key]
         self._library.add(cal.id, stored, width)
         self._known[cal.id] = cal
 
     def _switch_to(self, key, t, match):
-        """The camera moved (at ``t``) to the view of known calibration ``key``: announce it again, watch it."""
+        """The stream shows the view of known calibration ``key``: announce it (with ``moved_at`` = ``t`` when the
+        camera moved there from a view in force or being learnt after a move; ``t`` None: found at the start, nothing
+        seen before belongs to another view), and watch it."""
         from dataclasses import replace
 
         from gst_trafficcal.calibration import save_calibration
 
         cal = self._known[key]
+        moved = t is not None and (self._in_force is not None or self._moved_at is not None)
         self._learner, self._return, self._moved_at, self._views = None, None, None, None
-        self.post_warning(f"vpdetect: the camera moved at {t:.1f} s to a view it was calibrated on before "
-                          f"({match.describe()} against it): using calibration {cal.id} again")
+        if moved:
+            self.post_warning(f"vpdetect: the camera moved at {t:.1f} s to a view it was calibrated on before "
+                              f"({match.describe()} against it): using calibration {cal.id} again")
+        else:
+            self.post_warning(f"vpdetect: the stream shows a view calibrated before ({match.describe()} against "
+                              f"it): using calibration {cal.id}")
         self.post_element_message("trafficcal-view", {
-            "state": "returned", "t": float(t), "calibration_id": cal.id, "shift_x": match.shift[0],
+            "state": "returned", "t": float(t or 0.0), "calibration_id": cal.id, "shift_x": match.shift[0],
             "shift_y": match.shift[1], "zoom": float(match.zoom), "rotation_deg": float(match.rotation_deg),
             "similarity": float(match.similarity)})
-        self.publish_calibration(replace(cal, moved_at=float(t)))
+        self.publish_calibration(replace(cal, moved_at=float(t)) if moved else cal)
         if self.calibration_file and self.mode != "fixed":
             save_calibration(cal, self.calibration_file)  # the file holds the calibration in force
         self._watch(*self._library.views[key], key)
@@ -336,6 +379,13 @@ class VpDetect(TrafficcalTransform):
             self._remember(cal, stored, width)
             self._return = None
             self._watch(stored, width, cal.id)
+            if self.views_dir:
+                from gst_trafficcal.calibration import save_view
+
+                try:
+                    save_view(cal, self.views_dir)
+                except Exception as exc:  # the calibration itself is fine: say why the folder did not get it
+                    self.post_warning(f"vpdetect: views-dir: {exc}")
         if cal.state == "failed":
             self.post_warning(f"vpdetect: calibration failed: {cal.reason}")
         elif self.calibration_file:

@@ -99,7 +99,8 @@ def pipeline_description(video: Path | str, paths: RunPaths, calibration: Path |
                          overlay: bool = True, bbscale: bool = False, queues: bool = True,
                          scale_regression: Path | None = None, body_shapes: str = "auto",
                          speed_limit: "SpeedLimit | float" = 0.0, start_time: str = "", events_url: str = "",
-                         calibration_mode: str = "fixed", interval_min: float = 15.0) -> str:
+                         calibration_mode: str = "fixed", interval_min: float = 15.0,
+                         views_dir: Path | None = None) -> str:
     """The gst-launch description ``trafficcal run`` plays (also printed, so it can be re-run by hand).
 
     With ``queues`` two ``queue`` elements split the chain into three streaming threads (decoding; vpdetect and
@@ -110,7 +111,7 @@ def pipeline_description(video: Path | str, paths: RunPaths, calibration: Path |
     ``events_url`` to speedometer, which POSTs every vehicle's event there; speedometer keeps intervals.csv (a row
     per ``interval_min`` minutes, lane and direction) as the intervals close.  ``calibration_mode``: vpdetect's mode
     with ``calibration`` — fixed (a calibration the user gave) or auto (one carried over from an earlier file:
-    learnt anew if the camera moved).
+    learnt anew if the camera moved); ``views_dir``: vpdetect's folder of the camera's views.
     """
     from ..traffic_stats import as_limit
 
@@ -119,6 +120,8 @@ def pipeline_description(video: Path | str, paths: RunPaths, calibration: Path |
     clock = f" start-datetime={quote(start_time)}" if start_time else ""
     clock += f" events-url={quote(events_url)}" if events_url else ""
     vp = f"vpdetect mode={calibration_mode} calibration-file={quote(calibration)}" if calibration else "vpdetect"
+    if views_dir is not None:
+        vp += f" views-dir={quote(views_dir)}"
     model = model_of(detector)
     det = f"vehicledetect model={quote(model)}" if model else "vehicledetect"
     chain = [*source_elements(video), f"videoconvert name={STOP_ELEMENT}", "video/x-raw,format=I420",
@@ -151,6 +154,7 @@ class RunSummary:
     position_s: float | None = None  # how far into the stream the run got
     moves: list = field(default_factory=list)  # gst.runner.Move: when the camera moved, the calibrations around it
     discarded: int = 0  # tracks seen only between a camera move and its notice (not vehicles, not reported)
+    scaled: list = field(default_factory=list)  # every calibration with a scale and a view posted (one per view)
 
     @property
     def watched_s(self) -> float | None:
@@ -161,6 +165,17 @@ class RunSummary:
     def has_scale(self) -> bool:
         c = self.calibration
         return c is not None and c.camera is not None and c.camera.scale is not None
+
+
+def _scaled_views(outcome) -> list:
+    """The last calibration with a scale and a view posted for each view (vanishing points) in the run."""
+    from ..calibration import same_vanishing_points
+
+    out: list = []
+    for _, c in outcome.calibrations:
+        if c.camera is not None and c.camera.scale is not None and c.view is not None:
+            out = [o for o in out if not same_vanishing_points(o, c)] + [c]
+    return out
 
 
 def _read_vehicle_events(paths: RunPaths) -> list:
@@ -228,7 +243,8 @@ def measure_video(video: Path | str, out_dir: Path, description: str, console, l
     summary = RunSummary(outcome.calibration, _read_vehicle_events(paths), outcome.warnings,
                          duration_s=outcome.duration_s, stopped=outcome.stopped, position_s=outcome.position_s,
                          moves=outcome.moves,
-                         discarded=max((m["tracks"] for m in outcome.named("trafficcal-discarded")), default=0))
+                         discarded=max((m["tracks"] for m in outcome.named("trafficcal-discarded")), default=0),
+                         scaled=_scaled_views(outcome))
     if summary.calibration is not None:
         try:
             save_calibration(summary.calibration, paths.calibration)
@@ -520,6 +536,7 @@ class RunOptions:
     gt_path: Path | None = None
     live_clock: bool = False
     start: Any = None  # datetime of the video's start, or None
+    views_dir: Path | None = None  # vpdetect views-dir: the camera's views kept across parts (files, connections)
 
 
 def run_one(console, video: Path | str, out_dir: Path, calibration_path: Path | None, options: RunOptions,
@@ -541,7 +558,7 @@ def run_one(console, video: Path | str, out_dir: Path, calibration_path: Path | 
                                        speed_limit=speed_limit,
                                        start_time=NOW if live_clock else start.isoformat() if start else "",
                                        events_url=events_url, calibration_mode=calibration_mode,
-                                       interval_min=interval_min)
+                                       interval_min=interval_min, views_dir=options.views_dir)
     shown = description
     if events_url:  # no password on the screen
         from ..publish import redacted

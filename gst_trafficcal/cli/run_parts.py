@@ -61,9 +61,10 @@ def run_parts(console, parts, total: int | None, out_dir: Path, calibration_path
 
     from rich.table import Table
 
-    from ..calibration import load_calibration, save_calibration
+    from ..calibration import load_calibration, save_calibration, save_view
     from ..traffic_stats import speed_stats
 
+    options = dc_replace(options, views_dir=out_dir / "views")  # the camera's views, kept from part to part
     carried = None  # (calibration with a scale, the part it came from)
     rows, failures, records = [], [], []
     dated = []  # (start of the part, its events, seconds of it watched) for the intervals of all the parts
@@ -93,6 +94,13 @@ def run_parts(console, parts, total: int | None, out_dir: Path, calibration_path
             why = str(exc)
         if summary is not None:
             used_s += summary.position_s or 0.0
+            for cal in summary.scaled:  # each view's scale, for when the camera shows that view again
+                try:  # (a scale given with the view, as a carried calibration's: bbscale passes it on)
+                    kept = cal if ", kept from " in cal.source or ", carried over from " in cal.source else \
+                        dc_replace(cal, source=f"{cal.source}, kept from {label}")
+                    save_view(kept, options.views_dir)
+                except InputError as exc:
+                    console.print(f"[yellow]warning[/]: {exc}", highlight=False)
             if opts.start is not None and not live:
                 dated.append((opts.start, summary.events, summary.watched_s))
             st = speed_stats([e.speed_kmh for e in summary.events if e.speed_kmh is not None])
