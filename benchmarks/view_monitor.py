@@ -13,6 +13,11 @@ as the element does:
   (the camera knocked or re-aimed): when the move was dated against when it happened (negative = early, as
   intended) and how long after it was noticed.
 
+Then the views seen before (``ViewLibrary``, what vpdetect uses to take a PTZ preset's calibration up again): a
+library of every video's learnt view; once a second, the median of the latest nine samples of each video is looked
+up in it — found as itself (right), as another video's view (a wrong calibration: must never happen), or as none —
+and the same for the video shifted by 2 % from the start (a view the library does not have: must be none).
+
 Frames are read once, reduced to ``--width`` pixels (the monitor's thumbnail is 160 px wide, so this changes
 nothing it sees) and the changes applied to them.
 """
@@ -26,7 +31,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from gst_trafficcal.vanishing.view import ViewAccumulator, ViewMonitor
+from gst_trafficcal.vanishing.view import ViewAccumulator, ViewLibrary, ViewMonitor
 
 CHANGES = {
     "shift 2 %": lambda img: cv2.warpAffine(img, np.float32([[1, 0, 0.02 * img.shape[1]], [0, 1, 0]]),
@@ -93,9 +98,36 @@ def watch(s: Samples, change=None, at: float | None = None) -> tuple[list, list[
     return events, sims
 
 
-def measure(video: Path, learn_s: float = 20.0, width: int = 640) -> dict:
+def window_views(s: Samples, change=None, step: int = 5, window: int = 9) -> list[np.ndarray]:
+    """The monitor's window median (``window`` samples) every ``step`` samples (once a second), ``change`` applied
+    to every frame."""
+    acc, out = ViewAccumulator(every=1, keep=window), []
+    for k, img in enumerate(s.frames):
+        acc.add(change(img) if change is not None else img)
+        if acc.count >= window and k % step == 0:
+            out.append(acc.view())
+    return out
+
+
+def recognition(views: dict[str, tuple[np.ndarray, int]], streams: dict[str, list[np.ndarray]]) -> dict[str, dict]:
+    """Per stream: how many of its window medians the library of ``views`` finds as ``itself``, as ``other`` (another
+    video's view) or as ``none``."""
+    library = ViewLibrary()
+    for name, (view, width) in views.items():
+        library.add(name, view, width)
+    out = {}
+    for name, medians in streams.items():
+        counts = {"itself": 0, "other": 0, "none": 0}
+        for m in medians:
+            found = library.find(m)
+            counts["none" if found is None else "itself" if found[0] == name else "other"] += 1
+        out[name] = counts
+    return out
+
+
+def measure(video: Path, learn_s: float = 20.0, width: int = 640, samples: Samples | None = None) -> dict:
     """The figures of one video (see the module doc)."""
-    s = read(video, learn_s, width)
+    s = samples or read(video, learn_s, width)
     events, sims = watch(s)
     at = s.times[len(s.times) // 2]
     row = {"video": video.parent.name if video.name == "video.mp4" else video.name,
@@ -115,11 +147,16 @@ def main() -> None:
                                                               "converges, 20 s at the least)")
     ap.add_argument("--width", type=int, default=640, help="frames reduced to this width first")
     args = ap.parse_args()
+    views, plain, shifted = {}, {}, {}
     print(f"{'video':34s} {'watched':>8s} {'false':>6s} {'min/med sim':>12s}  " +
           "  ".join(f"{n + ' dated/noticed s':>26s}" for n in CHANGES))
     false, delays = 0, []
     for video in args.videos:
-        r = measure(video, args.learn, args.width)
+        s = read(video, args.learn, args.width)
+        r = measure(video, args.learn, args.width, samples=s)
+        key = f"{len(views)}:{r['video']}"
+        views[key] = (s.view, s.width)
+        plain[key], shifted[key] = window_views(s), window_views(s, CHANGES["shift 2 %"])
         false += len(r["false_events"])
         cells = []
         for name in CHANGES:
@@ -134,6 +171,17 @@ def main() -> None:
     noticed = f"{min(delays):.2f}–{max(delays):.2f} s" if delays else "none"
     print(f"\n{len(args.videos)} videos: {false} false events; moves noticed {noticed} after they happened "
           f"({len(delays)} of {len(args.videos) * len(CHANGES)})")
+    seen, moved = recognition(views, plain), recognition(views, shifted)
+    print(f"\nviews seen before (a library of the {len(views)} videos' views; a window median once a second):")
+    print(f"{'video':34s} {'as is: itself / other / none':>30s} {'shifted 2 %: itself / other / none':>36s}")
+    for key in views:
+        a, b = seen[key], moved[key]
+        print(f"{key.split(':', 1)[1][:34]:34s} {a['itself']:>16d} / {a['other']:5d} / {a['none']:4d} "
+              f"{b['itself']:>22d} / {b['other']:5d} / {b['none']:4d}")
+    total = {k: sum(c[k] for c in seen.values()) for k in ("itself", "other", "none")}
+    wrong = sum(c["other"] + c["itself"] for c in moved.values())
+    print(f"as is: {total['itself']} of {sum(total.values())} medians found as their own view, {total['other']} as "
+          f"another's; shifted: {wrong} of {sum(sum(c.values()) for c in moved.values())} taken for a known view")
 
 
 if __name__ == "__main__":
