@@ -486,27 +486,17 @@ class Speedometer(TrafficcalTransform):
                 self.post_warning(f"speedometer: {stats.failed + stats.dropped} of {self._posted} vehicle events "
                                   f"could not be posted to {poster.shown_url} ({why}); every vehicle is in the files")
 
-        if self._intervals is not None:
-            intervals, self._intervals = self._intervals, None
+        intervals, self._intervals = self._intervals, None
+        frames, self._frames = self._frames, None
+        outputs, self._outputs = self._outputs, None
+        calibration = self._meter.calibration if self._meter is not None else None
+        for close in (intervals and intervals.close, frames and frames.close,
+                      outputs and (lambda: outputs.close(calibration))):
+            if not close:
+                continue
             try:
-                intervals.close()
-            except InputError as exc:
-                if report and not self._failed:
-                    self.post_error(f"speedometer: {exc}")
-                self._failed = True
-        if self._frames is not None:
-            frames, self._frames = self._frames, None
-            try:
-                frames.close()
-            except InputError as exc:
-                if report and not self._failed:
-                    self.post_error(f"speedometer: {exc}")
-                self._failed = True
-        if self._outputs is not None:
-            outputs, self._outputs = self._outputs, None
-            try:
-                outputs.close(self._meter.calibration if self._meter is not None else None)
-            except InputError as exc:
+                close()
+            except InputError as exc:  # each output is closed, whatever the others did
                 if report and not self._failed:
                     self.post_error(f"speedometer: {exc}")
                 self._failed = True

@@ -174,6 +174,41 @@ def compare_views(stored: np.ndarray, current: np.ndarray, frame_width: int) -> 
     return ViewMatch((float(tx * scale), float(ty * scale)), zoom, rotation, sim, moved, _correlation(a, b))
 
 
+class RollingView:
+    """Every ``every``-th frame's thumbnail in a rolling window of ``window``, with when each was taken: the
+    window's median (the traffic passing through left out) and when it turned to what it shows."""
+
+    def __init__(self, every: int = 5, window: int = 9) -> None:
+        self.window = int(window)
+        self._views = ViewAccumulator(every, keep=self.window)
+        self._times: list[float] = []
+
+    def wants(self) -> bool:
+        return self._views.wants()
+
+    def skip(self) -> None:
+        self._views.skip()
+
+    def sample(self, luma: np.ndarray, t: float) -> np.ndarray | None:
+        """Add a frame (luma plane, stream time ``t``) if it is one to sample; the window's median once it holds
+        three thumbnails (None before, and for a frame not sampled)."""
+        if not self.wants():
+            self.skip()
+            return None
+        self._views.add(luma)
+        self._times.append(float(t))
+        del self._times[:-self.window]
+        return self._views.view() if self._views.count >= min(3, self.window) else None
+
+    def median(self) -> np.ndarray | None:
+        return self._views.view()
+
+    def turned(self) -> float:
+        """When the median turned: the window's later half began (more than half of it shows what it shows)."""
+        n = len(self._times)
+        return self._times[max(0, n - n // 2 - 2)]
+
+
 @dataclass(frozen=True)
 class ViewEvent:
     """A change :class:`ViewMonitor` noticed: ``moved`` (``t`` = when the camera moved, stream seconds),
@@ -205,40 +240,36 @@ class ViewMonitor:
             raise ValueError("every, window and confirm must be at least 1")
         self.stored, self.frame_width = stored, int(frame_width)
         self.window, self.confirm = int(window), int(confirm)
-        self._views = ViewAccumulator(every, keep=self.window)  # the rolling window
-        self._times: list[float] = []  # ... and when its thumbnails were taken
+        self._window = RollingView(every, self.window)
         self._run_kind, self._run_start, self._run_len = "", 0.0, 0  # the current run of comparisons of one kind
         self.state = "recognised"  # or "unrecognised", "moved" (then the monitor is done)
         self.last: ViewMatch | None = None
 
     def wants(self) -> bool:
         """Whether the next frame is one the monitor samples (the caller may skip reading the others)."""
-        return self.state != "moved" and self._views.wants()
+        return self.state != "moved" and self._window.wants()
 
     def skip(self) -> None:
         """Count a frame that is not sampled (:meth:`wants` said no) without reading it."""
-        self._views.skip()
+        self._window.skip()
 
     def current(self) -> np.ndarray | None:
         """The median of the rolling window: the scene as the stream shows it now (traffic removed)."""
-        return self._views.view()
+        return self._window.median()
 
     def add(self, luma: np.ndarray, t: float) -> ViewEvent | None:
         """Add a frame (its luma plane, at stream time ``t``); returns what changed, if anything."""
-        if not self.wants():
-            self._views.skip()
+        if self.state == "moved":
+            self._window.skip()
             return None
-        self._views.add(luma)
-        self._times.append(float(t))
-        del self._times[:-self.window]
-        if self._views.count < min(3, self.window):
+        median = self._window.sample(luma, t)
+        if median is None:
             return None
-        match = compare_views(self.stored, self._views.view(), self.frame_width)
+        match = compare_views(self.stored, median, self.frame_width)
         self.last = match
         kind = "moved" if match.displaced else "recognised" if match.recognised else "unrecognised"
-        if kind != self._run_kind:  # a new run, dated when the median turned (the window's later half began)
-            n = len(self._times)
-            self._run_kind, self._run_start, self._run_len = kind, self._times[max(0, n - n // 2 - 2)], 0
+        if kind != self._run_kind:  # a new run, dated when the median turned
+            self._run_kind, self._run_start, self._run_len = kind, self._window.turned(), 0
         self._run_len += 1
         needed = self.confirm if kind == "moved" else 5 * self.confirm  # losing sight of the scene is slower news
         if kind == self.state or self._run_len < needed:
@@ -281,33 +312,20 @@ class ReturnWatcher:
     same known view in ``confirm`` comparisons in a row."""
 
     def __init__(self, library: ViewLibrary, every: int = 5, window: int = 9, confirm: int = 5) -> None:
-        self.library, self.window, self.confirm = library, int(window), int(confirm)
-        self._views = ViewAccumulator(every, keep=self.window)
-        self._times: list[float] = []
+        self.library, self.confirm = library, int(confirm)
+        self._window = RollingView(every, window)
         self._key, self._start, self._run = None, 0.0, 0
-
-    def wants(self) -> bool:
-        return self._views.wants()
-
-    def skip(self) -> None:
-        self._views.skip()
 
     def add(self, luma: np.ndarray, t: float) -> tuple[str, float, ViewMatch] | None:
         """Add a frame (luma plane, stream time ``t``); returns (key, when the camera got there, the match) once a
         known view is confirmed."""
-        if not self.wants():
-            self._views.skip()
+        median = self._window.sample(luma, t)
+        if median is None:
             return None
-        self._views.add(luma)
-        self._times.append(float(t))
-        del self._times[:-self.window]
-        if self._views.count < min(3, self.window):
-            return None
-        found = self.library.find(self._views.view())
+        found = self.library.find(median)
         key = found[0] if found is not None else None
         if key != self._key:
-            n = len(self._times)
-            self._key, self._start, self._run = key, self._times[max(0, n - n // 2 - 2)], 0
+            self._key, self._start, self._run = key, self._window.turned(), 0
         self._run += 1
         if key is None or self._run < self.confirm:
             return None
