@@ -603,6 +603,40 @@ def test_a_views_folder_calibrates_the_view_the_stream_shows_from_the_start(krat
     assert [p.name for p in views.iterdir()] == [f"{view_key(known)}.json"]
 
 
+@pytest.mark.shared
+def test_a_frame_size_change_mid_stream_is_another_view(clip, kraten_moved, tmp_path):
+    """250 frames of kraten (640x360, its calibration file) and then another stream's frames (the rendered clip, another
+    size), joined by concat: vpdetect takes the new size for another view — a move, at the last frame of the old
+    size — so the vehicles before are measured with the file's calibration and none goes on across the change;
+    in mode fixed the file cannot serve the new size: an error naming both."""
+    import shutil
+
+    register_plugin_file(ELEMENTS / "vpdetect.py")
+    kraten, stored = kraten_moved
+    cal = tmp_path / "cal.json"
+    shutil.copy(stored, cal)
+    events_file = tmp_path / "events.jsonl"
+    parts = (f"filesrc location={kraten} ! decodebin ! identity eos-after=250 ! c. "
+             f"filesrc location={clip / 'video.mp4'} ! decodebin ! c.")
+    chain = (f"concat name=c ! videoconvert ! vpdetect calibration-file={cal} ! vehicledetect model=vehicleseg ! "
+             f"tracker ! speedometer events-file={events_file} ! appsink name=sink {parts}")
+    run = run_pipeline(chain)
+    w, h = load_calibration(clip / "calibration.json").image_size
+    moved = [c for c in run.calibrations if c.moved_at is not None]
+    assert len(moved) == 1 and 9.0 < moved[0].moved_at < 13.0 and tuple(moved[0].image_size) == (w, h)
+    assert any(f"the frame size changed from 640x360 to {w}x{h} at {moved[0].moved_at:.1f} s: another view" in x
+               for x in run.warnings), run.warnings
+    events = read_events(events_file).events
+    before = [e for e in events if e.first_timestamp_s < moved[0].moved_at]
+    file_id = load_calibration(stored).id
+    assert all(e.last_timestamp_s < moved[0].moved_at for e in before)
+    assert sum(e.measured for e in before) >= 3 and all(e.calibration_id == file_id for e in before)
+    assert len(events) > len(before)  # the other stream's vehicles, waiting for a calibration of that view
+    with pytest.raises(PipelineError, match=f"the frame size changed from 640x360 to {w}x{h} at [0-9.]+ s; .*cal.json "
+                                            "is a calibration of 640x360 frames"):
+        run_pipeline(chain.replace("vpdetect calibration-file", "vpdetect mode=fixed calibration-file"))
+
+
 def test_an_events_url_that_does_not_answer_costs_no_vehicle(clip, implicit, tmp_path):
     """A receiver that is down: warnings (when posting first fails, and how many events were not posted at the
     end), never an error; the files hold every vehicle.  Not an http(s) URL: an error at start naming it."""

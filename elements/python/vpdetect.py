@@ -88,6 +88,7 @@ class VpDetect(TrafficcalTransform):
         self._in_force = None  # id of the calibration whose view is watched
         self._return = None  # ReturnWatcher: while learning, a known view seen again
         self._views_loaded = False  # views-dir read
+        self._size = None  # the frame size of the caps so far
 
     def on_caps(self, info):
         from gst_trafficcal.calibration import Calibration, load_calibration
@@ -98,6 +99,11 @@ class VpDetect(TrafficcalTransform):
         self._format = format_name(info)
         if self.mode not in MODES:
             self.post_error(f"vpdetect: unknown mode {self.mode!r} (expected one of {', '.join(MODES)})")
+            return
+        size, before = tuple(self.frame_size), self._size
+        self._size = size
+        if before is not None and size != before and self._frames > 0:
+            self._resized(before)
             return
         path = self.calibration_file
         if self.mode == "fixed" and not path:
@@ -131,6 +137,26 @@ class VpDetect(TrafficcalTransform):
         if self._learner is not None and self._learner.image_size == tuple(self.frame_size):
             return
         self._start_learning()
+
+    def _resized(self, before):
+        """The frame size changed mid-stream (another stream, the camera's settings): another view — announced
+        as a move, so that nothing seen at the old size is measured with what comes; learnt anew (mode fixed: an
+        error, the file is for the old size)."""
+        from gst_trafficcal.calibration import Calibration
+
+        t = self.buffer_t if self.buffer_t is not None else self._frames / self._fps
+        what = f"the frame size changed from {before[0]}x{before[1]} to {self._size[0]}x{self._size[1]} at {t:.1f} s"
+        if self.mode == "fixed":
+            self.post_error(f"vpdetect: {what}; {self.calibration_file} is a calibration of {before[0]}x{before[1]} "
+                            "frames")
+            return
+        self._loaded, self._held, self._monitor, self._in_force, self._return = None, False, None, None, None
+        self._library, self._known, self._views_loaded = None, {}, False
+        self._load_views()  # views-dir: the views of the new size
+        self.post_warning(f"vpdetect: {what}: another view; learning a new calibration")
+        self._moved_at = float(t)
+        self._start_learning(Calibration(None, self._size, state="learning", source="vpdetect",
+                                         reason=f"the camera moved at {t:.1f} s ({what})", moved_at=float(t)))
 
     def _start_learning(self, announce=None):
         """Learn a calibration from here on; ``announce``: the "learning" calibration to send (default: a plain
