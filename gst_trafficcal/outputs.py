@@ -221,8 +221,9 @@ class JsonlEventWriter:
         self.path = self._file.path
         self.count = 0
 
-    def write(self, event: VehicleEvent) -> None:
-        self._file.write_line(json.dumps(event.to_dict(), separators=(", ", ": ")))
+    def write(self, event: VehicleEvent, extra: Mapping[str, Any] | None = None) -> None:
+        """One line: ``extra`` fields (e.g. the part of a batch it came from) first, then the event's."""
+        self._file.write_line(json.dumps({**(extra or {}), **event.to_dict()}, separators=(", ", ": ")))
         self.count += 1
 
     def close(self) -> None:
@@ -236,14 +237,17 @@ class JsonlEventWriter:
 
 
 class CsvEventWriter:
-    """Vehicle events as CSV with the columns :data:`EVENT_FIELDS` (empty cell = null)."""
+    """Vehicle events as CSV with the columns :data:`EVENT_FIELDS` (empty cell = null), after ``extra_columns``
+    (given with each event) if any."""
 
-    def __init__(self, path: str | Path, append: bool = False, fsync: bool = True) -> None:
+    def __init__(self, path: str | Path, append: bool = False, fsync: bool = True,
+                 extra_columns: Sequence[str] = ()) -> None:
         self._file = _LineFile(path, append, fsync)
         self.path = self._file.path
         self.count = 0
+        self.extra_columns = tuple(extra_columns)
         if self._file.empty:
-            self._file.write_line(self._row(EVENT_FIELDS))
+            self._file.write_line(self._row(self.extra_columns + EVENT_FIELDS))
 
     @staticmethod
     def _row(values: Sequence[Any]) -> str:
@@ -251,9 +255,10 @@ class CsvEventWriter:
         csv.writer(buf, lineterminator="\n").writerow(["" if v is None else v for v in values])
         return buf.getvalue()
 
-    def write(self, event: VehicleEvent) -> None:
+    def write(self, event: VehicleEvent, extra: Mapping[str, Any] | None = None) -> None:
         d = event.to_dict()
-        self._file.write_line(self._row([d[k] for k in EVENT_FIELDS]))
+        extra = extra or {}
+        self._file.write_line(self._row([extra.get(k) for k in self.extra_columns] + [d[k] for k in EVENT_FIELDS]))
         self.count += 1
 
     def close(self) -> None:
@@ -274,23 +279,23 @@ class EventWriters:
 
     @classmethod
     def open(cls, jsonl: str | Path | None = None, csv_path: str | Path | None = None,
-             append: bool = False, fsync: bool = True) -> "EventWriters":
+             append: bool = False, fsync: bool = True, extra_columns: Sequence[str] = ()) -> "EventWriters":
         out = cls()
         try:
             if jsonl:
                 out.writers.append(JsonlEventWriter(jsonl, append, fsync))
             if csv_path:
-                out.writers.append(CsvEventWriter(csv_path, append, fsync))
+                out.writers.append(CsvEventWriter(csv_path, append, fsync, extra_columns))
         except InputError:
             out.close()
             raise
         return out
 
-    def write(self, event: VehicleEvent) -> None:
+    def write(self, event: VehicleEvent, extra: Mapping[str, Any] | None = None) -> None:
         errors = []
         for w in self.writers:
             try:
-                w.write(event)
+                w.write(event, extra)
             except InputError as exc:
                 errors.append(str(exc))
         if errors:

@@ -446,6 +446,14 @@ def test_a_cameras_dated_files_are_counted_together(clip, tmp_path):
     assert sum(int(r["vehicles"]) for r in total) == len(first) + len(second)
     # watched: 07:59:55-08:00:07 and 08:00:20-08:00:32 (12 s each), 5 s before 08:00 and 19 s after
     assert [float(r["observed_s"]) for r in total] == pytest.approx([5.0, 19.0], abs=0.2)
+    # every vehicle of the day in one table, with its part, on the first file's clock (the second 25 s later)
+    with open(out / "vehicles.csv", newline="") as f:
+        rows = list(csv.DictReader(f))
+    assert [r["part"] for r in rows] == [a.stem] * len(first) + [b.stem] * len(second)
+    assert [float(r["first_timestamp_s"]) for r in rows] == pytest.approx(
+        [e.first_timestamp_s for e in first] + [e.first_timestamp_s + 25.0 for e in second], abs=1e-3)
+    assert [r["first_time"] for r in rows] == [e.first_time for e in first + second]
+    assert len(read_events(out / "vehicles.jsonl").events) == len(rows)
     line = one_line_error(trafficcal("run", a, clip / "video.mp4", "--out", tmp_path / "x", "--start-time", "auto"))
     assert line == ("trafficcal: error: --start-time auto: no date and time in the name 'video.mp4' (e.g. "
                     "cam7_20261205_080000.mp4, 2026-12-05_08-00-00.mp4)")

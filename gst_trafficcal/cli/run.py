@@ -419,8 +419,9 @@ def command(videos: tuple[str, ...], out_dir: Path, calibration_path: Path | Non
 
     Several files of one camera (recordings split into parts): each is measured into --out/NAME/ in turn, and the
     calibration the first ones found (with its scale) carries over to the next — checked against each file's view,
-    so a camera moved in between is calibrated anew; a table of every file ends the run. A file that fails does
-    not stop the others.
+    so a camera moved in between is calibrated anew, and a view seen in an earlier file gets its calibration at
+    once (--out/views/); a table of every file ends the run, --out/vehicles.jsonl and vehicles.csv hold every
+    file's vehicles with the part they came from. A file that fails does not stop the others.
     """
     import sys
 

@@ -65,6 +65,7 @@ def run_parts(console, parts, total: int | None, out_dir: Path, calibration_path
     from ..traffic_stats import speed_stats
 
     options = dc_replace(options, views_dir=out_dir / "views")  # the camera's views, kept from part to part
+    combined = _AllVehicles(console, out_dir, min(starts) if starts else None)
     carried = None  # (calibration with a scale, the part it came from)
     rows, failures, records = [], [], []
     dated = []  # (start of the part, its events, seconds of it watched) for the intervals of all the parts
@@ -93,6 +94,7 @@ def run_parts(console, parts, total: int | None, out_dir: Path, calibration_path
             _write_parts(out_dir / "parts.csv", records)
             why = str(exc)
         if summary is not None:
+            combined.add(name, summary.events, opts.start, options.live_clock)
             used_s += summary.position_s or 0.0
             for cal in summary.scaled:  # each view's scale, for when the camera shows that view again
                 try:  # (a scale given with the view, as a carried calibration's: bbscale passes it on)
@@ -135,6 +137,7 @@ def run_parts(console, parts, total: int | None, out_dir: Path, calibration_path
             interrupted = True
             break
         wait = min(2 * wait, RECONNECT_MAX_WAIT)
+    combined.close()
     what = "connections" if live else f"of {total} files"
     table = Table(title=f"{len(rows)} {what} (speeds in km/h)")
     for col in ("connection" if live else "file", "vehicles", "measured", "mean", "V85", "calibration", "status"):
@@ -148,6 +151,54 @@ def run_parts(console, parts, total: int | None, out_dir: Path, calibration_path
     if interrupted:
         return "interrupted"
     return "" if live else "; ".join(failures)
+
+
+class _AllVehicles:
+    """``out_dir``/vehicles.jsonl and vehicles.csv: every part's vehicles in one table, each with its ``part``
+    (folder), written after each part.  When the parts are dated (``--start-time auto``, a live clock) their
+    timestamps are put on one clock — seconds since ``reference`` (the earliest file's start, or the first
+    connection's) — as the day's intervals.csv counts them; otherwise each part's own."""
+
+    def __init__(self, console, out_dir: Path, reference) -> None:
+        from ..outputs import EventWriters
+
+        self.console, self.reference, self.writers = console, reference, None
+        for name in ("vehicles.jsonl", "vehicles.csv"):
+            (out_dir / name).unlink(missing_ok=True)
+        try:
+            self.writers = EventWriters.open(out_dir / "vehicles.jsonl", out_dir / "vehicles.csv",
+                                             extra_columns=("part",))
+        except InputError as exc:
+            console.print(f"[yellow]warning[/]: {exc}: no table of every part's vehicles", highlight=False)
+
+    def add(self, part: str, events: list, start, live_clock: bool) -> None:
+        from dataclasses import replace as dc_replace
+
+        from ..outputs import stream_start
+
+        if self.writers is None:
+            return
+        if start is None and live_clock:
+            start = stream_start(events)
+        if self.reference is None and start is not None and live_clock:
+            self.reference = start
+        shift = (start - self.reference).total_seconds() if start is not None and self.reference is not None else 0.0
+        try:
+            for e in events:
+                if shift and e.first_timestamp_s is not None and e.last_timestamp_s is not None:
+                    e = dc_replace(e, first_timestamp_s=round(e.first_timestamp_s + shift, 3),
+                                   last_timestamp_s=round(e.last_timestamp_s + shift, 3))
+                self.writers.write(e, {"part": part})
+        except InputError as exc:
+            self.console.print(f"[yellow]warning[/]: {exc}: the table of every part's vehicles is incomplete",
+                               highlight=False)
+
+    def close(self) -> None:
+        if self.writers is not None:
+            try:
+                self.writers.close()
+            except InputError:
+                pass
 
 
 def _write_day_intervals(console, path: Path, dated: list, options: RunOptions) -> None:
