@@ -63,7 +63,8 @@ class VpDetect(TrafficcalTransform):
         "views-dir": (str, "Views folder", "Folder of calibrations of this camera's views (PTZ presets; one JSON "
                       "per view, with the view it was learnt on): known from the start, so the view the stream "
                       "shows — at the start or after a move — gets its calibration at once; each calibration learnt "
-                      "is added (empty: views are remembered for this stream only)", "", _RW),
+                      "is added (mode learn: only added to; empty: views are remembered for this stream only)",
+                      "", _RW),
         "constant-speed": (bool, "Constant speed", "Move VP1 along the lanes to where the tracked points' "
                            "perspective acceleration puts it, taking vehicles to keep their speed for the second or "
                            "two a point is tracked (the lane lines alone place VP1 poorly along the lanes, which "
@@ -276,8 +277,8 @@ class VpDetect(TrafficcalTransform):
         from gst_trafficcal.calibration import load_views
         from gst_trafficcal.vanishing.view import decode_view
 
-        if self._views_loaded or not self.views_dir:
-            return
+        if self._views_loaded or not self.views_dir or not self.view_check or self.mode == "learn":
+            return  # (mode learn learns whatever the folder holds, and adds to it)
         self._views_loaded = True
         found, skipped = load_views(self.views_dir, tuple(self.frame_size))
         for why in skipped:

@@ -27,7 +27,8 @@ from .env import elements_dir
 from .meta import structure_to_dict
 from .pipeline import BusMessage, PipelineError
 
-__all__ = ["Move", "PipelineError", "RunFailed", "RunOutcome", "ensure_elements", "missing_elements", "run_pipeline_file"]
+__all__ = ["Move", "PipelineError", "RunFailed", "RunOutcome", "ensure_elements", "missing_elements",
+           "run_pipeline_file"]
 
 Progress = Callable[[float, "float | None"], None]
 
