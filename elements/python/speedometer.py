@@ -28,8 +28,8 @@ a line in ``events-file`` (JSON lines) / ``csv-file``; per frame with tracked ve
 (rewritten atomically now and then and at end of stream); ``intervals-file`` the traffic count per ``interval``
 minutes, lane and direction (:class:`gst_trafficcal.traffic_stats.IntervalTable`: rewritten as each interval
 closes, so a live stream's counts are on disk as they come, and at the end; every watched interval has a row,
-zero when no vehicle passed, and says how many seconds of it were watched).  A failed write (full disk) stops the pipeline with an
-error naming the file; every vehicle written before stays in the files.
+zero when no vehicle passed, and says how many seconds of it were watched).  A failed write (full disk) stops
+the pipeline with an error naming the file; every vehicle written before stays in the files.
 """
 
 from gst_trafficcal.gst._gi import GObject, Gst

@@ -62,8 +62,9 @@ class VpDetect(TrafficcalTransform):
                        "the camera has moved, warn, and (mode fixed excepted) learn anew", True, _RW),
         "views-dir": (str, "Views folder", "Folder of calibrations of this camera's views (PTZ presets; one JSON "
                       "per view, with the view it was learnt on): known from the start, so the view the stream "
-                      "shows — at the start or after a move — gets its calibration at once; each calibration learnt "
-                      "is added (mode learn: only added to; empty: views are remembered for this stream only)",
+                      "shows — at the start or after a move — gets its calibration at once; each calibration "
+                      "learnt is added (mode learn: only added to; empty: views are remembered for this stream "
+                      "only)",
                       "", _RW),
         "constant-speed": (bool, "Constant speed", "Move VP1 along the lanes to where the tracked points' "
                            "perspective acceleration puts it, taking vehicles to keep their speed for the second or "
