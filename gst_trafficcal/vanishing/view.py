@@ -281,36 +281,23 @@ class ViewMonitor:
 class ViewLibrary:
     """The views a stream has been calibrated on, by key (a calibration's id): a PTZ camera's presets, a camera
     knocked and put back.  :meth:`find` tells which of them, if any, a thumbnail shows — the same view within the
-    bounds of :func:`compare_views` (not moved), the most similar one if several.  Views whose phase correlation
-    with the thumbnail already puts it several times the shift bound away are passed over without the ECC
-    alignment (under a millisecond each instead of up to 25 ms for another scene)."""
+    bounds of :func:`compare_views` (not moved), the most similar one if several."""
 
     def __init__(self) -> None:
         self.views: dict[str, tuple[np.ndarray, int]] = {}
-        self._gradients: dict[str, np.ndarray] = {}
 
     def __len__(self) -> int:
         return len(self.views)
 
     def add(self, key: str, view: np.ndarray, frame_width: int) -> None:
         self.views[key] = (view, int(frame_width))
-        self._gradients[key] = _gradient(view)
-
-    def remove(self, key: str) -> None:
-        self.views.pop(key, None)
-        self._gradients.pop(key, None)
 
     def find(self, current: np.ndarray | None, exclude: str | None = None) -> tuple[str, ViewMatch] | None:
         best = None
         if current is None:
             return None
-        b = _gradient(current)
-        window = cv2.createHanningWindow(b.shape[::-1], cv2.CV_32F)
         for key, (view, width) in self.views.items():
             if key == exclude or view.shape != current.shape:
-                continue
-            (dx, dy), _ = cv2.phaseCorrelate(self._gradients[key], b, window)
-            if np.hypot(dx, dy) > 3 * MAX_SHIFT:  # (alignment refines a shift, it does not undo one this large)
                 continue
             match = compare_views(view, current, width)
             if not match.moved and (best is None or match.similarity > best[1].similarity):
