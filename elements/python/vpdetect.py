@@ -301,7 +301,8 @@ class VpDetect(TrafficcalTransform):
             if key != cal.id and same_vanishing_points(old, cal):
                 if old.camera.scale is not None and cal.camera.scale is None:
                     return
-                del self._known[key], self._library.views[key]
+                del self._known[key]
+                self._library.remove(key)
         self._library.add(cal.id, stored, width)
         self._known[cal.id] = cal
 
