@@ -163,6 +163,12 @@ def same_vanishing_points(a: Calibration | None, b: Calibration | None) -> bool:
                 and np.allclose(a.camera.pp, b.camera.pp))
 
 
+def latest_per_view(cals: list[Calibration], cal: Calibration) -> list[Calibration]:
+    """``cals`` with ``cal`` in place of any calibration of the same vanishing points (one per view, the latest
+    last)."""
+    return [c for c in cals if not same_vanishing_points(c, cal)] + [cal]
+
+
 def _point(d: dict, key: str, where: str) -> np.ndarray:
     v = d.get(key)
     if not (isinstance(v, (list, tuple)) and len(v) == 2 and all(isinstance(x, (int, float)) for x in v)):

@@ -224,10 +224,8 @@ def interval_rows(events: Iterable, interval_s: float = 900.0, start: datetime |
     if not interval_s > 0:
         raise InputError(f"interval must be positive, got {interval_s!r} s")
     limit = as_limit(limit_kmh)
-    offset, midnight = 0.0, None
-    if start is not None:
-        midnight = start.replace(hour=0, minute=0, second=0, microsecond=0)
-        offset = (start - midnight).total_seconds()
+    offset = _clock_offset(start)
+    midnight = None if start is None else start - timedelta(seconds=offset)
     groups: dict[int, list] = {}
     for e in events:
         if e.first_timestamp_s is None or e.last_timestamp_s is None:
@@ -263,10 +261,15 @@ def interval_rows(events: Iterable, interval_s: float = 900.0, start: datetime |
 def last_boundary(t: float, interval_s: float, start: datetime | None = None) -> float:
     """The stream time (s) of the latest interval boundary at or before stream time ``t`` (intervals aligned as
     :func:`interval_rows` aligns them)."""
-    offset = 0.0
-    if start is not None:
-        offset = (start - start.replace(hour=0, minute=0, second=0, microsecond=0)).total_seconds()
+    offset = _clock_offset(start)
     return float(np.floor((offset + t) / interval_s) * interval_s - offset)
+
+
+def _clock_offset(start: datetime | None) -> float:
+    """Seconds from midnight to stream time 0 (0 without a start): intervals are aligned to the clock by it."""
+    if start is None:
+        return 0.0
+    return (start - start.replace(hour=0, minute=0, second=0, microsecond=0)).total_seconds()
 
 
 def _row(name: list[str], lane, direction, events: list, limit: SpeedLimit, total: bool = False,

@@ -392,9 +392,7 @@ class Speedometer(TrafficcalTransform):
             if self._limit:
                 fields["over_limit"] = is_over_limit(event.speed_kmh, self._limit, event.label)
             self.post_element_message("trafficcal-speed", fields)
-            self._push(fields)
-            if self._intervals is not None:
-                self._intervals.vehicle(event)
+            self._deliver(event, fields)
             if self._outputs is None:
                 continue
             self._fix_fps()
@@ -456,13 +454,14 @@ class Speedometer(TrafficcalTransform):
                     self._outputs.vehicle(event, m.times_s if len(m.points_px) else None, m.points_px)
                 except InputError:
                     pass
-                self._push(event.to_dict())
-                if self._intervals is not None:
-                    self._intervals.vehicle(event)
+                self._deliver(event, event.to_dict())
         self._close(report=post)
 
-    def _push(self, fields):
-        """Hand a vehicle's event to events-url's poster; say so (once per new problem) when posting fails."""
+    def _deliver(self, event, fields):
+        """A vehicle that left, to the outputs that do not fail the stream: the interval table, and events-url's
+        poster (a warning, once per new problem, when posting fails)."""
+        if self._intervals is not None:
+            self._intervals.vehicle(event)
         if self._poster is None:
             return
         self._poster.post(fields)

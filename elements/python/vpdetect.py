@@ -144,8 +144,6 @@ class VpDetect(TrafficcalTransform):
         """The frame size changed mid-stream (another stream, the camera's settings): another view — announced
         as a move, so that nothing seen at the old size is measured with what comes; learnt anew (mode fixed: an
         error, the file is for the old size)."""
-        from gst_trafficcal.calibration import Calibration
-
         t = self.buffer_t if self.buffer_t is not None else self._frames / self._fps
         what = f"the frame size changed from {before[0]}x{before[1]} to {self._size[0]}x{self._size[1]} at {t:.1f} s"
         if self.mode == "fixed":
@@ -156,9 +154,15 @@ class VpDetect(TrafficcalTransform):
         self._library, self._known, self._views_loaded = None, {}, False
         self._load_views()  # views-dir: the views of the new size
         self.post_warning(f"vpdetect: {what}: another view; learning a new calibration")
+        self._learn_after_move(t, f"the camera moved at {t:.1f} s ({what})")
+
+    def _learn_after_move(self, t, reason):
+        """The camera moved at ``t`` to a view without a calibration: announce it (``moved_at``) and learn it."""
+        from gst_trafficcal.calibration import Calibration
+
         self._moved_at = float(t)
-        self._start_learning(Calibration(None, self._size, state="learning", source="vpdetect",
-                                         reason=f"the camera moved at {t:.1f} s ({what})", moved_at=float(t)))
+        self._start_learning(Calibration(None, tuple(self.frame_size), state="learning", source="vpdetect",
+                                         reason=reason, moved_at=float(t)))
 
     def _start_learning(self, announce=None):
         """Learn a calibration from here on; ``announce``: the "learning" calibration to send (default: a plain
@@ -355,8 +359,6 @@ class VpDetect(TrafficcalTransform):
             self._camera_moved(event)
 
     def _camera_moved(self, event):
-        from gst_trafficcal.calibration import Calibration
-
         current = self._monitor.current()
         self._monitor = None
         what = f"the camera moved at {event.t:.1f} s ({event.match.describe()})"
@@ -369,9 +371,7 @@ class VpDetect(TrafficcalTransform):
             return
         self.post_warning(f"vpdetect: {what}: learning a new calibration"
                           + (f" (it will replace {self.calibration_file})" if self.calibration_file else ""))
-        self._moved_at = float(event.t)
-        self._start_learning(Calibration(None, self.frame_size, state="learning", source="vpdetect",
-                                         reason=f"the camera moved at {event.t:.1f} s", moved_at=float(event.t)))
+        self._learn_after_move(event.t, f"the camera moved at {event.t:.1f} s")
 
     def on_eos(self):
         if self._loaded is not None:  # the stream ended while its view was being checked

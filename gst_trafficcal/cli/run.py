@@ -169,12 +169,12 @@ class RunSummary:
 
 def _scaled_views(outcome) -> list:
     """The last calibration with a scale and a view posted for each view (vanishing points) in the run."""
-    from ..calibration import same_vanishing_points
+    from ..calibration import latest_per_view
 
     out: list = []
     for _, c in outcome.calibrations:
         if c.camera is not None and c.camera.scale is not None and c.view is not None:
-            out = [o for o in out if not same_vanishing_points(o, c)] + [c]
+            out = latest_per_view(out, c)
     return out
 
 

@@ -172,8 +172,6 @@ class _AllVehicles:
             console.print(f"[yellow]warning[/]: {exc}: no table of every part's vehicles", highlight=False)
 
     def add(self, part: str, events: list, start, live_clock: bool) -> None:
-        from dataclasses import replace as dc_replace
-
         from ..outputs import stream_start
 
         if self.writers is None:
@@ -184,10 +182,7 @@ class _AllVehicles:
             self.reference = start
         shift = (start - self.reference).total_seconds() if start is not None and self.reference is not None else 0.0
         try:
-            for e in events:
-                if shift and e.first_timestamp_s is not None and e.last_timestamp_s is not None:
-                    e = dc_replace(e, first_timestamp_s=round(e.first_timestamp_s + shift, 3),
-                                   last_timestamp_s=round(e.last_timestamp_s + shift, 3))
+            for e in _on_clock(events, shift, ndigits=3):
                 self.writers.write(e, {"part": part})
         except InputError as exc:
             self.console.print(f"[yellow]warning[/]: {exc}: the table of every part's vehicles is incomplete",
@@ -205,16 +200,13 @@ def _write_day_intervals(console, path: Path, dated: list, options: RunOptions) 
     """One intervals.csv for the traffic of every dated part: each part's vehicles put on the clock of the earliest
     start, then counted per interval as one run's are; the stretches the files cover say how much of each interval
     was watched (a gap between recordings shows as less, an interval no file reaches has no row)."""
-    from dataclasses import replace as dc_replace
-
     from ..traffic_stats import interval_rows, write_intervals_csv
 
     first = min(start for start, _, _ in dated)
     events, covered = [], []
     for start, part, watched in dated:
         shift = (start - first).total_seconds()
-        events += [dc_replace(e, first_timestamp_s=e.first_timestamp_s + shift,
-                              last_timestamp_s=e.last_timestamp_s + shift) for e in part
+        events += [e for e in _on_clock(part, shift)
                    if e.first_timestamp_s is not None and e.last_timestamp_s is not None]
         if watched:
             covered.append((shift, shift + watched))
@@ -227,6 +219,20 @@ def _write_day_intervals(console, path: Path, dated: list, options: RunOptions) 
         return
     console.print(f"[bold]Wrote[/] {path}: {len(events)} vehicles of {len(dated)} files in "
                   f"{len({r.start for r in rows})} intervals of {options.interval_min:g} min", highlight=False)
+
+
+def _on_clock(events: list, shift: float, ndigits: int | None = None) -> list:
+    """The vehicles of a part whose stream time 0 is ``shift`` seconds after the clock's: their timestamps moved by
+    it (rounded to ``ndigits`` decimals if given); a vehicle without timestamps as it is."""
+    from dataclasses import replace as dc_replace
+
+    def moved(t: float) -> float:
+        return t + shift if ndigits is None else round(t + shift, ndigits)
+
+    if not shift:
+        return list(events)
+    return [dc_replace(e, first_timestamp_s=moved(e.first_timestamp_s), last_timestamp_s=moved(e.last_timestamp_s))
+            if e.first_timestamp_s is not None and e.last_timestamp_s is not None else e for e in events]
 
 
 def _write_parts(path: Path, records: list[dict]) -> None:

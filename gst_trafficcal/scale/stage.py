@@ -20,7 +20,7 @@ from typing import Any, Iterable, Mapping
 
 import numpy as np
 
-from ..calibration import Calibration, same_vanishing_points
+from ..calibration import Calibration, latest_per_view, same_vanishing_points
 from .estimate import DEFAULT_IOU_THRESHOLD
 from .streaming import ScaleEstimator, ScaleResult, Sighting, base_centre, load_align_models
 
@@ -82,9 +82,7 @@ class ScaleStage:
             if before is None:
                 return None
             self.published = float(before.camera.scale)  # a view seen before: its scale again, right away
-            source = cal.source if cal.source.endswith(SOURCE_SUFFIX) else f"{cal.source}+{SOURCE_SUFFIX}"
-            return cal.with_scale(self.published, confidence={**cal.confidence, **before.confidence},
-                                  source=source)
+            return self._ours(cal, self.published, {**cal.confidence, **before.confidence})
         if cal.camera is None or upstream_has_scale(cal):
             return None
         self.estimator.set_camera(cal.camera)
@@ -137,11 +135,13 @@ class ScaleStage:
         if self.published is not None and not force and abs(r.scale / self.published - 1) <= self.republish:
             return None
         self.published = float(r.scale)
-        conf = dict(cal.confidence)
-        conf["scale"] = float(r.confidence)
+        return self._ours(cal, float(r.scale), {**cal.confidence, "scale": float(r.confidence)})
+
+    def _ours(self, cal: Calibration, scale: float, confidence: dict[str, float]) -> Calibration:
+        """``cal`` with the scale this stage gives it (remembered for its view)."""
         source = cal.source if cal.source.endswith(SOURCE_SUFFIX) else f"{cal.source}+{SOURCE_SUFFIX}"
-        ours = cal.with_scale(float(r.scale), confidence=conf, source=source)
-        self.known = [k for k in self.known if not same_vanishing_points(k, ours)] + [ours]
+        ours = cal.with_scale(scale, confidence=confidence, source=source)
+        self.known = latest_per_view(self.known, ours)
         return ours
 
 
