@@ -231,20 +231,20 @@ class ViewMonitor:
     Every ``every``-th frame's thumbnail joins a rolling window of ``window``; their median (the traffic passing
     through is not in it) is compared with the stored view.  A move is ``confirm`` comparisons in a row that
     measure a shift, zoom or roll beyond the bounds on a scene still recognised (:attr:`ViewMatch.displaced`); it is
-    dated to when the window's
-    median turned (more than half of it after the move), which is usually a little early (benchmarks/view_monitor.py:
-0.2 s early on 67 of 69 moves, up to 0.6 s late on the others).  A scene that
-    is no longer recognised at all (darkness, fog, a covered lens, another scene) is reported as such but not taken
-    for a move: the gradients cannot tell those apart, and recalibrating at dusk would throw a good calibration
-    away for one that fails; that, and seeing the scene again, take five times as many comparisons in a row.  Cost: one :func:`compare_views` (a few ms) per ``every`` frames.
+    dated to when the window's median turned (more than half of it after the move), which is usually a little early
+    (benchmarks/view_monitor.py: 0.2 s early on 67 of 69 moves, up to 0.6 s late on the others).  A scene that is no
+    longer recognised at all (darkness, fog, a covered lens, another scene) is reported as such but not taken for a
+    move: the gradients cannot tell those apart, and recalibrating at dusk would throw a good calibration away for
+    one that fails; that, and seeing the scene again, take five times as many comparisons in a row.  Cost: one
+    :func:`compare_views` (a few ms) per ``every`` frames.
     """
 
     def __init__(self, stored: np.ndarray, frame_width: int, every: int = 5, window: int = 9, confirm: int = 5) -> None:
         if every < 1 or window < 1 or confirm < 1:
             raise ValueError("every, window and confirm must be at least 1")
         self.stored, self.frame_width = stored, int(frame_width)
-        self.window, self.confirm = int(window), int(confirm)
-        self._window = RollingView(every, self.window)
+        self.confirm = int(confirm)
+        self._window = RollingView(every, window)
         self._run_kind, self._run_start, self._run_len = "", 0.0, 0  # the current run of comparisons of one kind
         self.state = "recognised"  # or "unrecognised", "moved" (then the monitor is done)
         self.last: ViewMatch | None = None
