@@ -365,3 +365,37 @@ def test_the_stream_clock_never_goes_back():
     assert clock(1.04) == pytest.approx(6.04) and len(clock.jumps) == 2
     assert clock(None) is None
     assert clock(1.04) == pytest.approx(6.04)  # the same timestamp twice is not a jump
+
+
+@pytest.mark.shared
+@pytest.mark.parametrize("fmt", SUPPORTED_FORMATS)
+def test_frame_bgr_reduced_equals_the_full_conversion_reduced(fmt: str) -> None:
+    """``frame_bgr(..., size)`` of a real 1080p frame (BrnoCompSpeed's screen.png through videoconvert) is
+    ``imaging.fit`` of the full conversion: exactly for packed formats, within rounding and the clipping of
+    out-of-gamut pixels for YUV, whose planes are reduced before the colour matrix."""
+    from gst_trafficcal.imaging import fit
+
+    from .conftest import BRNO, require_shared
+
+    image = cv2.imread(str(require_shared(BRNO / "session0_center" / "screen.png")))
+    assert image.shape == (1080, 1920, 3)
+    caps = "video/x-raw,format=BGR,width=1920,height=1080,framerate=25/1"
+    got: dict[str, np.ndarray] = {}
+
+    def check(buffer: Gst.Buffer, vinfo: GstVideo.VideoInfo) -> None:
+        with frame_bgr(buffer, vinfo) as full:
+            got["full"] = fit(full, (480, 270)).astype(int)
+        with frame_bgr(buffer, vinfo, (480, 270)) as small:
+            got["small"] = small.astype(int)
+        with frame_bgr(buffer, vinfo, (1920, 1080)) as same:  # the frame's own size: no reduction
+            got["same"] = same.copy()
+
+    run_pipeline(f"appsrc name=src ! videoconvert ! video/x-raw,format={fmt} ! appsink name=sink",
+                 [buffer_from_bgr(image, video_info_from_caps(Gst.Caps.from_string(caps)))], caps, on_buffer=check)
+    assert got["small"].shape == (270, 480, 3) and got["same"].shape == (1080, 1920, 3)
+    diff = np.abs(got["small"] - got["full"])
+    if fmt in ("I420", "NV12"):
+        assert diff.mean() < 0.5 and np.percentile(diff, 99.9) <= 2 and diff.max() <= 12, (diff.mean(), diff.max())
+    else:
+        assert diff.max() == 0
+    assert got["full"].std() > 30  # a real picture

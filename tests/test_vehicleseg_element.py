@@ -70,3 +70,41 @@ def test_gst_launch_tracks_a_real_clip_with_the_segmenter(tmp_path):
     assert out.returncode == 0, out.stderr[-2000:]
     tracks = [line for line in out.stdout.splitlines() if "trafficcal-track" in line]
     assert len(tracks) >= 5, out.stdout[-2000:]  # 11 s of a busy highway
+
+
+@pytest.mark.shared
+def test_full_hd_frames_reach_the_segmenter_reduced_from_their_yuv_planes():
+    """At 1080p the element hands vehicleseg its work image reduced from the I420 planes (no full-size BGR copy);
+    the vehicles are the ones the library finds on the full frames converted whole (a real clip scaled to 1920x1080
+    by videoscale): the same count on nearly every frame, the same boxes to a pixel or two."""
+    from gst_trafficcal.detection.factory import detect, reduced_size
+    from gst_trafficcal.detection.vehicleseg import VehicleSegDetector
+    from gst_trafficcal.gst.buffers import frame_bgr
+
+    clip = require_shared(VIDEOS / "kraten_cars.mp4")
+    library = VehicleSegDetector()
+    assert reduced_size(library, (1920, 1080)) == (480, 270)
+    assert reduced_size(library, (640, 360)) is None  # small frames: converted whole, as before
+    found: list[np.ndarray] = []
+
+    def full_frame(buffer, info) -> None:
+        with frame_bgr(buffer, info) as bgr:
+            found.append(detect(library, bgr, buffer.pts / 1e9).boxes)
+
+    run = run_pipeline(f"filesrc location={clip} ! decodebin ! videoconvert ! videoscale ! "
+                       "video/x-raw,format=I420,width=1920,height=1080 ! identity eos-after=300 ! "
+                       "vehicledetect model=vehicleseg ! appsink name=sink", on_buffer=full_frame)
+    assert len(run.frames) == len(found) >= 300
+    same_count = diffs = 0
+    corner: list[float] = []
+    for frame, boxes in zip(run.frames, found):
+        got = np.array([r.box for r in frame.rois], float).reshape(-1, 4)
+        same_count += len(got) == len(boxes)
+        for box in boxes:  # the element's nearest box to each of the library's
+            if len(got):
+                corner.append(float(np.abs(got - box).max(axis=1).min()))
+        diffs += len(got) != len(boxes)
+    corner_a = np.array(corner)
+    assert sum(len(b) for b in found) >= 500  # a busy street: vehicles on most frames
+    assert same_count >= 0.95 * len(found), diffs
+    assert np.median(corner_a) <= 0.5 and np.mean(corner_a <= 2.5) >= 0.9, np.percentile(corner_a, [50, 90, 99])

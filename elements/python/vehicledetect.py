@@ -74,14 +74,16 @@ class VehicleDetect(TrafficcalTransform):
         return super().do_stop()
 
     def transform_frame(self, buffer):
-        from gst_trafficcal.detection.factory import detect
+        from gst_trafficcal.detection.factory import detect, reduced_size
         from gst_trafficcal.gst.meta import add_vehicle_roi, hull_params
 
         frame, self._frame = self._frame, self._frame + 1
         if frame % self.interval:
             return Gst.FlowReturn.OK
-        with (self.bgr(buffer) if self.model else self.gray(buffer)) as image:
-            detections = detect(self._detector, image, self.buffer_t)
+        # a detector that starts by reducing the frame (vehicleseg) gets it reduced from the YUV planes
+        size = reduced_size(self._detector, self.frame_size) if self.model else None
+        with (self.bgr(buffer, size) if self.model else self.gray(buffer)) as image:
+            detections = detect(self._detector, image, self.buffer_t, self.frame_size if size else None)
         for d in detections:
             add_vehicle_roi(buffer, self.frame_size, d.box, d.label, d.score, d.class_id, params=hull_params(d.hull))
         return Gst.FlowReturn.OK

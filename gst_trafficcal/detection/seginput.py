@@ -18,7 +18,7 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
-from .onnx_detector import fit
+from ..imaging import fit
 
 STRIDE = 16  # the network's total stride: its input sides are padded to multiples of it
 

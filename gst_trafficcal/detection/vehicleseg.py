@@ -123,10 +123,17 @@ class VehicleSegDetector:
         self.background.reset()
         self.geometry = None
 
-    def infer(self, image: np.ndarray, t: float | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def reduced_size(self, frame_size: tuple[int, int]) -> tuple[int, int]:
+        """The (w, h) a frame of ``frame_size`` is reduced to first: callers that can reduce a frame more cheaply
+        than from a full-size BGR copy (YUV planes) pass it reduced, with its ``frame_size``."""
+        return WorkGeometry(tuple(frame_size), self.work_width).size
+
+    def infer(self, image: np.ndarray, t: float | None = None,
+              frame_size: tuple[int, int] | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Update the background with ``image`` and run the network: (mask logits H x W, centre logits, offsets
-        2 x H/4 x W/4), cropped to the work size."""
-        h, w = image.shape[:2]
+        2 x H/4 x W/4), cropped to the work size.  ``frame_size``: the frame's (w, h) when ``image`` is that frame
+        already reduced (to :meth:`reduced_size` or any size); default: ``image``'s own."""
+        w, h = frame_size or image.shape[1::-1]
         if self.geometry is None or self.geometry.frame_size != (w, h):
             self.geometry = WorkGeometry((w, h), self.work_width)
             self.background.reset()
@@ -138,10 +145,11 @@ class VehicleSegDetector:
         qh, qw = -(-wh // QUARTER), -(-ww // QUARTER)
         return mask[0, 0, :wh, :ww], centre[0, 0, :qh, :qw], offset[0, :, :qh, :qw]
 
-    def __call__(self, image: np.ndarray, t: float | None = None) -> Detections:
+    def __call__(self, image: np.ndarray, t: float | None = None, frame_size: tuple[int, int] | None = None
+                 ) -> Detections:
         """Vehicles in a BGR (HxWx3) or grey (HxW) uint8 frame at time ``t`` (seconds; None: frames 1/25 s apart),
-        boxes and hulls in that frame's pixels."""
-        mask, centre, offset = self.infer(image, t)
+        boxes and hulls in that frame's pixels (``frame_size``: see :meth:`infer`)."""
+        mask, centre, offset = self.infer(image, t, frame_size)
         detections, self.last = decode(mask, centre, offset, self.geometry, self.threshold, self.centre_threshold,
                                        max(1, round(self.min_area * mask.size)), self.mask_threshold)
         return detections

@@ -21,6 +21,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from ..imaging import fit
 from . import _cgst
 from ._gi import Gst, GstVideo
 
@@ -241,14 +242,20 @@ def frame_gray(buffer: Gst.Buffer, info: GstVideo.VideoInfo) -> Iterator[np.ndar
 
 
 @contextmanager
-def frame_bgr(buffer: Gst.Buffer, info: GstVideo.VideoInfo) -> Iterator[np.ndarray]:
+def frame_bgr(buffer: Gst.Buffer, info: GstVideo.VideoInfo, size: tuple[int, int] | None = None) -> Iterator[np.ndarray]:
     """Yield the frame as an HxWx3 uint8 BGR image.
 
     A read-only view for BGR input, a converted copy otherwise. YUV input is converted with the
     colour matrix and range of the caps' colorimetry (BT.601/BT.709/..., limited or full range),
     chroma upsampled by pixel replication.
+
+    With ``size`` (w, h) smaller than the frame, the frame reduced to that size (:func:`imaging.fit`) — for YUV
+    input the planes are reduced first and only the small image is converted: what a detector working on a
+    reduced image needs, at a fraction of the cost (1080p: no full-size BGR copy). Reduction and the colour
+    matrix are both linear, so the two orders agree but for rounding and the clipping of out-of-gamut pixels.
     """
     fmt = format_name(info)
+    reduce = size is not None and tuple(size) != frame_size(info)
     with frame_planes(buffer, info) as planes:
         if fmt == "BGR":
             bgr = planes[0]
@@ -257,9 +264,15 @@ def frame_bgr(buffer: Gst.Buffer, info: GstVideo.VideoInfo) -> Iterator[np.ndarr
         elif fmt == "BGRx":
             bgr = cv2.cvtColor(planes[0], cv2.COLOR_BGRA2BGR)
         elif fmt == "GRAY8":
-            bgr = cv2.cvtColor(planes[0], cv2.COLOR_GRAY2BGR)
+            bgr = cv2.cvtColor(fit(planes[0], size) if reduce else planes[0], cv2.COLOR_GRAY2BGR)
+            reduce = False
+        elif reduce:
+            bgr = yuv420_to_bgr(planes, fmt, info, size)
+            reduce = False
         else:
             bgr = yuv420_to_bgr(planes, fmt, info)
+        if reduce:
+            bgr = fit(bgr, size)
         try:
             yield bgr
         finally:
@@ -290,14 +303,19 @@ def _yuv_to_bgr_matrix(info: GstVideo.VideoInfo) -> np.ndarray:
     return m
 
 
-def yuv420_to_bgr(planes: list[np.ndarray], fmt: str, info: GstVideo.VideoInfo) -> np.ndarray:
-    """Convert I420/NV12 plane views to a packed HxWx3 BGR copy."""
+def yuv420_to_bgr(planes: list[np.ndarray], fmt: str, info: GstVideo.VideoInfo,
+                  size: tuple[int, int] | None = None) -> np.ndarray:
+    """Convert I420/NV12 plane views to a packed HxWx3 BGR copy; with ``size`` (w, h), reduced to that size
+    (each plane reduced with :func:`imaging.fit`, then converted)."""
     y = planes[0]
     h, w = y.shape
     if fmt == "I420":
         u, v = planes[1], planes[2]
     else:
         u, v = planes[1][:, :, 0], planes[1][:, :, 1]
+    if size is not None:
+        yuv = cv2.merge([fit(y, size), fit(u, size), fit(v, size)])
+        return cv2.transform(yuv, _yuv_to_bgr_matrix(info))
     ch, cw = u.shape
     up = [cv2.resize(c, (2 * cw, 2 * ch), interpolation=cv2.INTER_NEAREST)[:h, :w] for c in (u, v)]
     yuv = cv2.merge([y, up[0], up[1]])

@@ -120,9 +120,10 @@ class TrafficcalTransform(GstBase.BaseTransform):
         """``frame_gray(buffer, self.video_info)``: context manager yielding HxW uint8."""
         return frame_gray(buffer, self.video_info)
 
-    def bgr(self, buffer: Gst.Buffer) -> Any:
-        """``frame_bgr(buffer, self.video_info)``: context manager yielding HxWx3 uint8 BGR."""
-        return frame_bgr(buffer, self.video_info)
+    def bgr(self, buffer: Gst.Buffer, size: tuple[int, int] | None = None) -> Any:
+        """``frame_bgr(buffer, self.video_info, size)``: context manager yielding HxWx3 uint8 BGR (reduced to
+        ``size`` when given)."""
+        return frame_bgr(buffer, self.video_info, size)
 
     @contextmanager
     def planes(self, buffer: Gst.Buffer, writable: bool = False) -> Iterator[list[np.ndarray]]:
