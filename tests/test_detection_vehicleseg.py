@@ -257,3 +257,19 @@ def test_model_card_describes_the_shipped_file():
     assert card["bytes"] == WEIGHTS.stat().st_size <= 3 * 2**20
     assert card["data"]["seeds"][0] >= 1000  # held out: the benchmarks use seeds 1, 2 and 7
     assert card["held_out"]["end_to_end_manual"]["replays_12"]["mean_kmh"] > 0
+
+
+@pytest.mark.parametrize("frame_size,width", [((1920, 1080), 480), ((1001, 563), 470)])
+def test_network_input_is_the_scaled_pair_padded_by_edge_replication(frame_size, width):
+    """The network's input against its definition: frame then background channels, x / 255 - 0.5, bottom and right
+    padded to the stride by repeating the last row and column (470 px wide: both pads)."""
+    geometry = WorkGeometry(frame_size, width)
+    w, h = geometry.size
+    pw, ph = geometry.padded
+    rng = np.random.default_rng(3)
+    frame, background = (rng.integers(0, 256, (h, w, 3), dtype=np.uint8) for _ in range(2))
+    pair = np.pad(np.concatenate([frame, background], axis=2), ((0, ph - h), (0, pw - w), (0, 0)), mode="edge")
+    expected = pair.transpose(2, 0, 1)[None].astype(np.float64) / 255.0 - 0.5
+    got = network_input(frame, background, geometry)
+    assert got.dtype == np.float32 and got.shape == (1, 6, ph, pw) and (pw, ph) != (w, h)
+    np.testing.assert_allclose(got, expected, atol=1e-6)
