@@ -119,3 +119,19 @@ def test_tile_grid_covers_the_frame():
     assert min(g[1] for g in grid) == 0 and max(g[3] for g in grid) == 1080
     assert grid[0][2] > grid[1][0]  # neighbours overlap
     assert tile_grid(640, 360, 1, 1) == [(0, 0, 640, 360)]
+
+
+@pytest.mark.parametrize("letterbox,size", [("center", (320, 180)), ("none", (320, 320))])
+def test_a_frame_handed_over_reduced_gives_the_full_frames_boxes(letterbox, size):
+    """``reduced_size`` is the image ``prepare`` makes of a whole frame (inside the letterbox, or the stretched
+    network image); that image with the frame's size gives the boxes of the full frame, in the frame's pixels."""
+    from gst_trafficcal.imaging import fit
+
+    det = OnnxDetector(require_shared(DETECTORS / "nanodet_hpc203.onnx"), threshold=0.3,
+                       preprocess={"letterbox": letterbox})
+    image = screen("session0_center")
+    assert det.reduced_size((1920, 1080)) == size
+    full = det(image)
+    small = det(fit(image, size), frame_size=(1920, 1080))
+    assert len(full) >= 2 and len(small) == len(full)
+    np.testing.assert_allclose(small.boxes, full.boxes, atol=0.5)

@@ -69,6 +69,38 @@ def test_onnx_rois_match_the_library(frames, nanodet):
     assert n_rois >= 3 * len(sample)  # several vehicles in every frame of this stretch
 
 
+@pytest.mark.parametrize("model,reduced", [("nanodet_hpc203.onnx", (320, 320)), ("FastestDet.onnx", (352, 352))])
+def test_full_hd_frames_reach_an_onnx_model_reduced_from_their_yuv_planes(model, reduced):
+    """At 1080p the element hands an ONNX detector (no tiles) the frame already reduced to its network image —
+    both models stretch the frame to their square input — from the I420 planes; the ROIs are the library's on
+    the full frames converted whole (the clip scaled to 1920x1080 by videoscale), to rounding."""
+    from gst_trafficcal.detection.factory import reduced_size
+    from gst_trafficcal.gst.buffers import frame_bgr
+
+    lib = OnnxDetector(require_shared(DETECTORS / model), threshold=0.4)
+    assert reduced_size(lib, (1920, 1080)) == reduced
+    assert reduced_size(OnnxDetector(DETECTORS / model, tiles=(2, 1)), (1920, 1080)) is None
+    expected: list = []
+
+    def full_frame(buffer, info) -> None:
+        with frame_bgr(buffer, info) as bgr:
+            expected.append(lib(bgr))
+
+    run = run_pipeline(f"filesrc location={require_shared(VIDEOS / CLIP)} ! decodebin ! videoconvert ! videoscale ! "
+                       "video/x-raw,format=I420,width=1920,height=1080 ! identity eos-after=60 ! "
+                       f"vehicledetect model={DETECTORS / model} threshold=0.4 ! appsink name=sink",
+                       on_buffer=full_frame)
+    assert len(run.frames) == len(expected) >= 60
+    same = matched = total = 0
+    for frame, exp in zip(run.frames, expected):
+        got = np.array([r.box for r in frame.rois], float).reshape(-1, 4)
+        same += len(got) == len(exp)
+        total += len(exp)
+        if len(exp) and len(got):
+            matched += int((box_iou(exp.boxes, got).max(axis=1) > 0.9).sum())
+    assert total >= 60 and same >= 0.8 * len(expected) and matched >= 0.9 * total, (same, matched, total)
+
+
 def test_tiles_property_reaches_the_detector(frames, nanodet):
     sample = frames[100:103]
     run = run_pipeline(f"appsrc name=src ! vehicledetect model={nanodet} tiles=2x1 ! appsink name=sink", sample, CAPS)

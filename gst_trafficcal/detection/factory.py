@@ -50,20 +50,22 @@ def detect(detector: Detector, image: np.ndarray, t: float | None = None,
     """Run any detector on one frame; detectors that keep a background over time (``timed``, e.g. vehicleseg) get
     the frame time ``t`` in seconds.  ``frame_size``: the frame's (w, h) when ``image`` is it reduced to
     :func:`reduced_size` (boxes still come in frame pixels)."""
+    args = (image, t) if getattr(detector, "timed", False) else (image,)
     if frame_size is not None and tuple(frame_size) != image.shape[1::-1]:
-        return detector(image, t, frame_size)
-    return detector(image, t) if getattr(detector, "timed", False) else detector(image)
+        return detector(*args, frame_size=tuple(frame_size))
+    return detector(*args)
 
 
 def reduced_size(detector: Detector, frame_size: tuple[int, int]) -> tuple[int, int] | None:
     """The size a detector reduces every frame of ``frame_size`` to before anything else, when it says so
-    (vehicleseg's work image) and the frame is at least twice that size each way: the caller may then hand it the
+    (vehicleseg's work image, an ONNX detector's network image without tiles) and the frame is at least twice that size each way: the caller may then hand it the
     frame already reduced (1080p: a quarter of the conversion's cost and no full-size copy).  None: pass full
     frames (smaller frames cost little, and they keep the full conversion's chroma resampling)."""
     size = getattr(detector, "reduced_size", None)
+    size = size(frame_size) if size is not None else None
     if size is None:
         return None
-    w, h = size(frame_size)
+    w, h = size
     return (w, h) if frame_size[0] >= 2 * w and frame_size[1] >= 2 * h else None
 
 

@@ -173,9 +173,23 @@ class OnnxDetector:
         boxes, scores, class_ids = self.decoder(self._run(net), self.threshold, self.labels.ids)
         return lb.to_image(boxes), scores, class_ids
 
-    def __call__(self, image: np.ndarray) -> Detections:
-        """Vehicles in a BGR (HxWx3) or grey (HxW) uint8 frame, boxes in that frame's pixels."""
+    def reduced_size(self, frame_size: tuple[int, int]) -> tuple[int, int] | None:
+        """The (w, h) a whole frame of ``frame_size`` is resized to before the network (inside the letterbox, or
+        the network's size when stretched); None with tiles, which need the full frame."""
+        if self.tiles != (1, 1):
+            return None
+        (w, h), (nw, nh) = frame_size, self.preprocess.size
+        if self.preprocess.letterbox == "none":
+            return nw, nh
+        r = min(nw / w, nh / h)
+        return max(1, round(w * r)), max(1, round(h * r))
+
+    def __call__(self, image: np.ndarray, frame_size: tuple[int, int] | None = None) -> Detections:
+        """Vehicles in a BGR (HxWx3) or grey (HxW) uint8 frame, boxes in that frame's pixels; ``frame_size``: the
+        frame's (w, h) when ``image`` is it already reduced (to :meth:`reduced_size`)."""
         h, w = image.shape[:2]
+        if frame_size is not None and tuple(frame_size) != (w, h):
+            return self(image).scaled(frame_size[0] / w, frame_size[1] / h).clipped(*frame_size)
         if self.tiles == (1, 1):
             boxes, scores, class_ids = self._candidates(image)
         else:
