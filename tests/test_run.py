@@ -16,6 +16,7 @@ import pytest
 from gst_trafficcal.brnocompspeed import load_results
 from gst_trafficcal.calibration import load_calibration
 from gst_trafficcal.outputs import read_events, read_events_csv
+from gst_trafficcal.run_status import read_status
 
 from .conftest import serve_rtsp
 
@@ -114,6 +115,15 @@ def test_run_writes_every_output(clip, with_truth):
     assert [float(r["observed_s"]) for r in rows] == pytest.approx([5.0, 7.0], abs=0.1)  # 07:59:55 to 08:00:07
     assert "Per interval (15 min)" in report and "first seen" in report
     assert "(5 s watched)" in report and "(7 s watched)" in report  # two quarter hours, each watched in part
+    # status.json: the finished run's state, as monitoring reads it
+    status = read_status(out / "status.json")
+    assert status.state == "finished" and status.error == "" and status.source == str(clip / "video.mp4")
+    assert (status.vehicles, status.measured) == (len(events), sum(e.measured for e in events))
+    assert status.last_vehicle_s == pytest.approx(max(e.last_timestamp_s for e in events), abs=1e-6)
+    assert status.calibration["id"] == cal.id and status.calibration["scale_m"] == pytest.approx(cal.camera.scale,
+                                                                                               abs=1e-4)
+    assert status.position_s == pytest.approx(12.0, abs=0.2) and status.duration_s == pytest.approx(12.0, abs=0.2)
+    assert status.camera_moves == 0 and (status.speed_x is None or status.speed_x > 0)
 
 
 def test_stream_ending_before_calibration_converges(clip, tmp_path):
@@ -305,16 +315,24 @@ def test_a_live_stream_runs_until_ctrl_c_and_every_output_is_complete(clip, rtsp
     out = tmp_path / "live"
     before = datetime.now().astimezone()
     proc = subprocess.Popen([sys.executable, "-m", "gst_trafficcal", "run", rtsp_clip, "--out", str(out),
-                             "--calibration", str(clip / "calibration.json"), "--start-time", "now"],
+                             "--calibration", str(clip / "calibration.json"), "--start-time", "now",
+                             "--status-interval", "1"],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
                             # Ctrl-C reaches it as in a terminal, even when the tests run as a background job
                             preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     deadline = time.monotonic() + 120
+    status = None
     while time.monotonic() < deadline and proc.poll() is None:  # until the first vehicle has left
         if (out / "vehicles.jsonl").is_file() and (out / "vehicles.jsonl").read_text().strip():
-            break
+            status = read_status(out / "status.json")
+            if status.vehicles and status.speed_x is not None:
+                break
         time.sleep(0.2)
     assert proc.poll() is None, proc.communicate()
+    # status.json while it runs: a live stream is measured as fast as it comes, no faster
+    assert status.state == "running" and status.source == rtsp_clip and status.pid == proc.pid
+    assert 0 < status.position_s < 12 and 0.6 < status.speed_x < 1.5, status
+    assert status.calibration["scale_m"] is not None and status.last_vehicle_at
     proc.send_signal(signal.SIGINT)
     stdout, stderr = proc.communicate(timeout=120)
     assert proc.returncode == 130, stdout[-2000:] + stderr[-2000:]
@@ -334,6 +352,8 @@ def test_a_live_stream_runs_until_ctrl_c_and_every_output_is_complete(clip, rtsp
         frames += 1
     cap.release()
     assert 12 < frames < 150  # some of the 12 s (150 frames) clip, not all of it
+    status = read_status(out / "status.json")
+    assert status.state == "interrupted" and status.vehicles == len(events)
     for name in ("calibration.json", "system.json", "vehicles.csv", "intervals.csv", "report.html"):
         assert (out / name).is_file(), name
 
@@ -497,17 +517,32 @@ def test_reconnecting_to_a_stream_that_is_not_there_goes_on_until_ctrl_c(clip, t
 
     from .conftest import closed_port
 
-    proc = subprocess.Popen([sys.executable, "-m", "gst_trafficcal", "run", f"rtsp://127.0.0.1:{closed_port()}/none",
-                             "--out", str(tmp_path / "out"), "--reconnect", "--no-overlay"], stdout=subprocess.PIPE,
+    # the camera's password is in its URI, as NVRs give them: never printed, never written
+    uri = f"rtsp://admin:s3cr3t@127.0.0.1:{closed_port()}/none"
+    out = tmp_path / "out"
+    proc = subprocess.Popen([sys.executable, "-m", "gst_trafficcal", "run", uri, "--out", str(out), "--reconnect",
+                             "--no-overlay", "--status-interval", "0.5"], stdout=subprocess.PIPE,
                             stderr=subprocess.PIPE, text=True,
                             preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
-    time.sleep(10)
+    waiting = None
+    deadline = time.monotonic() + 20
+    while time.monotonic() < deadline and proc.poll() is None:
+        time.sleep(0.2)
+        if (out / "status.json").is_file() and (st := read_status(out / "status.json")).state == "reconnecting" \
+                and st.parts_done >= 2:
+            waiting = st
     assert proc.poll() is None, proc.communicate()
     proc.send_signal(signal.SIGINT)
     stdout, stderr = proc.communicate(timeout=60)
     assert proc.returncode == 130, stdout[-2000:] + stderr[-2000:]
     assert "connecting again in 1 s" in stdout and "connecting again in 2 s" in stdout and "Traceback" not in stderr
     assert "│ failed: " in stdout and "connections (speeds in km/h)" in stdout
+    # status.json said it was waiting to connect again, and why, and when
+    assert waiting is not None and waiting.error and waiting.next_attempt_at and waiting.position_s is None
+    assert waiting.source == uri.replace("s3cr3t", "***")
+    assert read_status(out / "status.json").state == "interrupted"
+    written = "".join(p.read_text(errors="replace") for p in out.rglob("*") if p.is_file())
+    assert "s3cr3t" not in stdout + stderr + written and "admin:***@127.0.0.1" in stdout
     line = one_line_error(trafficcal("run", clip / "video.mp4", "--out", tmp_path / "x", "--reconnect"))
     assert line == "trafficcal: error: --reconnect is for a live stream (a URI): a file is read to its end once"
 

@@ -42,6 +42,14 @@ def source_elements(video: Path | str) -> list[str]:
     return [f"filesrc location={quote(video)}", "decodebin"]
 
 
+def shown_source(video: Path | str) -> str:
+    """The input as printed and written into reports and status: a URI without its password
+    (``rtsp://admin:***@cam/stream``)."""
+    from ..publish import redacted
+
+    return redacted(str(video)) if is_uri(video) else str(video)
+
+
 def quote(value: str | Path) -> str:
     """A property value for a pipeline description (double-quoted: paths with spaces survive parse_launch)."""
     return '"' + str(value).replace("\\", "\\\\").replace('"', '\\"') + '"'
@@ -194,10 +202,12 @@ def _read_vehicle_events(paths: RunPaths) -> list:
 
 
 def measure_video(video: Path | str, out_dir: Path, description: str, console, label: str = "measuring",
-                  keep: tuple[Path, ...] = (), stop_after_s: float | None = None) -> RunSummary:
+                  keep: tuple[Path, ...] = (), stop_after_s: float | None = None, status=None) -> RunSummary:
     """Play ``description`` (see :func:`pipeline_description`) with a progress bar; read back what it wrote.
 
     ``stop_after_s``: end the run there (an end-of-stream, as Ctrl-C does: every output is completed).
+    ``status``: a :class:`~gst_trafficcal.run_status.StatusFile` kept up to date with the position, the vehicles and
+    the calibration.
 
     Earlier outputs in ``out_dir`` are removed first, except the files in ``keep`` (inputs of this run, such as a
     calibration file given inside ``out_dir``).
@@ -216,11 +226,24 @@ def measure_video(video: Path | str, out_dir: Path, description: str, console, l
         if name not in (paths.events.name, paths.csv.name) and not any(_same(stale, k) for k in keep):
             stale.unlink(missing_ok=True)
     counts = Counter()
+    moves: set = set()  # the moves' dates (several elements pass the same news on)
+    moves_before = status.status.camera_moves if status is not None else 0  # earlier parts'
 
     def on_message(m) -> None:
         if m.name == "trafficcal-speed":
             counts["vehicles"] += 1
             counts["measured"] += m.fields.get("speed_kmh") is not None
+            if status is not None:
+                status.vehicle(m.fields.get("last_timestamp_s"), m.fields.get("speed_kmh") is not None)
+
+    def on_calibration(_element: str, cal) -> None:
+        if status is None:
+            return
+        from ..run_status import calibration_fields
+
+        if cal.moved_at is not None:
+            moves.add(cal.moved_at)
+        status.update(calibration=calibration_fields(cal), camera_moves=moves_before + len(moves))
 
     failure: str | None = None
     with Progress(TextColumn("[progress.description]{task.description}"), BarColumn(),
@@ -232,19 +255,27 @@ def measure_video(video: Path | str, out_dir: Path, description: str, console, l
             bar.update(task, completed=pos, total=dur if dur else None,
                        time=f"{pos:.1f}/{dur:.1f} s" if dur else f"{pos:.1f} s",
                        cars=f"{counts['vehicles']} vehicles, {counts['measured']} measured")
+            if status is not None:
+                status.position(pos, dur)
 
         try:
             outcome = run_pipeline_file(description, progress=progress, on_message=on_message,
-                                        stop_after_s=stop_after_s, stop_element=STOP_ELEMENT)
+                                        stop_after_s=stop_after_s, stop_element=STOP_ELEMENT,
+                                        on_calibration=on_calibration)
         except RunFailed as exc:
             outcome, failure = exc.outcome, str(exc)
         except PipelineError as exc:
-            raise InputError(f"{video}: {exc}") from None
+            raise InputError(f"{shown_source(video)}: {exc}".replace(str(video), shown_source(video))) from None
     summary = RunSummary(outcome.calibration, _read_vehicle_events(paths), outcome.warnings,
                          duration_s=outcome.duration_s, stopped=outcome.stopped, position_s=outcome.position_s,
                          moves=outcome.moves,
                          discarded=max((m["tracks"] for m in outcome.named("trafficcal-discarded")), default=0),
                          scaled=_scaled_views(outcome))
+    if status is not None:
+        for w in outcome.warnings:
+            status.warning(w)
+        if failure is not None:
+            status.update(error=failure)
     if summary.calibration is not None:
         try:
             save_calibration(summary.calibration, paths.calibration)
@@ -252,10 +283,12 @@ def measure_video(video: Path | str, out_dir: Path, description: str, console, l
             summary.errors.append(str(exc))
     if failure is not None:
         if not outcome.position_s and not summary.events:  # nothing was decoded: the input is at fault
-            raise InputError(f"{video}: cannot be processed: {failure}")
+            raise InputError(f"{shown_source(video)}: cannot be processed: "
+                             f"{failure.replace(str(video), shown_source(video))}")
         kept = (f"the {len(summary.events)} vehicles that finished before it are written "
                 f"(in {paths.events.name} and {paths.csv.name}, where the disk allowed)")
-        raise InputError(f"{video}: the run stopped: {failure}; {kept}")
+        raise InputError(f"{shown_source(video)}: the run stopped: {failure.replace(str(video), shown_source(video))}; "
+                         f"{kept}")
     return summary
 
 
@@ -404,17 +437,23 @@ def print_vehicles(console, events: list, speed_limit: "SpeedLimit | float | Non
                    "connection's outputs in --out/YYYYmmdd-HHMMSS/, the calibration carried over from one to the "
                    "next (checked against the view).")
 @click.option("--no-overlay", is_flag=True, help="Do not encode overlay.mp4 (faster).")
+@click.option("--status-interval", "status_s", type=click.FloatRange(min=0.1), default=5.0, show_default=True,
+              metavar="SECONDS",
+              help="Seconds between rewrites of --out/status.json, the run's state for monitoring while it goes on: "
+                   "running / reconnecting / finished / interrupted / failed, the stream position and how fast it "
+                   "is measured against real time, the calibration in force, vehicles so far and when the last "
+                   "one passed, camera moves, the last warnings (docs/run.md).")
 def command(videos: tuple[str, ...], out_dir: Path, calibration_path: Path | None, gt_path: Path | None,
             detector: str | None, regression_path: Path | None, body_shapes: str, speed_limit: str,
             start_time: str, interval_min: float, duration_s: float | None, events_url: str,
-            reconnect: bool, no_overlay: bool) -> None:
+            reconnect: bool, no_overlay: bool, status_s: float = 5.0) -> None:
     """Calibrate and measure every vehicle of VIDEO (a file, or the URI of a stream: rtsp://, http://, file://)
     in one pass through the GStreamer elements. Ctrl-C (or --duration) ends the run as the end of the stream
     would, with every output complete; a second Ctrl-C stops at once.
 
     Writes to --out: calibration.json, system.json (BrnoCompSpeed results), vehicles.jsonl, vehicles.csv,
     intervals.csv (the traffic count per --interval, lane and direction), overlay.mp4 (unless --no-overlay),
-    report.html, and with --gt evaluation.json. Speeds need a scale: from bbscale when installed, else from a
+    report.html, and with --gt evaluation.json; status.json says all along what the run is doing. Speeds need a scale: from bbscale when installed, else from a
     --calibration file with a scale; without one, vehicles are written with speed null and the reason.
 
     Several files of one camera (recordings split into parts): each is measured into --out/NAME/ in turn, and the
@@ -470,30 +509,37 @@ def command(videos: tuple[str, ...], out_dir: Path, calibration_path: Path | Non
     from ..traffic_stats import parse_speed_limit
 
     limit = parse_speed_limit(speed_limit, "--speed-limit")  # a bad one: one line, before any work
+    if reconnect and not is_uri(inputs[0]):
+        raise InputError("--reconnect is for a live stream (a URI): a file is read to its end once")
+    from ..run_status import StatusFile
+
+    status = StatusFile(out_dir / "status.json", shown_source(inputs[0]) if len(inputs) == 1 else
+                        f"{len(inputs)} files: {', '.join(shown_source(v) for v in inputs)}", every_s=status_s,
+                        warn=lambda text: console.print(f"[yellow]warning[/]: {text}", highlight=False))
     options = RunOptions(detector, regression_path, body_shapes, limit, interval_min, duration_s, events_url,
-                         no_overlay, gt_path, live_clock, start)
-    if reconnect:
-        if not is_uri(inputs[0]):
-            raise InputError("--reconnect is for a live stream (a URI): a file is read to its end once")
-        from .run_parts import run_stream
+                         no_overlay, gt_path, live_clock, start, status=status)
+    try:
+        if reconnect:
+            from .run_parts import run_stream
 
-        failed = run_stream(console, inputs[0], out_dir, calibration_path, options)
-        sys.stdout.flush()
-        if failed == "interrupted":
-            sys.exit(130)
-        return
-    if len(inputs) == 1:
-        summary = run_one(console, inputs[0], out_dir, calibration_path, options)
-        sys.stdout.flush()
-        if summary.stopped == "interrupted":
-            sys.exit(130)  # the shell's code for Ctrl-C; every output above is complete
-        return
-    from .run_parts import run_files
+            failed = run_stream(console, inputs[0], out_dir, calibration_path, options)
+        elif len(inputs) == 1:
+            summary = run_one(console, inputs[0], out_dir, calibration_path, options)
+            failed = "interrupted" if summary.stopped == "interrupted" else ""
+        else:
+            from .run_parts import run_files
 
-    failed = run_files(console, inputs, out_dir, calibration_path, options, starts)
+            failed = run_files(console, inputs, out_dir, calibration_path, options, starts)
+    except (InputError, KeyboardInterrupt) as exc:
+        status.update(state="failed" if isinstance(exc, InputError) else "interrupted",
+                      error=str(exc) if isinstance(exc, InputError) else status.status.error)
+        raise
+    status.update(state="interrupted" if failed == "interrupted" else "failed" if failed else "finished",
+                  error=failed if failed and failed != "interrupted" else status.status.error,
+                  next_attempt_at=None, force=True)
     sys.stdout.flush()
     if failed == "interrupted":
-        sys.exit(130)
+        sys.exit(130)  # the shell's code for Ctrl-C; every output above is complete
     if failed:
         raise InputError(failed)
 
@@ -538,6 +584,7 @@ class RunOptions:
     live_clock: bool = False
     start: Any = None  # datetime of the video's start, or None
     views_dir: Path | None = None  # vpdetect views-dir: the camera's views kept across parts (files, connections)
+    status: Any = None  # run_status.StatusFile of --out/status.json, or None
 
 
 def run_one(console, video: Path | str, out_dir: Path, calibration_path: Path | None, options: RunOptions,
@@ -560,14 +607,15 @@ def run_one(console, video: Path | str, out_dir: Path, calibration_path: Path | 
                                        start_time=NOW if live_clock else start.isoformat() if start else "",
                                        events_url=events_url, calibration_mode=calibration_mode,
                                        interval_min=interval_min, views_dir=options.views_dir)
-    shown = description
-    if events_url:  # no password on the screen
+    shown = description.replace(str(video), shown_source(video))  # no password on the screen
+    if events_url:
         from ..publish import redacted
 
-        shown = description.replace(events_url, redacted(events_url))
+        shown = shown.replace(events_url, redacted(events_url))
     console.print(f"[bold]Pipeline[/] {shown}", highlight=False, soft_wrap=True)
     summary = measure_video(video, out_dir, description, console,
-                            keep=(calibration_path,) if calibration_path is not None else (), stop_after_s=duration_s)
+                            keep=(calibration_path,) if calibration_path is not None else (), stop_after_s=duration_s,
+                            status=options.status)
     if live_clock:  # the speedometer took the clock at the first frame: the events say when that was
         start = stream_start(summary.events)
     if summary.stopped:
@@ -602,8 +650,9 @@ def run_one(console, video: Path | str, out_dir: Path, calibration_path: Path | 
     try:
         write_report(paths.report, ReportInputs(
             events=summary.events, calibration=cal, frame=first_frame(video), evaluation=ev,
-            ground_truth_name=str(gt_path or ""), title=f"gst-trafficcal run: {getattr(video, 'name', video)}",
-            source=str(video),
+            ground_truth_name=str(gt_path or ""),
+            title=f"gst-trafficcal run: {getattr(video, 'name', None) or shown_source(video)}",
+            source=shown_source(video),
             speed_limit_kmh=speed_limit, interval_s=60 * interval_min, start_time=start,
             covered=[(0.0, summary.watched_s)] if summary.watched_s else None))
     except InputError as exc:

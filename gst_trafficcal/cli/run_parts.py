@@ -74,6 +74,9 @@ def run_parts(console, parts, total: int | None, out_dir: Path, calibration_path
     for k, (video, name, label) in enumerate(parts, 1):
         sub = out_dir / name
         console.rule(f"[bold]{k}/{total}[/] {label} -> {sub}" if total else f"[bold]connection {k}[/] -> {sub}")
+        if options.status is not None:
+            options.status.update(part=name, parts_done=k - 1, next_attempt_at=None,
+                                  state="starting" if live else options.status.status.state, force=True)
         given, mode = calibration_path, "fixed"
         if given is None and carried is not None:
             sub.mkdir(parents=True, exist_ok=True)
@@ -131,6 +134,11 @@ def run_parts(console, parts, total: int | None, out_dir: Path, calibration_path
             continue
         console.print(f"[yellow]{why}[/]: connecting again in {wait:g} s (Ctrl-C stops)", highlight=False,
                       soft_wrap=True)
+        if options.status is not None:
+            from datetime import datetime, timedelta
+
+            options.status.update(state="reconnecting", parts_done=k, error=why, next_attempt_at=(
+                datetime.now().astimezone() + timedelta(seconds=wait)).isoformat(timespec="milliseconds"))
         try:
             time.sleep(wait)
         except KeyboardInterrupt:
@@ -138,6 +146,8 @@ def run_parts(console, parts, total: int | None, out_dir: Path, calibration_path
             break
         wait = min(2 * wait, RECONNECT_MAX_WAIT)
     combined.close()
+    if options.status is not None:
+        options.status.update(parts_done=len(records))
     what = "connections" if live else f"of {total} files"
     table = Table(title=f"{len(rows)} {what} (speeds in km/h)")
     for col in ("connection" if live else "file", "vehicles", "measured", "mean", "V85", "calibration", "status"):

@@ -168,8 +168,10 @@ def _end_stream_at(pad: Gst.Pad, seconds: float, on_end: Callable[[], None]) -> 
 def run_pipeline_file(description: str, progress: Progress | None = None,
                       on_message: Callable[[BusMessage], None] | None = None, poll_s: float = 0.25,
                       stop_after_s: float | None = None, drain_timeout_s: float = 60.0,
-                      stop_element: str = "") -> RunOutcome:
-    """Play ``description`` to end-of-stream; ``progress(position_s, duration_s or None)`` every ``poll_s``.
+                      stop_element: str = "",
+                      on_calibration: Callable[[str, Calibration], None] | None = None) -> RunOutcome:
+    """Play ``description`` to end-of-stream; ``progress(position_s, duration_s or None)`` every ``poll_s``;
+    ``on_message`` gets each element message, ``on_calibration(element name, calibration)`` each calibration.
 
     The run ends early, as ``gst-launch-1.0 -e`` does, by an end-of-stream sent into the pipeline — so every
     element finishes as at the stream's end (speedometer writes the vehicles still in view, mp4mux completes a
@@ -234,6 +236,8 @@ def run_pipeline_file(description: str, progress: Progress | None = None,
         cal = parse_calibration_message(msg)
         if cal is not None:
             out.calibrations.append((msg.src.get_name() if msg.src else "", cal))
+            if on_calibration is not None:
+                on_calibration(*out.calibrations[-1])
             return None
         s = msg.get_structure()
         if s is not None:

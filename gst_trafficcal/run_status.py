@@ -1,0 +1,142 @@
+"""A long run's state on disk, for monitoring: ``trafficcal run`` keeps ``--out/status.json`` up to date.
+
+A camera measured for days runs unattended (a service, a container): whoever watches it — a monitoring system, an
+operator's script, a video-management system — needs to know without reading logs whether the stream is connected,
+whether the pipeline keeps up with the camera, whether the calibration is complete and when the last vehicle
+passed. :class:`StatusFile` holds that as one JSON object and rewrites it atomically at most every ``every_s``
+seconds while the run goes on (a reader never sees half a file), and at once when the state changes.
+
+Fields (``STATUS_FIELDS``; null where unknown): ``state`` (starting, running, reconnecting, finished, interrupted,
+failed), ``source`` (the input; a URI without its password), ``part`` / ``parts_done`` (the file or connection
+being measured, and how many are done), ``position_s`` / ``duration_s`` (stream seconds; no duration for a live
+stream), ``speed_x`` (stream seconds measured per wall-clock second since the last update: below 1 a live camera
+is not kept up with), ``calibration`` (``state``, ``id``, ``source``, ``scale_m`` of the calibration in force),
+``vehicles`` / ``measured`` (finished vehicles and those with a speed, the whole run), ``last_vehicle_s`` (the
+stream time the last one left), ``last_vehicle_at``, ``camera_moves``, ``warnings`` (the last five),
+``error``, ``next_attempt_at`` (when reconnecting), ``started_at``, ``updated_at`` (ISO 8601 with the UTC offset),
+``pid``.  A failure to write it is reported once and never stops the measurement.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import time
+from collections.abc import Callable
+from dataclasses import asdict, dataclass, field
+from datetime import datetime
+from pathlib import Path
+from typing import Any
+
+from .errors import InputError
+from .fileio import atomic_write_text
+
+STATES = ("starting", "running", "reconnecting", "finished", "interrupted", "failed")
+
+
+def now_iso() -> str:
+    """This machine's clock with its UTC offset, to the millisecond."""
+    return datetime.now().astimezone().isoformat(timespec="milliseconds")
+
+
+@dataclass
+class RunStatus:
+    """The record written to status.json (see the module doc)."""
+
+    source: str = ""
+    state: str = "starting"
+    part: str = ""
+    parts_done: int = 0
+    position_s: float | None = None
+    duration_s: float | None = None
+    speed_x: float | None = None
+    calibration: dict[str, Any] | None = None
+    vehicles: int = 0
+    measured: int = 0
+    last_vehicle_s: float | None = None
+    last_vehicle_at: str | None = None
+    camera_moves: int = 0
+    warnings: list[str] = field(default_factory=list)
+    error: str = ""
+    next_attempt_at: str | None = None
+    started_at: str = field(default_factory=now_iso)
+    updated_at: str = ""
+    pid: int = field(default_factory=os.getpid)
+
+
+STATUS_FIELDS = tuple(RunStatus.__dataclass_fields__)
+
+
+def calibration_fields(cal) -> dict[str, Any]:
+    """What status.json says about a :class:`~gst_trafficcal.calibration.Calibration`."""
+    scale = cal.camera.scale if cal.camera is not None else None
+    return {"state": cal.state, "id": cal.id, "source": cal.source,
+            "scale_m": None if scale is None else round(float(scale), 4)}
+
+
+class StatusFile:
+    """Keeps ``path`` holding the :class:`RunStatus` of a run; ``every_s``: least wall time between rewrites while
+    nothing but the position and counts changed.  ``warn(text)`` is told once when the file cannot be written."""
+
+    def __init__(self, path: str | Path, source: str, every_s: float = 5.0,
+                 warn: Callable[[str], None] | None = None, clock: Callable[[], float] = time.monotonic) -> None:
+        if every_s <= 0:
+            raise InputError(f"the status file's interval must be positive, got {every_s:g} s")
+        self.path, self.every_s, self.warn, self.clock = Path(path), float(every_s), warn, clock
+        self.status = RunStatus(source=source)
+        self._written_at: float | None = None
+        self._rate_from: tuple[float, float] | None = None  # (wall, position) at the last rate update
+        self._failed = False
+        self.write()
+
+    def update(self, force: bool = False, **changes: Any) -> None:
+        """Change fields (a new ``state`` is written at once, other changes when ``every_s`` has passed)."""
+        unknown = set(changes) - set(STATUS_FIELDS)
+        if unknown:
+            raise TypeError(f"unknown status fields: {', '.join(sorted(unknown))}")
+        if "state" in changes and changes["state"] not in STATES:
+            raise ValueError(f"state must be one of {', '.join(STATES)}, got {changes['state']!r}")
+        force = force or ("state" in changes and changes["state"] != self.status.state)
+        for name, value in changes.items():
+            setattr(self.status, name, value)
+        if force or self._written_at is None or self.clock() - self._written_at >= self.every_s:
+            self.write()
+
+    def position(self, position_s: float, duration_s: float | None) -> None:
+        """The stream position now (the rate ``speed_x`` follows from it)."""
+        now = self.clock()
+        if self._rate_from is None or position_s < self._rate_from[1]:
+            self._rate_from = (now, position_s)
+        elif now - self._rate_from[0] >= min(self.every_s, 5.0):
+            self.status.speed_x = round((position_s - self._rate_from[1]) / (now - self._rate_from[0]), 3)
+            self._rate_from = (now, position_s)
+        self.update(position_s=round(position_s, 3), duration_s=duration_s, state="running")
+
+    def vehicle(self, t_s: float | None, measured: bool) -> None:
+        """A vehicle finished (stream time ``t_s`` it left)."""
+        self.update(vehicles=self.status.vehicles + 1, measured=self.status.measured + bool(measured),
+                    last_vehicle_s=t_s, last_vehicle_at=now_iso())
+
+    def warning(self, text: str) -> None:
+        self.update(warnings=(self.status.warnings + [text])[-5:])
+
+    def write(self) -> None:
+        """Rewrite the file now (atomically)."""
+        self.status.updated_at = now_iso()
+        self._written_at = self.clock()
+        try:
+            atomic_write_text(self.path, json.dumps(asdict(self.status), indent=1) + "\n", "the run's status")
+        except InputError as exc:
+            if not self._failed and self.warn is not None:
+                self.warn(f"{exc}; the run goes on without it")
+            self._failed = True
+
+
+def read_status(path: str | Path) -> RunStatus:
+    """A status.json read back (fields it lacks keep their defaults; unknown ones are ignored)."""
+    from .fileio import read_json
+
+    data = read_json(path, "a run's status")
+    if not isinstance(data, dict):
+        raise InputError(f"{path}: not a run's status (a JSON object expected)")
+    return RunStatus(**{k: v for k, v in data.items() if k in STATUS_FIELDS})

@@ -1,0 +1,97 @@
+"""run_status: the status file a long run keeps up to date for monitoring."""
+
+from __future__ import annotations
+
+import json
+import os
+
+import pytest
+
+from gst_trafficcal.errors import InputError
+from gst_trafficcal.run_status import STATUS_FIELDS, StatusFile, read_status
+
+
+class Clock:
+    """A monotonic clock the test moves by hand."""
+
+    def __init__(self) -> None:
+        self.t = 100.0
+
+    def __call__(self) -> float:
+        return self.t
+
+
+def on_disk(path) -> dict:
+    return json.loads(path.read_text())
+
+
+def test_written_at_once_then_at_most_every_interval_but_at_once_on_a_new_state(tmp_path):
+    clock, path = Clock(), tmp_path / "status.json"
+    status = StatusFile(path, "rtsp://cam/1", every_s=5.0, clock=clock)
+    first = on_disk(path)
+    assert tuple(first) == STATUS_FIELDS and first["state"] == "starting" and first["pid"] == os.getpid()
+    assert first["source"] == "rtsp://cam/1" and first["vehicles"] == 0 and first["position_s"] is None
+    status.position(1.0, None)  # a new state: written at once
+    assert on_disk(path)["state"] == "running" and on_disk(path)["position_s"] == 1.0
+    clock.t += 2.0
+    status.position(3.0, None)
+    assert on_disk(path)["position_s"] == 1.0  # 2 s later: not yet
+    clock.t += 3.0
+    status.position(6.0, None)
+    assert on_disk(path)["position_s"] == 6.0  # 5 s after the last write
+    status.update(state="reconnecting", error="the stream ended")
+    assert on_disk(path)["state"] == "reconnecting" and on_disk(path)["error"] == "the stream ended"
+    assert not list(tmp_path.glob(".*tmp"))  # written through a temporary file, nothing left behind
+
+
+def test_speed_against_real_time_counts_and_warnings(tmp_path):
+    clock, path = Clock(), tmp_path / "status.json"
+    status = StatusFile(path, "v.mp4", every_s=1.0, clock=clock)
+    status.position(0.0, 60.0)
+    clock.t += 2.0
+    status.position(5.0, 60.0)  # 5 s of video in 2 s
+    assert on_disk(path)["speed_x"] == 2.5 and on_disk(path)["duration_s"] == 60.0
+    clock.t += 4.0
+    status.position(7.0, 60.0)  # slower than real time now
+    assert on_disk(path)["speed_x"] == 0.5
+    status.position(1.0, 60.0)  # back to the start (a new part): the rate starts again, the last one stays
+    assert on_disk(path)["speed_x"] == 0.5
+    status.vehicle(6.5, measured=True)
+    status.vehicle(6.9, measured=False)
+    for k in range(7):
+        status.warning(f"w{k}")
+    clock.t += 1.0
+    status.update()
+    got = read_status(path)
+    assert (got.vehicles, got.measured, got.last_vehicle_s) == (2, 1, 6.9) and got.last_vehicle_at
+    assert got.warnings == ["w2", "w3", "w4", "w5", "w6"]  # the last five
+
+
+def test_bad_fields_and_states_are_programming_errors(tmp_path):
+    status = StatusFile(tmp_path / "s.json", "v.mp4")
+    with pytest.raises(TypeError, match="unknown status fields: colour"):
+        status.update(colour="red")
+    with pytest.raises(ValueError, match="state must be one of"):
+        status.update(state="sleeping")
+    with pytest.raises(InputError, match="must be positive"):
+        StatusFile(tmp_path / "t.json", "v.mp4", every_s=0)
+
+
+def test_a_status_file_that_cannot_be_written_is_told_once_and_the_run_goes_on(tmp_path):
+    blocker = tmp_path / "file"
+    blocker.write_text("x")  # a file where the folder should be
+    told: list[str] = []
+    status = StatusFile(blocker / "status.json", "v.mp4", every_s=0.1, warn=told.append)
+    status.update(state="running")
+    status.update(state="finished")
+    assert len(told) == 1 and "cannot write the run's status" in told[0] and "the run goes on" in told[0]
+    assert status.status.state == "finished"
+
+
+def test_read_status_names_a_broken_file(tmp_path):
+    bad = tmp_path / "status.json"
+    bad.write_text("[1, 2]")
+    with pytest.raises(InputError, match="not a run's status"):
+        read_status(bad)
+    bad.write_text('{"state": "running", "from_a_newer_version": 1}')
+    assert read_status(bad).state == "running"
