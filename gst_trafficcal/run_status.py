@@ -9,8 +9,9 @@ seconds while the run goes on (a reader never sees half a file), and at once whe
 Fields (``STATUS_FIELDS``; null where unknown): ``state`` (starting, running, reconnecting, finished, interrupted,
 failed), ``source`` (the input; a URI without its password), ``part`` / ``parts_done`` (the file or connection
 being measured, and how many are done), ``position_s`` / ``duration_s`` (stream seconds; no duration for a live
-stream), ``speed_x`` (stream seconds measured per wall-clock second since the last update: below 1 a live camera
-is not kept up with), ``calibration`` (``state``, ``id``, ``source``, ``scale_m`` of the calibration in force),
+stream), ``speed_x`` (stream seconds measured per wall-clock second since the last update), ``frames`` /
+``frames_dropped`` (a live stream's frames, and those dropped because the machine could not keep up: a live camera
+does not wait), ``calibration`` (``state``, ``id``, ``source``, ``scale_m`` of the calibration in force),
 ``vehicles`` / ``measured`` (finished vehicles and those with a speed, the whole run), ``last_vehicle_s`` (the
 stream time the last one left), ``last_vehicle_at``, ``camera_moves``, ``warnings`` (the last five),
 ``error``, ``next_attempt_at`` (when reconnecting), ``started_at``, ``updated_at`` (ISO 8601 with the UTC offset),
@@ -50,6 +51,8 @@ class RunStatus:
     position_s: float | None = None
     duration_s: float | None = None
     speed_x: float | None = None
+    frames: int = 0  # a live stream's frames that reached the analysis (all parts)
+    frames_dropped: int = 0  # of those, dropped to stay in real time
     calibration: dict[str, Any] | None = None
     vehicles: int = 0
     measured: int = 0

@@ -28,3 +28,15 @@ input_uri() {  # INPUT: prints the URI uridecodebin plays (a file becomes file:/
         echo "file://$(realpath "$1")"
     fi
 }
+
+analysis_queue() {  # URI: prints the queue in front of the analysis, one word per line (for mapfile)
+    # A live camera does not wait for a slow machine: its frames would pile up without end and the measurements
+    # fall further and further behind the road. For a live source the queue keeps a second of frames (25) and
+    # drops the oldest beyond that; the elements measure from timestamps, so a dropped frame costs samples only.
+    # A file (or anything else) waits for the analysis: a plain queue.
+    case "$1" in
+        rtsp://* | rtsps://* | rtspt://* | udp://* | srt://* | rtmp://*)
+            printf '%s\n' queue leaky=downstream max-size-buffers=25 max-size-bytes=0 max-size-time=0 ;;
+        *) printf '%s\n' queue ;;
+    esac
+}

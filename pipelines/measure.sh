@@ -76,8 +76,9 @@ clock=()
 [[ "$uri" == file://* ]] || clock=(start-datetime=now)  # a live source: date the vehicles by this machine's clock
 
 events="$out_dir/vehicles.jsonl"
+mapfile -t queue < <(analysis_queue "$uri")  # leaky for a live source (lib.sh)
 # shellcheck disable=SC2206  # word splitting of the user's property lists is intended
-pipeline=(uridecodebin "uri=$uri" ! videoconvert ! video/x-raw,format=I420
+pipeline=(uridecodebin "uri=$uri" ! videoconvert ! video/x-raw,format=I420 ! "${queue[@]}"
           ! "${vp[@]}" ${VPDETECT_OPTS:-} ! vehicledetect ${VEHICLEDETECT_OPTS:-}
           ! speedometer "events-file=$events" "csv-file=$out_dir/vehicles.csv" "results-file=$out_dir/system.json"
             "intervals-file=$out_dir/intervals.csv" "${clock[@]}" ${SPEEDOMETER_OPTS:-} ! fakesink)

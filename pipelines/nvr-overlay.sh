@@ -117,8 +117,9 @@ else
     overlay_cal=("${cal_prop[@]}")  # no vpdetect: the overlay draws the given calibration itself
 fi
 
+mapfile -t queue < <(analysis_queue "$uri")  # leaky for a live source (lib.sh)
 # shellcheck disable=SC2206  # word splitting of the user's property lists is intended
-pipeline=(uridecodebin "uri=$uri" ! videoconvert ! video/x-raw,format=I420 ! queue)
+pipeline=(uridecodebin "uri=$uri" ! videoconvert ! video/x-raw,format=I420 ! "${queue[@]}")
 if [[ -n "${analysis// }" ]]; then
     # shellcheck disable=SC2206
     pipeline+=(! $analysis)

@@ -161,3 +161,29 @@ def test_ctrl_c_finishes_the_stream_and_a_second_one_stops_at_once(tmp_path, ctr
                           "identity sleep-time=300000 ! fakesink", progress=stubborn, poll_s=0.05)
     assert len(calls) == 2
     assert signal.getsignal(signal.SIGINT) is signal.default_int_handler  # the handler is put back
+
+
+def test_a_live_stream_too_fast_for_the_machine_drops_its_oldest_frames_a_file_never_does(tmp_path):
+    """A camera served over RTSP (4 s at 25 fps) into an analysis that manages about 6 frames a second (identity
+    sleeping 160 ms a frame): the live queue keeps a second of frames and drops the oldest beyond that — about half
+    of them here (4 s: some 25 analysed, 25 queued at the end) — instead of falling further and further behind.
+    The same analysis on a file drops nothing: a file waits for it."""
+    from .conftest import serve_rtsp
+
+    launch = ("( videotestsrc is-live=true num-buffers=100 pattern=ball ! video/x-raw,width=320,height=240,"
+              "framerate=25/1 ! x264enc tune=zerolatency speed-preset=ultrafast key-int-max=25 ! "
+              "rtph264pay name=pay0 pt=96 )")
+    slow = ("videoconvert ! queue name=tcqueue max-size-buffers=4 max-size-bytes=0 max-size-time=0 ! "
+            "identity sleep-time=160000 ! fakesink")
+    told: list[tuple[int, int]] = []
+    for uri in serve_rtsp(launch, "cam"):
+        live = run_pipeline_file(f"uridecodebin uri={uri} ! {slow}", live_queue="tcqueue",
+                                 on_dropped=lambda dropped, frames: told.append((dropped, frames)))
+    assert live.live and live.frames_in >= 90, (live.frames_in, live.frames_dropped)
+    assert 0.3 < live.frames_dropped / live.frames_in < 0.8, (live.frames_in, live.frames_dropped)
+    assert told and told[-1][0] <= live.frames_dropped and all(a[0] < b[0] for a, b in zip(told, told[1:]))
+    clip = tmp_path / "clip.mp4"
+    run_pipeline_file("videotestsrc num-buffers=20 pattern=ball ! video/x-raw,width=320,height=240,framerate=25/1 ! "
+                      f"x264enc ! mp4mux ! filesink location={clip}")
+    played = run_pipeline_file(f"filesrc location={clip} ! decodebin ! {slow}", live_queue="tcqueue")
+    assert not played.live and played.frames_dropped == 0

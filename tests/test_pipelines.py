@@ -141,9 +141,13 @@ def test_measure_writes_vehicles_and_matches_trafficcal_run(clip, tmp_path):
 def test_measure_dates_the_vehicles_of_a_live_source_and_of_a_recording_when_told(clip, tmp_path):
     proc = script("measure.sh", "rtsp://127.0.0.1:9/none", tmp_path / "live")  # nothing listens: fails fast
     assert proc.returncode != 0 and " start-datetime=now " in proc.stderr.splitlines()[0] + " "
+    # a live camera does not wait: the analysis drops the oldest frames beyond a second of them, a file never
+    assert " ! queue leaky=downstream max-size-buffers=25 max-size-bytes=0 max-size-time=0 ! vpdetect" in \
+        proc.stderr.splitlines()[0]
     proc = script("measure.sh", clip / "video.mp4", tmp_path / "rec", clip / "calibration.json",
                   SPEEDOMETER_OPTS="start-datetime=2026-12-05T08:00:00Z")
     assert proc.returncode == 0, proc.stderr[-2000:]
+    assert " ! queue ! vpdetect" in proc.stderr.splitlines()[0]
     events = read_events(tmp_path / "rec" / "vehicles.jsonl").events
     assert events and all(e.first_time == f"2026-12-05T08:00:{e.first_timestamp_s:06.3f}+00:00" for e in events)
 

@@ -354,6 +354,7 @@ def test_a_live_stream_runs_until_ctrl_c_and_every_output_is_complete(clip, rtsp
     assert 12 < frames < 150  # some of the 12 s (150 frames) clip, not all of it
     status = read_status(out / "status.json")
     assert status.state == "interrupted" and status.vehicles == len(events)
+    assert 12 < status.frames < 150 and 0 <= status.frames_dropped < status.frames  # a live stream's frames counted
     for name in ("calibration.json", "system.json", "vehicles.csv", "intervals.csv", "report.html"):
         assert (out / name).is_file(), name
 

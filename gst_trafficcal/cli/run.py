@@ -73,6 +73,7 @@ class RunPaths:
 
 STOP_ELEMENT = "tcstart"  # the first element on the decoded video: --duration ends the stream there, exactly
 QUEUE = "queue max-size-buffers=4 max-size-bytes=0 max-size-time=0"
+LIVE_QUEUE = "tcqueue"  # the queue in front of the analysis: leaky for a live source (gst.runner.run_pipeline_file)
 DEFAULT_DETECTOR = "vehicleseg"  # trafficcal run / demo; the element's own default (no model) is the background one
 BACKGROUND = "background"  # --detector value for vehicledetect without a model
 
@@ -133,7 +134,7 @@ def pipeline_description(video: Path | str, paths: RunPaths, calibration: Path |
     model = model_of(detector)
     det = f"vehicledetect model={quote(model)}" if model else "vehicledetect"
     chain = [*source_elements(video), f"videoconvert name={STOP_ELEMENT}", "video/x-raw,format=I420",
-             *([QUEUE] if queues else []), vp, det, *([QUEUE] if queues else []),
+             *([f"{QUEUE} name={LIVE_QUEUE}"] if queues else []), vp, det, *([QUEUE] if queues else []),
              "tracker" if body_shapes == "auto" else f"tracker body-shapes={body_shapes}"]
     if bbscale:
         chain.append(f"bbscale regression-file={quote(scale_regression)}" if scale_regression else "bbscale")
@@ -258,14 +259,27 @@ def measure_video(video: Path | str, out_dir: Path, description: str, console, l
             if status is not None:
                 status.position(pos, dur)
 
+        def on_dropped(dropped: int, frames: int) -> None:
+            if status is not None:
+                status.update(frames_dropped=dropped_before + dropped, frames=frames_before + frames)
+
+        dropped_before = status.status.frames_dropped if status is not None else 0  # earlier parts'
+        frames_before = status.status.frames if status is not None else 0
         try:
             outcome = run_pipeline_file(description, progress=progress, on_message=on_message,
                                         stop_after_s=stop_after_s, stop_element=STOP_ELEMENT,
-                                        on_calibration=on_calibration)
+                                        on_calibration=on_calibration, live_queue=LIVE_QUEUE,
+                                        on_dropped=on_dropped)
         except RunFailed as exc:
             outcome, failure = exc.outcome, str(exc)
         except PipelineError as exc:
             raise InputError(f"{shown_source(video)}: {exc}".replace(str(video), shown_source(video))) from None
+    if outcome.frames_dropped:  # a live camera faster than this machine: frames dropped to stay in real time
+        share = outcome.frames_dropped / max(outcome.frames_in, 1)
+        outcome.warnings.append(
+            f"this machine could not keep up with the live stream: {outcome.frames_dropped} of {outcome.frames_in} "
+            f"frames ({100 * share:.0f} %) were dropped to stay in real time; the vehicles are measured from the "
+            "frames kept (--no-overlay, --detector background or a faster machine keep more)")
     summary = RunSummary(outcome.calibration, _read_vehicle_events(paths), outcome.warnings,
                          duration_s=outcome.duration_s, stopped=outcome.stopped, position_s=outcome.position_s,
                          moves=outcome.moves,
@@ -274,6 +288,9 @@ def measure_video(video: Path | str, out_dir: Path, description: str, console, l
     if status is not None:
         for w in outcome.warnings:
             status.warning(w)
+        if outcome.live:
+            status.update(frames_dropped=dropped_before + outcome.frames_dropped,
+                          frames=frames_before + outcome.frames_in)
         if failure is not None:
             status.update(error=failure)
     if summary.calibration is not None:

@@ -51,6 +51,9 @@ class RunOutcome:
     position_s: float | None = None  # last position seen
     duration_s: float | None = None
     stopped: str = ""  # why the run ended before the stream did ("interrupted", "duration"); "" at the stream's end
+    live: bool = False  # the source was live (a camera): it does not wait for us
+    frames_in: int = 0  # frames that reached the live queue (see run_pipeline_file's ``live_queue``)
+    frames_dropped: int = 0  # of those, dropped to keep up with a live source
 
     @property
     def calibration(self) -> Calibration | None:
@@ -165,13 +168,42 @@ def _end_stream_at(pad: Gst.Pad, seconds: float, on_end: Callable[[], None]) -> 
     pad.add_probe(Gst.PadProbeType.BUFFER, probe)
 
 
+LIVE_QUEUE_BUFFERS = 25  # frames a live run's queue holds (a second at 25 fps) before it drops the oldest
+
+
+def _count_through(queue: Gst.Element) -> Callable[[], tuple[int, int]]:
+    """Count the buffers into and out of ``queue``: a function giving (in, dropped) so far (dropped = in - out - the
+    frames still queued)."""
+    counts = [0, 0]
+
+    def counter(k: int):
+        def probe(_pad: Gst.Pad, _info: Gst.PadProbeInfo) -> Gst.PadProbeReturn:
+            counts[k] += 1
+            return Gst.PadProbeReturn.OK
+        return probe
+
+    queue.get_static_pad("sink").add_probe(Gst.PadProbeType.BUFFER, counter(0))
+    queue.get_static_pad("src").add_probe(Gst.PadProbeType.BUFFER, counter(1))
+    return lambda: (counts[0], max(0, counts[0] - counts[1] - int(queue.get_property("current-level-buffers"))))
+
+
 def run_pipeline_file(description: str, progress: Progress | None = None,
                       on_message: Callable[[BusMessage], None] | None = None, poll_s: float = 0.25,
                       stop_after_s: float | None = None, drain_timeout_s: float = 60.0,
                       stop_element: str = "",
-                      on_calibration: Callable[[str, Calibration], None] | None = None) -> RunOutcome:
+                      on_calibration: Callable[[str, Calibration], None] | None = None,
+                      live_queue: str = "",
+                      on_dropped: Callable[[int, int], None] | None = None) -> RunOutcome:
     """Play ``description`` to end-of-stream; ``progress(position_s, duration_s or None)`` every ``poll_s``;
     ``on_message`` gets each element message, ``on_calibration(element name, calibration)`` each calibration.
+
+    ``live_queue``: the name of a ``queue`` in front of the analysis.  When the source turns out to be live (a
+    camera: the pipeline does not preroll), that queue holds up to :data:`LIVE_QUEUE_BUFFERS` frames and then drops
+    the oldest (leaky downstream), so a machine too slow for the stream falls behind by at most that much instead of
+    without end (a live source does not wait: its packets pile up in memory, or are lost, and the measurements lag
+    further and further behind the road).  Our elements measure from timestamps, so a dropped frame costs samples,
+    not correctness.  ``outcome.frames_in`` / ``frames_dropped`` count the frames; ``on_dropped(dropped, in)`` is
+    told when more were dropped.  A file is never dropped from: it waits for us.
 
     The run ends early, as ``gst-launch-1.0 -e`` does, by an end-of-stream sent into the pipeline — so every
     element finishes as at the stream's end (speedometer writes the vehicles still in view, mp4mux completes a
@@ -258,10 +290,36 @@ def run_pipeline_file(description: str, progress: Progress | None = None,
     main = threading.current_thread() is threading.main_thread() and \
         signal.getsignal(signal.SIGINT) is not signal.SIG_IGN
     previous = signal.signal(signal.SIGINT, on_sigint) if main else None
+    counted = None  # () -> (frames in, dropped) of the live queue
+    queue = pipeline.get_by_name(live_queue) if live_queue else None
+
+    def decide_live() -> bool:
+        """Once what feeds the queue answers a latency query (the source linked): whether it is live; then the
+        queue is made leaky for a live one.  False while it cannot tell yet.  (Asked upstream of the queue: the
+        pipeline's own answer is the sinks', and a sink that does not sync calls every stream not live.)"""
+        nonlocal counted
+        query = Gst.Query.new_latency()
+        if not queue.get_static_pad("sink").peer_query(query):
+            return False
+        out.live = bool(query.parse_latency()[0])
+        if out.live and queue is not None:
+            queue.set_property("max-size-buffers", LIVE_QUEUE_BUFFERS)
+            queue.set_property("leaky", 2)  # downstream: the oldest queued frame goes
+            counted = _count_through(queue)
+        return True
+
+    decided = queue is None
     try:
         started = pipeline.set_state(Gst.State.PLAYING) != Gst.StateChangeReturn.FAILURE
         while True:
             result = step()
+            if not decided and started:
+                decided = decide_live()
+            if counted is not None:
+                frames_in, dropped = counted()
+                if dropped > out.frames_dropped and on_dropped is not None:
+                    on_dropped(dropped, frames_in)
+                out.frames_in, out.frames_dropped = frames_in, dropped
             if interrupts:
                 finish_early("interrupted")
             if result is not None:
