@@ -14,14 +14,17 @@ stream), ``speed_x`` (stream seconds measured per wall-clock second since the la
 does not wait), ``calibration`` (``state``, ``id``, ``source``, ``scale_m`` of the calibration in force),
 ``vehicles`` / ``measured`` (finished vehicles and those with a speed, the whole run), ``last_vehicle_s`` (the
 stream time the last one left), ``last_vehicle_at``, ``camera_moves``, ``warnings`` (the last five),
-``error``, ``next_attempt_at`` (when reconnecting), ``started_at``, ``updated_at`` (ISO 8601 with the UTC offset),
-``pid``.  A failure to write it is reported once and never stops the measurement.
+``error`` (the last failure), ``next_attempt_at`` (when reconnecting), ``stream_lost_at`` (since when a live stream
+is being connected again), ``started_at``, ``state_since``,
+``updated_at`` (ISO 8601 with the UTC offset), ``pid`` and ``host`` of the process.  :func:`health` judges a status
+as a health check would (``trafficcal status``).  A failure to write it is reported once and never stops the measurement.
 """
 
 from __future__ import annotations
 
 import json
 import os
+import socket
 import time
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
@@ -62,9 +65,12 @@ class RunStatus:
     warnings: list[str] = field(default_factory=list)
     error: str = ""
     next_attempt_at: str | None = None
+    stream_lost_at: str | None = None  # since when a live stream is being connected again (null while running)
     started_at: str = field(default_factory=now_iso)
+    state_since: str = field(default_factory=now_iso)  # when ``state`` last changed
     updated_at: str = ""
     pid: int = field(default_factory=os.getpid)
+    host: str = field(default_factory=socket.gethostname)
 
 
 STATUS_FIELDS = tuple(RunStatus.__dataclass_fields__)
@@ -100,6 +106,12 @@ class StatusFile:
         if "state" in changes and changes["state"] not in STATES:
             raise ValueError(f"state must be one of {', '.join(STATES)}, got {changes['state']!r}")
         force = force or ("state" in changes and changes["state"] != self.status.state)
+        if "state" in changes and changes["state"] != self.status.state:
+            self.status.state_since = now_iso()
+            if changes["state"] == "reconnecting" and self.status.stream_lost_at is None:
+                self.status.stream_lost_at = self.status.state_since
+            elif changes["state"] == "running":
+                self.status.stream_lost_at = None
         for name, value in changes.items():
             setattr(self.status, name, value)
         if force or self._written_at is None or self.clock() - self._written_at >= self.every_s:
@@ -142,4 +154,50 @@ def read_status(path: str | Path) -> RunStatus:
     data = read_json(path, "a run's status")
     if not isinstance(data, dict):
         raise InputError(f"{path}: not a run's status (a JSON object expected)")
+    data.setdefault("state_since", data.get("updated_at", ""))  # files of an earlier version: no such fields
+    data.setdefault("host", "")
     return RunStatus(**{k: v for k, v in data.items() if k in STATUS_FIELDS})
+
+
+FINAL_STATES = ("finished", "interrupted", "failed")
+
+
+def _age_s(iso: str, now: datetime) -> float | None:
+    try:
+        return (now - datetime.fromisoformat(iso)).total_seconds()
+    except (TypeError, ValueError):
+        return None
+
+
+def _process_alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:  # someone else's process: it exists
+        return True
+    return True
+
+
+def health(status: RunStatus, max_age_s: float = 60.0, now: datetime | None = None) -> list[str]:
+    """Why ``status`` is not healthy (empty: healthy), as a container or service health check asks.
+
+    Unhealthy: the run failed; a run not ended whose file was not updated for ``max_age_s`` (the process hangs or
+    is gone) or whose process is gone (checked on the machine that wrote it); a stream lost (reconnecting) for
+    longer than ``max_age_s``.  A run that finished or was interrupted ended as it should: healthy."""
+    now = now or datetime.now().astimezone()
+    why = []
+    if status.state == "failed":
+        why.append(f"the run failed: {status.error or 'no reason recorded'}")
+    if status.state in FINAL_STATES:
+        return why
+    age = _age_s(status.updated_at, now)
+    if age is None or age > max_age_s:
+        why.append("status not updated for " + ("an unknown time" if age is None else f"{age:.0f} s") +
+                   f" (more than {max_age_s:g} s): the run hangs or is gone")
+    if status.host == socket.gethostname() and status.pid and not _process_alive(status.pid):
+        why.append(f"process {status.pid} is not running any more")
+    lost = _age_s(status.stream_lost_at, now) if status.stream_lost_at else None
+    if status.state in ("reconnecting", "starting") and lost is not None and lost > max_age_s:
+        why.append(f"no stream for {lost:.0f} s ({status.error or 'connection lost'}); still trying")
+    return why

@@ -124,6 +124,9 @@ def test_run_writes_every_output(clip, with_truth):
                                                                                                abs=1e-4)
     assert status.position_s == pytest.approx(12.0, abs=0.2) and status.duration_s == pytest.approx(12.0, abs=0.2)
     assert status.camera_moves == 0 and (status.speed_x is None or status.speed_x > 0)
+    shown = trafficcal("status", out)  # for people and health checks: ended as it should, exit 0
+    assert shown.returncode == 0 and "status.json: finished since" in shown.stdout, shown.stdout + shown.stderr
+    assert f"{len(events)}, {sum(e.measured for e in events)} measured" in shown.stdout and "healthy" in shown.stdout
 
 
 def test_stream_ending_before_calibration_converges(clip, tmp_path):
@@ -333,6 +336,8 @@ def test_a_live_stream_runs_until_ctrl_c_and_every_output_is_complete(clip, rtsp
     assert status.state == "running" and status.source == rtsp_clip and status.pid == proc.pid
     assert 0 < status.position_s < 12 and 0.6 < status.speed_x < 1.5, status
     assert status.calibration["scale_m"] is not None and status.last_vehicle_at
+    check = trafficcal("status", out, "--json")  # a health check while it runs: healthy
+    assert check.returncode == 0 and json.loads(check.stdout)["healthy"] is True, check.stdout + check.stderr
     proc.send_signal(signal.SIGINT)
     stdout, stderr = proc.communicate(timeout=120)
     assert proc.returncode == 130, stdout[-2000:] + stderr[-2000:]

@@ -95,3 +95,53 @@ def test_read_status_names_a_broken_file(tmp_path):
         read_status(bad)
     bad.write_text('{"state": "running", "from_a_newer_version": 1}')
     assert read_status(bad).state == "running"
+
+
+def test_health_as_a_health_check_judges_it(tmp_path):
+    import subprocess
+    import sys
+    from dataclasses import replace
+    from datetime import datetime, timedelta
+
+    from gst_trafficcal.run_status import health
+
+    status = StatusFile(tmp_path / "s.json", "rtsp://cam/1")
+    status.update(state="running")
+    now = datetime.now().astimezone()
+    fresh = status.status
+    assert health(fresh, 60, now) == []
+    assert "not updated for 120 s" in health(fresh, 60, now + timedelta(seconds=120))[0]
+    assert health(replace(fresh, state="finished"), 60, now + timedelta(hours=5)) == []  # ended as it should
+    assert health(replace(fresh, state="failed", error="disk full"), 60, now) == ["the run failed: disk full"]
+    gone = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True, text=True)
+    assert health(replace(fresh, pid=int(gone.stdout)), 60, now) == [f"process {int(gone.stdout)} is not running any more"]
+    assert health(replace(fresh, pid=int(gone.stdout), host="another-machine"), 60, now) == []  # not ours to check
+    # a lost stream: since when is kept through the attempts (starting, reconnecting, ...) until it runs again
+    status.update(state="reconnecting", error="the stream ended")
+    lost = status.status.stream_lost_at
+    status.update(state="starting")
+    status.update(state="reconnecting")
+    assert lost and status.status.stream_lost_at == lost
+    later = datetime.fromisoformat(lost) + timedelta(seconds=90)
+    assert health(replace(status.status, updated_at=later.isoformat()), 60, later) == \
+        ["no stream for 90 s (the stream ended); still trying"]
+    status.update(state="running")
+    assert status.status.stream_lost_at is None
+
+
+def test_trafficcal_status_exit_codes(tmp_path):
+    """`trafficcal status`: 1 and the reason for a run that stopped updating, 2 without a status."""
+    import subprocess
+    import sys
+
+    status = StatusFile(tmp_path / "status.json", "rtsp://cam/1")
+    status.update(state="running")
+    data = on_disk(tmp_path / "status.json")
+    data["updated_at"] = "2026-01-01T00:00:00.000+00:00"
+    (tmp_path / "status.json").write_text(json.dumps(data))
+    run = subprocess.run([sys.executable, "-m", "gst_trafficcal", "status", str(tmp_path)], capture_output=True,
+                         text=True, timeout=60)
+    assert run.returncode == 1 and "UNHEALTHY: status not updated for" in run.stdout, run.stdout + run.stderr
+    missing = subprocess.run([sys.executable, "-m", "gst_trafficcal", "status", str(tmp_path / "nothing")],
+                             capture_output=True, text=True, timeout=60)
+    assert missing.returncode == 2 and "no such file (give the --out folder" in missing.stderr

@@ -26,6 +26,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "run": ("run", "Calibrate and measure every vehicle of a video in one pass (GStreamer elements), with outputs."),
     "fit-scale": ("fit_scale", "Fit the BBScale scale-correction regression on training scenes."),
     "report": ("report", "Write report.html from a run's vehicle events, calibration and optional ground truth."),
+    "status": ("status", "What a run is doing (its status.json); a health check's exit code."),
 }
 
 
