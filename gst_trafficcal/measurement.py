@@ -59,6 +59,8 @@ END_AFTER_MARGIN = 0.4  # seconds beyond the tracker's coasting time (max_lost) 
 DEFAULT_END_AFTER = TrackerConfig.max_lost + END_AFTER_MARGIN  # a vehicle the tracker still coasts is not cut
 MIN_DIRECTION_SPAN = 0.05  # plane units the reference point must travel along the road to give a direction
 DEFAULT_STITCH_GAP = 1.0  # seconds: a track starting this soon after a vehicle was lost may continue it
+DEFAULT_MAX_WAITING = 2000  # vehicles held for a calibration with a scale (a few tens of MB; a busy road's hour
+# or two): a live camera that never calibrates must neither grow without end nor keep its counts from the files
 STITCH_LATERAL_M = 1.5  # metres across the road a continuing track may start from where the lost one was heading
 LIVE_WINDOW = 250  # observations behind the per-frame estimate of a vehicle still in view
 LIVE_LABEL_EVERY = 25  # observations between two classifications of a vehicle in view (its final one: when it leaves)
@@ -145,13 +147,17 @@ class SpeedMeter:
 
     def __init__(self, tau: int = DEFAULT_TAU, min_track_length: int = DEFAULT_MIN_TRACK_LENGTH,
                  end_after: float = DEFAULT_END_AFTER, calibration: Calibration | None = None,
-                 checks: SpeedChecks = SpeedChecks(), stitch_gap: float = DEFAULT_STITCH_GAP) -> None:
+                 checks: SpeedChecks = SpeedChecks(), stitch_gap: float = DEFAULT_STITCH_GAP,
+                 max_waiting: int = DEFAULT_MAX_WAITING) -> None:
         if tau < 1:
             raise ValueError(f"tau must be at least 1, got {tau}")
         if min_track_length < tau + 1:
             raise ValueError(f"min_track_length must be at least tau + 1 = {tau + 1}, got {min_track_length}")
         if not end_after > 0:
             raise ValueError(f"end_after must be positive, got {end_after}")
+        if max_waiting < 1:
+            raise ValueError(f"max_waiting must be at least 1, got {max_waiting}")
+        self.max_waiting = int(max_waiting)
         self.tau = int(tau)
         self.min_track_length = int(min_track_length)
         self.end_after = float(end_after)
@@ -272,6 +278,12 @@ class SpeedMeter:
                 out.append(self._measure(rec))
             else:
                 self._pending.append(rec)
+        excess = len(self._pending) - self.max_waiting
+        if excess > 0:  # held long enough: memory stays bounded and the counts reach the files
+            old, self._pending = self._pending[:excess], self._pending[excess:]
+            why = (f"no calibration with a scale while {self.max_waiting} later vehicles left (at most that many "
+                   "wait for one; the oldest is then written unmeasured)")
+            out += [self._unmeasured(r, why) for r in old]
         return out
 
     def _stitch(self, rec: _Record) -> bool:

@@ -17,7 +17,8 @@ stream time the last one left), ``last_vehicle_at``, ``camera_moves``, ``warning
 ``error`` (the last failure), ``next_attempt_at`` (when reconnecting), ``stream_lost_at`` (since when a live stream
 is being connected again), ``started_at``, ``state_since``,
 ``updated_at`` (ISO 8601 with the UTC offset), ``pid`` and ``host`` of the process.  :func:`health` judges a status
-as a health check would (``trafficcal status``).  A failure to write it is reported once and never stops the measurement.
+as a health check would (``trafficcal status``).  A failure to write it is reported once and never stops the
+measurement.
 """
 
 from __future__ import annotations

@@ -172,6 +172,29 @@ def test_vehicles_wait_for_the_scale(scene, truth):
     check_against_truth(out + meter.flush(), truth)
 
 
+def test_at_most_max_waiting_vehicles_wait_for_the_scale_the_oldest_go_out_unmeasured(scene, truth):
+    """A camera that does not calibrate: beyond ``max_waiting`` vehicles the oldest is written unmeasured as the next
+    one leaves (bounded memory; the counts reach the files); those still held are measured when the scale comes."""
+    meter = SpeedMeter(calibration=cal_of(scene.camera, scale=False), max_waiting=2)
+    half = len(scene.frames) // 2
+    out = []
+    for f in scene.frames[:half]:
+        finished = meter.update(f.t, sightings(f)).finished
+        assert meter.waiting <= 2
+        out += finished
+    assert len(out) >= 2 and meter.waiting == 2
+    assert all(m.event.speed_kmh is None and "while 2 later vehicles left" in m.event.reason for m in out)
+    gone = [m.event.last_timestamp_s for m in out]
+    held = meter.set_calibration(cal_of(scene.camera))
+    assert len(held) == 2 and min(m.event.last_timestamp_s for m in held) >= max(gone)  # the oldest went first
+    for f in scene.frames[half:]:
+        out += meter.update(f.t, sightings(f)).finished
+    events = out + held + meter.flush()
+    assert sorted(m.event.id for m in events) == sorted(truth)  # every vehicle once
+    with pytest.raises(ValueError, match="max_waiting"):
+        SpeedMeter(max_waiting=0)
+
+
 @pytest.mark.parametrize("cal, words", [(None, "no calibration"), ("vps", "no scale")])
 def test_stream_ending_before_calibration_reports_every_vehicle_unmeasured(scene, truth, cal, words):
     meter = SpeedMeter(calibration=None if cal is None else cal_of(scene.camera, scale=False))

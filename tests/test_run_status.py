@@ -114,7 +114,8 @@ def test_health_as_a_health_check_judges_it(tmp_path):
     assert health(replace(fresh, state="finished"), 60, now + timedelta(hours=5)) == []  # ended as it should
     assert health(replace(fresh, state="failed", error="disk full"), 60, now) == ["the run failed: disk full"]
     gone = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True, text=True)
-    assert health(replace(fresh, pid=int(gone.stdout)), 60, now) == [f"process {int(gone.stdout)} is not running any more"]
+    dead = int(gone.stdout)
+    assert health(replace(fresh, pid=dead), 60, now) == [f"process {dead} is not running any more"]
     assert health(replace(fresh, pid=int(gone.stdout), host="another-machine"), 60, now) == []  # not ours to check
     # a lost stream: since when is kept through the attempts (starting, reconnecting, ...) until it runs again
     status.update(state="reconnecting", error="the stream ended")

@@ -242,6 +242,12 @@ def test_no_calibration_reports_every_vehicle_unmeasured(clip, tmp_path):
     assert len(events) >= 15
     assert all(e.speed_kmh is None and e.reason.startswith("no calibration") for e in events)
     assert results.calibration is None
+    # max-waiting: at most 3 held for a calibration; the older ones written as the next ones leave
+    _, bounded, _ = measure(clip, tmp_path / "bounded", detector(clip), "max-waiting=3")
+    assert sorted(e.id for e in bounded) == sorted(e.id for e in events)
+    early = bounded[:-3]
+    assert all(e.speed_kmh is None and "while 3 later vehicles left" in e.reason for e in early)
+    assert all(e.reason.startswith("no calibration") for e in bounded[-3:])
 
 
 def test_full_disk_is_an_error_naming_the_file_and_keeps_what_was_measured(clip, tmp_path):
@@ -378,7 +384,8 @@ def test_gst_inspect_documents_every_property(tmp_path):
                           timeout=120).stdout
     for prop in ("events-file", "results-file", "csv-file", "frames-file", "calibration-file", "scale", "tau",
                  "min-track-length", "vehicle-timeout", "scale-models", "scale-min-vehicles", "scale-regression-file",
-                 "start-datetime", "speed-limit", "class-limits", "events-url", "intervals-file", "interval"):
+                 "start-datetime", "speed-limit", "class-limits", "events-url", "intervals-file", "interval",
+                 "max-waiting"):
         assert prop in text
 
 

@@ -89,6 +89,10 @@ class Speedometer(TrafficcalTransform):
                 "covers less than 4 m of road in tau observations)", 1, 1000, 5, _RW),
         "min-track-length": (int, "Minimum track length", "Reference points a vehicle needs to be measured "
                              "(at least tau + 1)", 2, 100000, 10, _RW),
+        "max-waiting": (int, "Most vehicles waiting", "Vehicles that left before a calibration with a scale are "
+                        "held to be measured once it comes, at most this many: beyond, the oldest is written "
+                        "unmeasured with the reason (a live camera that never calibrates stays bounded in memory and "
+                        "its vehicles reach the files)", 1, 1000000, 2000, _RW),
         "vehicle-timeout": (float, "Vehicle timeout", "Seconds without a sighting after which a vehicle has "
                             "left and is reported (0: the tracker's max-lost + 0.4 s; never less than that)", 0.0,
                             3600.0, 0.0, _RW),
@@ -134,7 +138,7 @@ class Speedometer(TrafficcalTransform):
         try:
             from gst_trafficcal.clock import NOW, parse_start_time
 
-            self._meter = SpeedMeter(tau=self.tau, min_track_length=self.min_track_length)
+            self._meter = SpeedMeter(tau=self.tau, min_track_length=self.min_track_length, max_waiting=self.max_waiting)
             if self.start_datetime.strip().lower() != NOW:
                 self._start = parse_start_time(self.start_datetime, "start-datetime")
             if self.calibration_file:
