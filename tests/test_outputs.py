@@ -421,3 +421,12 @@ def test_a_really_full_disk(tiny_disk: Path, tmp_path: Path) -> None:
     assert [e.id for e in read_events_csv(tmp_path / "v.csv")] == list(range(1, n + 4))
     assert [c.id for c in load_results(brno).cars] == [1, 2, 3]  # the checkpoint, intact
     assert sorted(p.name for p in tiny_disk.iterdir()) == ["system.json", "v.jsonl"]  # no temporary file left
+
+
+def test_a_growing_results_file_is_rewritten_less_often_as_it_grows():
+    """At least every 10 s of stream, but never spending more than 1 % of the time on rewriting it."""
+    from gst_trafficcal.outputs import checkpoint_interval
+
+    assert checkpoint_interval(0.01) == 10.0  # a small file: every 10 s
+    assert checkpoint_interval(0.5) == pytest.approx(50.0)  # a day's file taking half a second: every 50 s
+    assert checkpoint_interval(3.0, minimum_s=10.0, share=0.05) == pytest.approx(60.0)

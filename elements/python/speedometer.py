@@ -36,7 +36,7 @@ from gst_trafficcal.gst._gi import GObject, Gst
 from gst_trafficcal.gst.element import TrafficcalTransform
 
 _RW = GObject.ParamFlags.READWRITE
-_RESULTS_EVERY = 10.0  # seconds of stream time between rewrites of the BrnoCompSpeed results file
+_RESULTS_EVERY = 10.0  # seconds of stream time between rewrites of the BrnoCompSpeed results file, at least
 
 
 class Speedometer(TrafficcalTransform):
@@ -112,6 +112,7 @@ class Speedometer(TrafficcalTransform):
         self._posted = 0
         self._discarded = 0  # the meter's tracks seen only between a camera move and its notice, as last posted
         self._results_t = None
+        self._results_every = _RESULTS_EVERY  # grows with the file (outputs.checkpoint_interval)
         self._fps_fixed = False
         self._file_cal = None
         self._upstream = None
@@ -291,10 +292,16 @@ class Speedometer(TrafficcalTransform):
             return Gst.FlowReturn.ERROR
         if self._intervals is not None and not self._guarded_write(self._intervals.frame, t):
             return Gst.FlowReturn.ERROR
-        if out.finished and self.results_file and (self._results_t is None or t - self._results_t >= _RESULTS_EVERY):
-            self._results_t = t
+        due = self._results_t is None or t - self._results_t >= self._results_every
+        if out.finished and self.results_file and due:
+            import time
+
+            from gst_trafficcal.outputs import checkpoint_interval
+
+            self._results_t, began = t, time.monotonic()
             if not self._write_results():
                 return Gst.FlowReturn.ERROR
+            self._results_every = checkpoint_interval(time.monotonic() - began, _RESULTS_EVERY)
         return Gst.FlowReturn.OK
 
     def _new_scale_stage(self):
