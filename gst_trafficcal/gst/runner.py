@@ -52,8 +52,8 @@ class RunOutcome:
     duration_s: float | None = None
     stopped: str = ""  # why the run ended before the stream did ("interrupted", "duration"); "" at the stream's end
     live: bool = False  # the source was live (a camera): it does not wait for us
-    frames_in: int = 0  # frames that reached the live queue (see run_pipeline_file's ``live_queue``)
-    frames_dropped: int = 0  # of those, dropped to keep up with a live source
+    frames_in: int = 0  # frames that reached the live queue (see run_pipeline_file's ``live_queue``), live or not
+    frames_dropped: int = 0  # of those, dropped to keep up with a live source (never from a file)
 
     @property
     def calibration(self) -> Calibration | None:
@@ -198,7 +198,7 @@ def run_pipeline_file(description: str, progress: Progress | None = None,
     ``on_message`` gets each element message, ``on_calibration(element name, calibration)`` each calibration.
 
     ``live_queue``: the name of a ``queue`` in front of the analysis.  When the source turns out to be live (a
-    camera: the pipeline does not preroll), that queue holds up to :data:`LIVE_QUEUE_BUFFERS` frames and then drops
+    camera: what feeds the queue answers a latency query as live), that queue holds up to :data:`LIVE_QUEUE_BUFFERS` frames and then drops
     the oldest (leaky downstream), so a machine too slow for the stream falls behind by at most that much instead of
     without end (a live source does not wait: its packets pile up in memory, or are lost, and the measurements lag
     further and further behind the road).  Our elements measure from timestamps, so a dropped frame costs samples,
@@ -290,22 +290,20 @@ def run_pipeline_file(description: str, progress: Progress | None = None,
     main = threading.current_thread() is threading.main_thread() and \
         signal.getsignal(signal.SIGINT) is not signal.SIG_IGN
     previous = signal.signal(signal.SIGINT, on_sigint) if main else None
-    counted = None  # () -> (frames in, dropped) of the live queue
     queue = pipeline.get_by_name(live_queue) if live_queue else None
+    counted = _count_through(queue) if queue is not None else None  # () -> (frames in, dropped), from the start
 
     def decide_live() -> bool:
         """Once what feeds the queue answers a latency query (the source linked): whether it is live; then the
         queue is made leaky for a live one.  False while it cannot tell yet.  (Asked upstream of the queue: the
         pipeline's own answer is the sinks', and a sink that does not sync calls every stream not live.)"""
-        nonlocal counted
         query = Gst.Query.new_latency()
         if not queue.get_static_pad("sink").peer_query(query):
             return False
         out.live = bool(query.parse_latency()[0])
-        if out.live and queue is not None:
+        if out.live:
             queue.set_property("max-size-buffers", LIVE_QUEUE_BUFFERS)
             queue.set_property("leaky", 2)  # downstream: the oldest queued frame goes
-            counted = _count_through(queue)
         return True
 
     decided = queue is None
