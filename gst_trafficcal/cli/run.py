@@ -259,7 +259,7 @@ def measure_video(video: Path | str, out_dir: Path, description: str, console, l
             if status is not None:
                 status.position(pos, dur)
 
-        def on_dropped(dropped: int, frames: int) -> None:
+        def on_frames(dropped: int, frames: int) -> None:
             if status is not None:
                 status.update(frames_dropped=dropped_before + dropped, frames=frames_before + frames)
 
@@ -269,7 +269,7 @@ def measure_video(video: Path | str, out_dir: Path, description: str, console, l
             outcome = run_pipeline_file(description, progress=progress, on_message=on_message,
                                         stop_after_s=stop_after_s, stop_element=STOP_ELEMENT,
                                         on_calibration=on_calibration, live_queue=LIVE_QUEUE,
-                                        on_dropped=on_dropped)
+                                        on_frames=on_frames)
         except RunFailed as exc:
             outcome, failure = exc.outcome, str(exc)
         except PipelineError as exc:

@@ -193,7 +193,7 @@ def run_pipeline_file(description: str, progress: Progress | None = None,
                       stop_element: str = "",
                       on_calibration: Callable[[str, Calibration], None] | None = None,
                       live_queue: str = "",
-                      on_dropped: Callable[[int, int], None] | None = None) -> RunOutcome:
+                      on_frames: Callable[[int, int], None] | None = None) -> RunOutcome:
     """Play ``description`` to end-of-stream; ``progress(position_s, duration_s or None)`` every ``poll_s``;
     ``on_message`` gets each element message, ``on_calibration(element name, calibration)`` each calibration.
 
@@ -202,8 +202,8 @@ def run_pipeline_file(description: str, progress: Progress | None = None,
     the oldest (leaky downstream), so a machine too slow for the stream falls behind by at most that much instead of
     without end (a live source does not wait: its packets pile up in memory, or are lost, and the measurements lag
     further and further behind the road).  Our elements measure from timestamps, so a dropped frame costs samples,
-    not correctness.  ``outcome.frames_in`` / ``frames_dropped`` count the frames; ``on_dropped(dropped, in)`` is
-    told when more were dropped.  A file is never dropped from: it waits for us.
+    not correctness.  ``outcome.frames_in`` / ``frames_dropped`` count the frames; ``on_frames(dropped, in)`` is
+    told a live stream's counts as they change.  A file is never dropped from: it waits for us.
 
     The run ends early, as ``gst-launch-1.0 -e`` does, by an end-of-stream sent into the pipeline — so every
     element finishes as at the stream's end (speedometer writes the vehicles still in view, mp4mux completes a
@@ -315,8 +315,8 @@ def run_pipeline_file(description: str, progress: Progress | None = None,
                 decided = decide_live()
             if counted is not None:
                 frames_in, dropped = counted()
-                if dropped > out.frames_dropped and on_dropped is not None:
-                    on_dropped(dropped, frames_in)
+                if out.live and on_frames is not None and (frames_in, dropped) != (out.frames_in, out.frames_dropped):
+                    on_frames(dropped, frames_in)
                 out.frames_in, out.frames_dropped = frames_in, dropped
             if interrupts:
                 finish_early("interrupted")
