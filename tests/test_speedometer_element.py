@@ -661,3 +661,36 @@ def test_an_events_url_that_does_not_answer_costs_no_vehicle(clip, implicit, tmp
         measure(clip, tmp_path / "bad", detector(clip), "events-url=ftp://host/x")
     with pytest.raises(PipelineError, match="class-limits: 'truck' is not KMH or KMH,CLASS=KMH"):
         measure(clip, tmp_path / "bad2", detector(clip), "class-limits=truck")
+
+
+@pytest.mark.shared
+@pytest.mark.parametrize("scaler", ["bbscale", "speedometer"])
+def test_a_scale_found_is_kept_with_its_view_for_a_restart(tmp_path, scaler):
+    """A gst-launch pipeline with a views folder holding kraten's view (vanishing points, no scale): bbscale — or the
+    speedometer's own scale stage, with no bbscale upstream — finds the scale and, with ``views-dir``, keeps it with
+    the view.  The pipeline started again on the same camera measures from its first vehicle with that scale,
+    instead of minutes of learning it again."""
+    from gst_trafficcal.calibration import load_views, save_view
+
+    register_plugin_file(ELEMENTS / "vpdetect.py")
+    register_plugin_file(ELEMENTS / "bbscale.py")
+    clip, stored = re_aimed_kraten(tmp_path, 1175, range(0))  # the whole clip, its view from the first 5 s
+    views = tmp_path / "views"
+    save_view(load_calibration(stored).with_scale(None), views)
+    chain = (f"vehicledetect model=vehicleseg ! tracker ! bbscale views-dir={views} ! speedometer" if scaler == "bbscale"
+             else f"vehicledetect model=vehicleseg ! speedometer views-dir={views}")
+
+    def play(events: Path, frames: int) -> list:
+        run_pipeline(f"filesrc location={clip} ! decodebin ! videoconvert ! identity eos-after={frames} ! "
+                     f"vpdetect views-dir={views} ! {chain} events-file={events} ! appsink name=sink")
+        return read_events(events).events
+
+    first = play(tmp_path / "first.jsonl", 1175)
+    kept, _ = load_views(views, (640, 360))
+    assert len(kept) == 1 and kept[0].camera.scale is not None and kept[0].view is not None
+    assert kept[0].camera.scale == pytest.approx(KRATEN_CALIBRATION["scale"], rel=0.15)
+    measured_with = {e.calibration_id for e in first if e.measured}
+    assert kept[0].id in measured_with  # the scale the first run measured with in the end
+    again = play(tmp_path / "again.jsonl", 300)  # 12 s: far too short to find a scale
+    assert sum(e.measured for e in again) >= 5, [e.reason for e in again]
+    assert {e.calibration_id for e in again if e.measured} == {kept[0].id}

@@ -7,7 +7,8 @@ points).  Fully visible vehicles are aligned with the catalogue's 3D models when
 calibration is sent downstream again with λ (state ``calibrated``, ``confidence_scale``) and posted on the bus;
 it is re-sent when λ moves by more than 0.5 %, and at the end of the stream with the final estimate.  Every change of the estimate posts a ``trafficcal-scale``
 element message (status, λ*, counts) saying why there is no scale yet.  A calibration that already carries a
-scale (e.g. from a calibration file) is passed through untouched.
+scale (e.g. from a calibration file) is passed through untouched.  With ``views-dir`` (vpdetect's views folder) each
+scale found is kept there with its view, so that a restarted pipeline measures from its first vehicle.
 """
 
 from gst_trafficcal.gst._gi import GObject, Gst
@@ -37,6 +38,9 @@ class BBScale(TrafficcalTransform):
                 "hull, the tracker's hull_box) or 'detector' (the detector's rectangle)", "detector", _RW),
         "renderer": (str, "Renderer", "Model boxes by 'projection' (exact bounding box of the projected mesh, "
                      "fast) or 'gl' (moderngl silhouettes, slow)", "projection", _RW),
+        "views-dir": (str, "Views folder", "The camera's views folder (vpdetect views-dir): each scale found is kept "
+                      "there with its view, so that after a restart vpdetect gives the view with its scale at once; "
+                      "empty = none", "", _RW),
     }
 
     def __init__(self):
@@ -85,6 +89,7 @@ class BBScale(TrafficcalTransform):
         self.post_element_message("trafficcal-scale", self._stage.report())
         if ours is not None:
             self.publish_calibration(ours)
+            self.keep_scale_view(ours, self.views_dir)
 
     def transform_frame(self, buffer):
         from gst_trafficcal.gst.meta import read_vehicle_rois

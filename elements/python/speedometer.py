@@ -89,6 +89,9 @@ class Speedometer(TrafficcalTransform):
                 "covers less than 4 m of road in tau observations)", 1, 1000, 5, _RW),
         "min-track-length": (int, "Minimum track length", "Reference points a vehicle needs to be measured "
                              "(at least tau + 1)", 2, 100000, 10, _RW),
+        "views-dir": (str, "Views folder", "The camera's views folder (vpdetect views-dir): a scale this element "
+                      "finds itself (no bbscale upstream) is kept there with its view, so that after a restart "
+                      "vpdetect gives the view with its scale at once; empty = none", "", _RW),
         "max-waiting": (int, "Most vehicles waiting", "Vehicles that left before a calibration with a scale are "
                         "held to be measured once it comes, at most this many: beyond, the oldest is written "
                         "unmeasured with the reason (a live camera that never calibrates stays bounded in memory and "
@@ -344,6 +347,7 @@ class Speedometer(TrafficcalTransform):
         if ours is not None:
             self._scaled = ours
             self._apply_calibration()
+            self.keep_scale_view(ours, self.views_dir)
 
     def _tracking_pipeline(self):
         """The tracker element's stage with its default properties (no tracker upstream)."""

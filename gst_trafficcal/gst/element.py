@@ -151,6 +151,22 @@ class TrafficcalTransform(GstBase.BaseTransform):
         self._pending_calibration = cal
         self.post_message(calibration_message(self, cal))
 
+    def keep_scale_view(self, cal: Calibration, folder: str) -> None:
+        """Keep ``cal`` (a scale found for a view) in the camera's views ``folder`` (``views-dir``, as vpdetect reads
+        it), so that after a restart vpdetect announces the view with its scale at once; a folder that cannot be
+        written is a warning, once, never an error (the measurement goes on)."""
+        from ..calibration import save_view
+        from ..errors import InputError
+
+        if not folder:
+            return
+        try:
+            save_view(cal, folder)
+        except InputError as exc:
+            if not getattr(self, "_views_warned", False):
+                self._views_warned = True
+                self.post_warning(f"{self.get_factory().get_name()}: the scale is not kept for a restart: {exc}")
+
     def post_element_message(self, name: str, fields: Mapping[str, Any]) -> bool:
         """Post an element message whose structure is ``name`` with ``fields`` (``gst-launch-1.0 -m`` shows it)."""
         return self.post_message(Gst.Message.new_element(self, make_structure(name, fields)))
