@@ -113,7 +113,8 @@ def test_gst_inspect_documents_every_property(tmp_path):
     env = dict(os.environ, **gst_environment(), GST_REGISTRY=str(tmp_path / "registry.bin"))
     out = subprocess.run(["gst-inspect-1.0", "bbscale"], env=env, capture_output=True, text=True, timeout=120)
     assert out.returncode == 0, out.stderr
-    for prop in ("models", "iou-threshold", "min-vehicles", "regression-file", "classifier", "renderer", "box"):
+    for prop in ("models", "iou-threshold", "min-vehicles", "regression-file", "classifier", "renderer", "box",
+                 "views-dir"):
         assert prop in out.stdout
     assert "GstBbscale" in out.stdout
 

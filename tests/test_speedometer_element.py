@@ -385,7 +385,7 @@ def test_gst_inspect_documents_every_property(tmp_path):
     for prop in ("events-file", "results-file", "csv-file", "frames-file", "calibration-file", "scale", "tau",
                  "min-track-length", "vehicle-timeout", "scale-models", "scale-min-vehicles", "scale-regression-file",
                  "start-datetime", "speed-limit", "class-limits", "events-url", "intervals-file", "interval",
-                 "max-waiting"):
+                 "max-waiting", "views-dir"):
         assert prop in text
 
 
