@@ -27,6 +27,11 @@
 #   VEHICLEDETECT_OPTS  extra vehicledetect properties (e.g. "model=FastestDet.onnx tiles=2x1")
 #   SPEEDOMETER_OPTS    extra speedometer properties (e.g. "tau=5 min-track-length=10"; "events-url=https://..."
 #                       POSTs each vehicle's event to your system as it leaves)
+#   A camera measured again and again (a service restarted, a PTZ preset revisited): give both elements one views
+#   folder, VPDETECT_OPTS="views-dir=/var/lib/cam7" SPEEDOMETER_OPTS="views-dir=/var/lib/cam7", and each view's
+#   calibration, scale included, is kept there and used at once the next time the camera shows it.
+# A live source (rtsp://, udp://, srt://, rtmp://) gets a queue that keeps a second of frames and drops the oldest
+# beyond it: a machine too slow for the camera falls behind by at most that much.
 set -euo pipefail
 
 here="$(cd "$(dirname "${BASH_SOURCE[0]}")" && pwd)"
