@@ -25,7 +25,8 @@ calibration benchmark's /tmp/syn renders are reused); replays of sessions 0–3 
 (the lead's /tmp/replays), rendered into ``--work/replays`` by the same recipe when absent (``trafficcal
 calibrate-manual`` then ``trafficcal synth --scenario`` with a ``replay:`` block, docs/synth.md).
 
-``--throughput VIDEO``: only the throughput measurement on one 1920x1080 H.264 video: decode-only pipelines
+``--throughput VIDEO``: only the throughput measurement on one 1920x1080 H.264 video (also the chain with
+trafficoverlay and the x264 encoding of overlay.mp4, as ``trafficcal run`` does by default): decode-only pipelines
 (``filesrc ! decodebin ! fakesink``, and with ``videoconvert`` to I420) and the product chain, each run by
 ``gst-launch-1.0`` in the same invocation; prints wall and CPU-time fps and the chain/decode ratio.
 
@@ -505,6 +506,9 @@ def throughput(video: Path, work: Path, detector: str = "") -> dict:
                                                   bbscale=bbscale, queues=False),
         "chain": pipeline_description(video, RunPaths(out), detector=detector, overlay=False,
                                       bbscale=bbscale),
+        # what `trafficcal run` does by default: the chain plus trafficoverlay and H.264 encoding of overlay.mp4
+        "chain + overlay": pipeline_description(video, RunPaths(out), detector=detector, overlay=True,
+                                                bbscale=bbscale),
     }
     res = {"video": str(video), "frames": frames, "pipelines": {}}
     for name, desc in pipelines.items():
