@@ -242,7 +242,8 @@ def frame_gray(buffer: Gst.Buffer, info: GstVideo.VideoInfo) -> Iterator[np.ndar
 
 
 @contextmanager
-def frame_bgr(buffer: Gst.Buffer, info: GstVideo.VideoInfo, size: tuple[int, int] | None = None) -> Iterator[np.ndarray]:
+def frame_bgr(buffer: Gst.Buffer, info: GstVideo.VideoInfo,
+              size: tuple[int, int] | None = None) -> Iterator[np.ndarray]:
     """Yield the frame as an HxWx3 uint8 BGR image.
 
     A read-only view for BGR input, a converted copy otherwise. YUV input is converted with the
@@ -255,28 +256,20 @@ def frame_bgr(buffer: Gst.Buffer, info: GstVideo.VideoInfo, size: tuple[int, int
     matrix are both linear, so the two orders agree but for rounding and the clipping of out-of-gamut pixels.
     """
     fmt = format_name(info)
-    reduce = size is not None and tuple(size) != frame_size(info)
+    reduced = tuple(size) if size is not None and tuple(size) != frame_size(info) else None
     with frame_planes(buffer, info) as planes:
-        if fmt == "BGR":
-            bgr = planes[0]
-        elif fmt == "RGB":
-            bgr = cv2.cvtColor(planes[0], cv2.COLOR_RGB2BGR)
-        elif fmt == "BGRx":
-            bgr = cv2.cvtColor(planes[0], cv2.COLOR_BGRA2BGR)
-        elif fmt == "GRAY8":
-            bgr = cv2.cvtColor(fit(planes[0], size) if reduce else planes[0], cv2.COLOR_GRAY2BGR)
-            reduce = False
-        elif reduce:
-            bgr = yuv420_to_bgr(planes, fmt, info, size)
-            reduce = False
-        else:
-            bgr = yuv420_to_bgr(planes, fmt, info)
-        if reduce:
-            bgr = fit(bgr, size)
+        if fmt in ("I420", "NV12"):
+            bgr = yuv420_to_bgr(planes, fmt, info, reduced)
+        else:  # one plane (packed RGB or grey): converting maps each pixel alone, so reducing first changes nothing
+            image = planes[0] if reduced is None else fit(planes[0], reduced)
+            bgr = image if fmt == "BGR" else cv2.cvtColor(image, _TO_BGR[fmt])
         try:
             yield bgr
         finally:
             del bgr
+
+
+_TO_BGR = {"RGB": cv2.COLOR_RGB2BGR, "BGRx": cv2.COLOR_BGRA2BGR, "GRAY8": cv2.COLOR_GRAY2BGR}
 
 
 def _yuv_to_bgr_matrix(info: GstVideo.VideoInfo) -> np.ndarray:
