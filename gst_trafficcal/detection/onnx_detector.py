@@ -55,18 +55,27 @@ class Letterbox:
         )
 
 
+def resized_size(frame_size: tuple[int, int], pre: Preprocess) -> tuple[int, int]:
+    """The (w, h) a frame of ``frame_size`` is resized to: the network's size when stretched, else the largest size
+    of the frame's shape that fits inside it (the letterbox pads the rest)."""
+    (w, h), (nw, nh) = frame_size, pre.size
+    if pre.letterbox == "none":
+        return nw, nh
+    r = min(nw / w, nh / h)
+    return max(1, round(w * r)), max(1, round(h * r))
+
+
 def prepare(image: np.ndarray, pre: Preprocess) -> tuple[np.ndarray, Letterbox]:
     """Resize/letterbox a BGR (or grey) image into an HxWx3 float32 network image, normalised."""
     if image.ndim == 2:
         image = cv2.cvtColor(image, cv2.COLOR_GRAY2BGR)
     h, w = image.shape[:2]
     nw, nh = pre.size
+    rw, rh = resized_size((w, h), pre)
     if pre.letterbox == "none":
         canvas = fit(image, (nw, nh))
         lb = Letterbox(nw / w, nh / h, 0.0, 0.0)
     else:
-        r = min(nw / w, nh / h)
-        rw, rh = max(1, round(w * r)), max(1, round(h * r))
         px, py = ((nw - rw) // 2, (nh - rh) // 2) if pre.letterbox == "center" else (0, 0)
         canvas = np.full((nh, nw, 3), pre.pad_value, np.uint8)
         canvas[py : py + rh, px : px + rw] = fit(image, (rw, rh))
@@ -176,13 +185,7 @@ class OnnxDetector:
     def reduced_size(self, frame_size: tuple[int, int]) -> tuple[int, int] | None:
         """The (w, h) a whole frame of ``frame_size`` is resized to before the network (inside the letterbox, or
         the network's size when stretched); None with tiles, which need the full frame."""
-        if self.tiles != (1, 1):
-            return None
-        (w, h), (nw, nh) = frame_size, self.preprocess.size
-        if self.preprocess.letterbox == "none":
-            return nw, nh
-        r = min(nw / w, nh / h)
-        return max(1, round(w * r)), max(1, round(h * r))
+        return resized_size(frame_size, self.preprocess) if self.tiles == (1, 1) else None
 
     def __call__(self, image: np.ndarray, frame_size: tuple[int, int] | None = None) -> Detections:
         """Vehicles in a BGR (HxWx3) or grey (HxW) uint8 frame, boxes in that frame's pixels; ``frame_size``: the
