@@ -106,12 +106,13 @@ class StatusFile:
             raise TypeError(f"unknown status fields: {', '.join(sorted(unknown))}")
         if "state" in changes and changes["state"] not in STATES:
             raise ValueError(f"state must be one of {', '.join(STATES)}, got {changes['state']!r}")
-        force = force or ("state" in changes and changes["state"] != self.status.state)
-        if "state" in changes and changes["state"] != self.status.state:
+        new_state = changes.get("state", self.status.state)
+        if new_state != self.status.state:
+            force = True
             self.status.state_since = now_iso()
-            if changes["state"] == "reconnecting" and self.status.stream_lost_at is None:
+            if new_state == "reconnecting" and self.status.stream_lost_at is None:
                 self.status.stream_lost_at = self.status.state_since
-            elif changes["state"] == "running":
+            elif new_state == "running":
                 self.status.stream_lost_at = None
         for name, value in changes.items():
             setattr(self.status, name, value)

@@ -226,6 +226,9 @@ def measure_video(video: Path | str, out_dir: Path, description: str, console, l
         stale = out_dir / name
         if name not in (paths.events.name, paths.csv.name) and not any(_same(stale, k) for k in keep):
             stale.unlink(missing_ok=True)
+    def hidden(text: str) -> str:  # a message without the URI's password
+        return text.replace(str(video), shown_source(video))
+
     counts = Counter()
     moves: set = set()  # the moves' dates (several elements pass the same news on)
     moves_before = status.status.camera_moves if status is not None else 0  # earlier parts'
@@ -273,7 +276,7 @@ def measure_video(video: Path | str, out_dir: Path, description: str, console, l
         except RunFailed as exc:
             outcome, failure = exc.outcome, str(exc)
         except PipelineError as exc:
-            raise InputError(f"{shown_source(video)}: {exc}".replace(str(video), shown_source(video))) from None
+            raise InputError(hidden(f"{video}: {exc}")) from None
     if outcome.frames_dropped:  # a live camera faster than this machine: frames dropped to stay in real time
         share = outcome.frames_dropped / max(outcome.frames_in, 1)
         outcome.warnings.append(
@@ -288,9 +291,6 @@ def measure_video(video: Path | str, out_dir: Path, description: str, console, l
     if status is not None:
         for w in outcome.warnings:
             status.warning(w)
-        if outcome.live:
-            status.update(frames_dropped=dropped_before + outcome.frames_dropped,
-                          frames=frames_before + outcome.frames_in)
         if failure is not None:
             status.update(error=failure)
     if summary.calibration is not None:
@@ -300,12 +300,10 @@ def measure_video(video: Path | str, out_dir: Path, description: str, console, l
             summary.errors.append(str(exc))
     if failure is not None:
         if not outcome.position_s and not summary.events:  # nothing was decoded: the input is at fault
-            raise InputError(f"{shown_source(video)}: cannot be processed: "
-                             f"{failure.replace(str(video), shown_source(video))}")
+            raise InputError(hidden(f"{video}: cannot be processed: {failure}"))
         kept = (f"the {len(summary.events)} vehicles that finished before it are written "
                 f"(in {paths.events.name} and {paths.csv.name}, where the disk allowed)")
-        raise InputError(f"{shown_source(video)}: the run stopped: {failure.replace(str(video), shown_source(video))}; "
-                         f"{kept}")
+        raise InputError(hidden(f"{video}: the run stopped: {failure}; {kept}"))
     return summary
 
 

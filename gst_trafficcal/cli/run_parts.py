@@ -75,8 +75,8 @@ def run_parts(console, parts, total: int | None, out_dir: Path, calibration_path
         sub = out_dir / name
         console.rule(f"[bold]{k}/{total}[/] {label} -> {sub}" if total else f"[bold]connection {k}[/] -> {sub}")
         if options.status is not None:
-            options.status.update(part=name, parts_done=k - 1, next_attempt_at=None,
-                                  state="starting" if live else options.status.status.state, force=True)
+            options.status.update(part=name, parts_done=k - 1, next_attempt_at=None, force=True,
+                                  **({"state": "starting"} if live else {}))
         given, mode = calibration_path, "fixed"
         if given is None and carried is not None:
             sub.mkdir(parents=True, exist_ok=True)

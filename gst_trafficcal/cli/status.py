@@ -38,9 +38,8 @@ def command(path: Path, max_age_s: float, as_json: bool) -> None:
     import json
     from dataclasses import asdict
 
-    from ..run_status import health, read_status
-
     from ..errors import InputError
+    from ..run_status import health, read_status
 
     file = path / "status.json" if path.is_dir() else path
     if not file.exists():
