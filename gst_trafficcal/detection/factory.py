@@ -58,9 +58,10 @@ def detect(detector: Detector, image: np.ndarray, t: float | None = None,
 
 def reduced_size(detector: Detector, frame_size: tuple[int, int]) -> tuple[int, int] | None:
     """The size a detector reduces every frame of ``frame_size`` to before anything else, when it says so
-    (vehicleseg's work image, an ONNX detector's network image without tiles) and the frame is at least twice that size each way: the caller may then hand it the
-    frame already reduced (1080p: a quarter of the conversion's cost and no full-size copy).  None: pass full
-    frames (smaller frames cost little, and they keep the full conversion's chroma resampling)."""
+    (vehicleseg's work image, an ONNX detector's network image without tiles) and the frame is at least twice that
+    size each way: the caller may then hand it the frame already reduced (1080p: a quarter of the conversion's cost
+    and no full-size copy).  None: pass full frames (smaller frames cost little, and they keep the full
+    conversion's chroma resampling)."""
     size = getattr(detector, "reduced_size", None)
     size = size(frame_size) if size is not None else None
     if size is None:

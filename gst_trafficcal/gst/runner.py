@@ -198,8 +198,8 @@ def run_pipeline_file(description: str, progress: Progress | None = None,
     ``on_message`` gets each element message, ``on_calibration(element name, calibration)`` each calibration.
 
     ``live_queue``: the name of a ``queue`` in front of the analysis.  When the source turns out to be live (a
-    camera: what feeds the queue answers a latency query as live), that queue holds up to :data:`LIVE_QUEUE_BUFFERS` frames and then drops
-    the oldest (leaky downstream), so a machine too slow for the stream falls behind by at most that much instead of
+    camera: what feeds the queue answers a latency query as live), that queue holds up to
+    :data:`LIVE_QUEUE_BUFFERS` frames and then drops the oldest (leaky downstream), so a machine too slow for the stream falls behind by at most that much instead of
     without end (a live source does not wait: its packets pile up in memory, or are lost, and the measurements lag
     further and further behind the road).  Our elements measure from timestamps, so a dropped frame costs samples,
     not correctness.  ``outcome.frames_in`` / ``frames_dropped`` count the frames; ``on_frames(dropped, in)`` is
