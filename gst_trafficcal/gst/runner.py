@@ -198,12 +198,13 @@ def run_pipeline_file(description: str, progress: Progress | None = None,
     ``on_message`` gets each element message, ``on_calibration(element name, calibration)`` each calibration.
 
     ``live_queue``: the name of a ``queue`` in front of the analysis.  When the source turns out to be live (a
-    camera: what feeds the queue answers a latency query as live), that queue holds up to
-    :data:`LIVE_QUEUE_BUFFERS` frames and then drops the oldest (leaky downstream), so a machine too slow for the stream falls behind by at most that much instead of
-    without end (a live source does not wait: its packets pile up in memory, or are lost, and the measurements lag
-    further and further behind the road).  Our elements measure from timestamps, so a dropped frame costs samples,
-    not correctness.  ``outcome.frames_in`` / ``frames_dropped`` count the frames; ``on_frames(dropped, in)`` is
-    told a live stream's counts as they change.  A file is never dropped from: it waits for us.
+    camera: what feeds the queue answers a latency query as live), that queue holds up to :data:`LIVE_QUEUE_BUFFERS`
+    frames and then drops the oldest (leaky downstream), so a machine too slow for the stream falls behind by at
+    most that much instead of without end (a live source does not wait: its packets pile up in memory, or are lost,
+    and the measurements lag further and further behind the road).  Our elements measure from timestamps, so a
+    dropped frame costs samples, not correctness.  ``outcome.frames_in`` / ``frames_dropped`` count the frames;
+    ``on_frames(dropped, in)`` is told a live stream's counts as they change.  A file is never dropped from: it
+    waits for us.
 
     The run ends early, as ``gst-launch-1.0 -e`` does, by an end-of-stream sent into the pipeline — so every
     element finishes as at the stream's end (speedometer writes the vehicles still in view, mp4mux completes a
