@@ -677,8 +677,8 @@ def test_a_scale_found_is_kept_with_its_view_for_a_restart(tmp_path, scaler):
     clip, stored = re_aimed_kraten(tmp_path, 1175, range(0))  # the whole clip, its view from the first 5 s
     views = tmp_path / "views"
     save_view(load_calibration(stored).with_scale(None), views)
-    chain = (f"vehicledetect model=vehicleseg ! tracker ! bbscale views-dir={views} ! speedometer" if scaler == "bbscale"
-             else f"vehicledetect model=vehicleseg ! speedometer views-dir={views}")
+    chain = "vehicledetect model=vehicleseg ! " + (f"tracker ! bbscale views-dir={views} ! speedometer"
+                                                    if scaler == "bbscale" else f"speedometer views-dir={views}")
 
     def play(events: Path, frames: int) -> list:
         run_pipeline(f"filesrc location={clip} ! decodebin ! videoconvert ! identity eos-after={frames} ! "
