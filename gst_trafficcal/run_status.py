@@ -153,7 +153,7 @@ def read_status(path: str | Path) -> RunStatus:
     """A status.json read back (fields it lacks keep their defaults; unknown ones are ignored)."""
     from .fileio import read_json
 
-    data = read_json(path, "a run's status")
+    data = read_json(path, "run's status")
     if not isinstance(data, dict):
         raise InputError(f"{path}: not a run's status (a JSON object expected)")
     data.setdefault("state_since", data.get("updated_at", ""))  # files of an earlier version: no such fields

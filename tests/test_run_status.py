@@ -146,3 +146,9 @@ def test_trafficcal_status_exit_codes(tmp_path):
     missing = subprocess.run([sys.executable, "-m", "gst_trafficcal", "status", str(tmp_path / "nothing")],
                              capture_output=True, text=True, timeout=60)
     assert missing.returncode == 2 and "no such file (give the --out folder" in missing.stderr
+
+
+def test_a_corrupt_status_file_is_one_line_naming_it(tmp_path):
+    (tmp_path / "status.json").write_text("{not json")
+    with pytest.raises(InputError, match=r"status.json: not valid JSON, so not a run's status"):
+        read_status(tmp_path / "status.json")
