@@ -15,6 +15,7 @@ from __future__ import annotations
 import signal
 import threading
 import time
+from collections import deque
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from typing import Any, NamedTuple
@@ -172,19 +173,37 @@ LIVE_QUEUE_BUFFERS = 25  # frames a live run's queue holds (a second at 25 fps) 
 
 
 def _count_through(queue: Gst.Element) -> Callable[[], tuple[int, int]]:
-    """Count the buffers into and out of ``queue``: a function giving (in, dropped) so far (dropped = in - out - the
-    frames still queued)."""
-    counts = [0, 0]
+    """Count the buffers into ``queue`` and those it dropped: a function giving (in, dropped) so far.
 
-    def counter(k: int):
-        def probe(_pad: Gst.Pad, _info: Gst.PadProbeInfo) -> Gst.PadProbeReturn:
-            counts[k] += 1
-            return Gst.PadProbeReturn.OK
-        return probe
+    A leaky queue drops its oldest frames, so the frames that went in before one coming out and never came out
+    themselves were dropped.  The frames are known by their timestamps, noted as they go in (frames without one all
+    look alike: their drops go uncounted).  So the counts only ever grow, whichever streaming thread moves while
+    they are read: in - out - queued, read while two threads change them, could be one off for a moment."""
+    lock = threading.Lock()
+    waiting: deque[int] = deque(maxlen=4096)  # timestamps of the frames gone in and not yet out or dropped
+    counts = [0, 0]  # in, dropped
 
-    queue.get_static_pad("sink").add_probe(Gst.PadProbeType.BUFFER, counter(0))
-    queue.get_static_pad("src").add_probe(Gst.PadProbeType.BUFFER, counter(1))
-    return lambda: (counts[0], max(0, counts[0] - counts[1] - int(queue.get_property("current-level-buffers"))))
+    def went_in(_pad: Gst.Pad, info: Gst.PadProbeInfo) -> Gst.PadProbeReturn:
+        with lock:
+            counts[0] += 1
+            waiting.append(info.get_buffer().pts)
+        return Gst.PadProbeReturn.OK
+
+    def came_out(_pad: Gst.Pad, info: Gst.PadProbeInfo) -> Gst.PadProbeReturn:
+        pts = info.get_buffer().pts
+        with lock:
+            if pts in waiting:  # else noted too long ago to be known (4096 frames)
+                while waiting.popleft() != pts:
+                    counts[1] += 1
+        return Gst.PadProbeReturn.OK
+
+    queue.get_static_pad("sink").add_probe(Gst.PadProbeType.BUFFER, went_in)
+    queue.get_static_pad("src").add_probe(Gst.PadProbeType.BUFFER, came_out)
+
+    def counted() -> tuple[int, int]:
+        with lock:
+            return counts[0], counts[1]
+    return counted
 
 
 def run_pipeline_file(description: str, progress: Progress | None = None,
