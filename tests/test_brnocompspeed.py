@@ -124,6 +124,33 @@ def test_results_real_file_round_trip(tmp_path):
     assert isinstance(again["cars"][0]["frames"][0], int)
 
 
+@pytest.mark.parametrize("with_calibration", [True, False])
+def test_results_are_written_a_car_at_a_time_as_json_dumps_would(tmp_path, with_calibration):
+    """The file is the text of ``json.dumps`` of the whole document, but never whole in memory: a long run's 2000
+    vehicles (some 3 MB) are written with less than a tenth of that at the peak."""
+    import tracemalloc
+
+    from gst_trafficcal.brnocompspeed import results_to_dict
+
+    rng = np.random.default_rng(5)
+    cars = [Track(i, np.arange(40) + 25.0 * i, rng.uniform(0, 1920, (40, 2))) for i in range(2000)]
+    cars[1] = Track(1, np.array([3.0, 4.5, 6.0]), np.ones((3, 2)))  # a frame number that is not whole stays as it is
+    calibration = BrnoCalibration((1.0, 2.0), (3.0, 4.0), (960.5, 540.5), 0.01) if with_calibration else None
+    res, out = Results(calibration, tuple(cars)), tmp_path / "system.json"
+    tracemalloc.start()
+    try:
+        save_results(res, out)
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    text = out.read_text()
+    assert text == json.dumps(results_to_dict(res))
+    assert json.loads(text)["cars"][1]["frames"] == [3, 4.5, 6] and len(text) > 3_000_000
+    assert peak < len(text) / 10, (peak, len(text))
+    save_results(Results(calibration, ()), out)  # no vehicles yet
+    assert json.loads(out.read_text())["cars"] == []
+
+
 def test_results_write_read():
     res = Results(BrnoCalibration((1.0, 2.0), (3.0, 4.0), (960.5, 540.5), 0.01),
                   (Track(7, np.array([1, 2, 3]), np.array([[1.0, 2.0], [3.0, 4.0], [5.0, 6.5]])),))
