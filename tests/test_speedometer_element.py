@@ -694,3 +694,29 @@ def test_a_scale_found_is_kept_with_its_view_for_a_restart(tmp_path, scaler):
     again = play(tmp_path / "again.jsonl", 300)  # 12 s: far too short to find a scale
     assert sum(e.measured for e in again) >= 5, [e.reason for e in again]
     assert {e.calibration_id for e in again if e.measured} == {kept[0].id}
+
+
+@pytest.mark.parametrize("name", ["bbscale", "speedometer"])
+def test_a_views_folder_that_cannot_be_written_is_one_warning_never_an_error(tmp_path, name):
+    """A scale found for a view that ``views-dir`` cannot keep (here a file stands where the folder should be): one
+    WARNING on the bus naming the folder — the measurement goes on, the next scale found says nothing more."""
+    import dataclasses
+
+    from gst_trafficcal.calibration import Calibration
+    from gst_trafficcal.gst._gi import Gst
+
+    register_plugin_file(ELEMENTS / f"{name}.py")
+    blocked = tmp_path / "views"
+    blocked.write_text("not a folder")
+    cal = dataclasses.replace(Calibration.from_dict(KRATEN_CALIBRATION), view={"learnt on": "its frames"})
+    element = Gst.ElementFactory.make(name, None)
+    pipeline = Gst.Pipeline.new(None)
+    pipeline.add(element)
+    for scale in (9.4, 9.5):
+        element.keep_scale_view(cal.with_scale(scale), str(blocked))
+    warnings = []
+    while (msg := pipeline.get_bus().pop_filtered(Gst.MessageType.WARNING | Gst.MessageType.ERROR)) is not None:
+        warnings.append((msg.type, msg.parse_warning()[0].message if msg.type == Gst.MessageType.WARNING else ""))
+    assert warnings == [(Gst.MessageType.WARNING, f"{name}: the scale is not kept for a restart: {blocked}: cannot "
+                         "create the views folder (File exists)")], warnings
+    assert blocked.read_text() == "not a folder"
