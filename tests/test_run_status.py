@@ -152,3 +152,42 @@ def test_a_corrupt_status_file_is_one_line_naming_it(tmp_path):
     (tmp_path / "status.json").write_text("{not json")
     with pytest.raises(InputError, match=r"status.json: not valid JSON, so not a run's status"):
         read_status(tmp_path / "status.json")
+
+
+def test_trafficcal_status_of_a_folder_of_cameras_is_a_line_each(tmp_path):
+    """An NVR's cameras, one --out folder each under one folder: `trafficcal status FOLDER` checks them all — a line
+    each and a count, exit 1 when any is unhealthy or has no readable status (0 when every one is healthy)."""
+    import subprocess
+    import sys
+
+    def status(*args: object) -> subprocess.CompletedProcess:
+        return subprocess.run([sys.executable, "-m", "gst_trafficcal", "status", *map(str, args)],
+                              capture_output=True, text=True, timeout=60)
+
+    cameras = tmp_path / "cameras"
+    for name, state in (("east", "running"), ("north", "finished"), ("west", "failed")):
+        (cameras / name).mkdir(parents=True)
+        StatusFile(cameras / name / "status.json", f"rtsp://nvr/{name}").update(
+            state=state, vehicles=12, measured=10, error="disk full" if state == "failed" else "")
+    (cameras / "south").mkdir()
+    (cameras / "south" / "status.json").write_text("{not json")
+    (cameras / "notes").mkdir()  # not a run: no status.json, not listed
+    run = status(cameras)
+    lines = run.stdout.splitlines()
+    assert run.returncode == 1 and len(lines) == 5, run.stdout + run.stderr
+    assert lines[0].startswith(f"{cameras / 'east' / 'status.json'}: running;") and lines[0].endswith("healthy")
+    assert "12 vehicles, 10 measured" in lines[0] and lines[1].endswith("finished; 12 vehicles, 10 measured; last –; "
+                                                                        "healthy")
+    assert lines[2].startswith(f"{cameras / 'south' / 'status.json'}: UNHEALTHY: no status: not valid JSON, so not a "
+                               "run's status (")
+    assert "west" in lines[3] and lines[3].endswith("UNHEALTHY: the run failed: disk full")
+    assert lines[4] == "4 runs: 2 healthy, 2 not"
+    fine = status(cameras / "east", cameras / "north" / "status.json", "--json")
+    docs = json.loads(fine.stdout)
+    assert fine.returncode == 0 and [d["healthy"] for d in docs] == [True, True], fine.stdout + fine.stderr
+    assert [d["source"] for d in docs] == ["rtsp://nvr/east", "rtsp://nvr/north"] and docs[1]["path"].endswith(
+        "north/status.json")
+    gone = status(cameras / "east", tmp_path / "nowhere")
+    assert gone.returncode == 1 and f"{tmp_path / 'nowhere'}: UNHEALTHY: no status: no such file\n" in gone.stdout
+    one = status(cameras / "east")  # a single run: in full, as before
+    assert one.returncode == 0 and "  vehicles    12, 10 measured" in one.stdout

@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import json
 import sys
+from dataclasses import asdict
 from datetime import datetime
 from pathlib import Path
 
@@ -19,14 +21,34 @@ def _ago(iso: str | None, now: datetime) -> str:
     return f"{iso} ({s:.0f} s ago)"
 
 
+def _document(status, problems: list[str]) -> dict:
+    """What --json prints of a run: its status file's fields, with whether it is healthy and why not."""
+    return {**asdict(status), "healthy": not problems, "problems": problems}
+
+
+def status_files(paths: tuple[Path, ...]) -> list[Path]:
+    """The status files ``paths`` name: a status.json itself; a run's --out folder (its status.json); or a folder of
+    such folders, one per camera (each child's status.json, when the folder has none of its own)."""
+    files = []
+    for path in paths:
+        if path.is_dir() and not (path / "status.json").exists():
+            children = sorted(p for p in path.glob("*/status.json") if p.is_file())
+            if children:
+                files += children
+                continue
+        files.append(path / "status.json" if path.is_dir() else path)
+    return files
+
+
 @click.command(name="status")
-@click.argument("path", metavar="OUT_DIR|STATUS.json", type=click.Path(path_type=Path))
+@click.argument("paths", nargs=-1, required=True, metavar="OUT_DIR|STATUS.json...", type=click.Path(path_type=Path))
 @click.option("--max-age", "max_age_s", type=click.FloatRange(min=0, min_open=True), default=60.0, show_default=True,
               metavar="SECONDS",
               help="A run not ended whose status is older than this, or whose stream has been lost this long, is "
                    "unhealthy.")
-@click.option("--json", "as_json", is_flag=True, help="Print the status file's JSON (plus 'healthy' and 'problems').")
-def command(path: Path, max_age_s: float, as_json: bool) -> None:
+@click.option("--json", "as_json", is_flag=True, help="Print the status file's JSON (plus 'healthy' and 'problems'); "
+                                                      "for several runs, a list of them (plus 'path').")
+def command(paths: tuple[Path, ...], max_age_s: float, as_json: bool) -> None:
     """Print what the `trafficcal run` writing into OUT_DIR is doing (its status.json): state, stream position and
     speed against real time, calibration, vehicles, the last vehicle, dropped frames, warnings.
 
@@ -34,21 +56,61 @@ def command(path: Path, max_age_s: float, as_json: bool) -> None:
     (failed; no update for --max-age seconds; its process gone; the stream lost for --max-age seconds), 2 when
     there is no readable status: usable as a container or service health check, e.g.
     HEALTHCHECK CMD trafficcal status /out --max-age 60.
-    """
-    import json
-    from dataclasses import asdict
 
+    Several runs — several OUT_DIRs, or a folder holding one OUT_DIR per camera (trafficcal status /srv/cameras)
+    — are a line each and a count; exit code 0 when every one is healthy, 1 when any is not or has no readable
+    status.
+    """
+    files = status_files(paths)
+    if len(files) > 1:
+        _several(files, max_age_s, as_json)
+    _one(files[0], max_age_s, as_json)
+
+
+def _several(files: list[Path], max_age_s: float, as_json: bool) -> None:
+    """A line per run (or a JSON list), then how many are healthy; exits 0 when all are, 1 otherwise."""
     from ..errors import InputError
     from ..run_status import health, read_status
 
-    file = path / "status.json" if path.is_dir() else path
+    now = datetime.now().astimezone()
+    docs, lines, unhealthy = [], [], 0
+    for file in files:
+        try:
+            if not file.exists():
+                raise InputError(f"{file}: no such file")
+            status = read_status(file)
+        except InputError as exc:
+            unhealthy += 1
+            why = f"no status: {str(exc).removeprefix(f'{file}: ')}"
+            docs.append({"path": str(file), "healthy": False, "problems": [why]})
+            lines.append(f"{file}: UNHEALTHY: {why}")
+            continue
+        problems = health(status, max_age_s, now)
+        unhealthy += bool(problems)
+        docs.append({"path": str(file), **_document(status, problems)})
+        speed = "" if status.speed_x is None else f", {status.speed_x:.2f} x real time"
+        lines.append(f"{file}: {status.state}{speed}; {status.vehicles} vehicles, {status.measured} measured; last "
+                     f"{_ago(status.last_vehicle_at, now)}; "
+                     + ("; ".join(f"UNHEALTHY: {p}" for p in problems) or "healthy"))
+    if as_json:
+        click.echo(json.dumps(docs, indent=1))
+    else:
+        click.echo("\n".join(lines + [f"{len(files)} runs: {len(files) - unhealthy} healthy, {unhealthy} not"]))
+    sys.exit(1 if unhealthy else 0)
+
+
+def _one(file: Path, max_age_s: float, as_json: bool) -> None:
+    """One run's status in full (or its JSON); exits 0 healthy, 1 not (InputError, exit 2, without a status)."""
+    from ..errors import InputError
+    from ..run_status import health, read_status
+
     if not file.exists():
         raise InputError(f"{file}: no such file (give the --out folder of a trafficcal run, or its status.json)")
     status = read_status(file)
     now = datetime.now().astimezone()
     problems = health(status, max_age_s, now)
     if as_json:
-        click.echo(json.dumps({**asdict(status), "healthy": not problems, "problems": problems}, indent=1))
+        click.echo(json.dumps(_document(status, problems), indent=1))
         sys.exit(1 if problems else 0)
     cal = status.calibration or {}
     position = "–" if status.position_s is None else (
