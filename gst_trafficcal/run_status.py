@@ -164,7 +164,8 @@ def read_status(path: str | Path) -> RunStatus:
 FINAL_STATES = ("finished", "interrupted", "failed")
 
 
-def _age_s(iso: str, now: datetime) -> float | None:
+def age_s(iso: str | None, now: datetime) -> float | None:
+    """Seconds from the ISO 8601 time ``iso`` to ``now`` (None when there is no readable time)."""
     try:
         return (now - datetime.fromisoformat(iso)).total_seconds()
     except (TypeError, ValueError):
@@ -193,13 +194,13 @@ def health(status: RunStatus, max_age_s: float = 60.0, now: datetime | None = No
         why.append(f"the run failed: {status.error or 'no reason recorded'}")
     if status.state in FINAL_STATES:
         return why
-    age = _age_s(status.updated_at, now)
+    age = age_s(status.updated_at, now)
     if age is None or age > max_age_s:
         why.append("status not updated for " + ("an unknown time" if age is None else f"{age:.0f} s") +
                    f" (more than {max_age_s:g} s): the run hangs or is gone")
     if status.host == socket.gethostname() and status.pid and not _process_alive(status.pid):
         why.append(f"process {status.pid} is not running any more")
-    lost = _age_s(status.stream_lost_at, now) if status.stream_lost_at else None
+    lost = age_s(status.stream_lost_at, now) if status.stream_lost_at else None
     if status.state in ("reconnecting", "starting") and lost is not None and lost > max_age_s:
         why.append(f"no stream for {lost:.0f} s ({status.error or 'connection lost'}); still trying")
     return why

@@ -191,3 +191,4 @@ def test_trafficcal_status_of_a_folder_of_cameras_is_a_line_each(tmp_path):
     assert gone.returncode == 1 and f"{tmp_path / 'nowhere'}: UNHEALTHY: no status: no such file\n" in gone.stdout
     one = status(cameras / "east")  # a single run: in full, as before
     assert one.returncode == 0 and "  vehicles    12, 10 measured" in one.stdout
+

@@ -48,7 +48,10 @@ def status_files(paths: tuple[Path, ...]) -> list[Path]:
                    "unhealthy.")
 @click.option("--json", "as_json", is_flag=True, help="Print the status file's JSON (plus 'healthy' and 'problems'); "
                                                       "for several runs, a list of them (plus 'path').")
-def command(paths: tuple[Path, ...], max_age_s: float, as_json: bool) -> None:
+@click.option("--prometheus", is_flag=True,
+              help="Print the runs as Prometheus metrics (text format), e.g. for node_exporter's textfile collector: "
+                   "trafficcal status /srv/cameras --prometheus > /var/lib/node_exporter/trafficcal.prom")
+def command(paths: tuple[Path, ...], max_age_s: float, as_json: bool, prometheus: bool) -> None:
     """Print what the `trafficcal run` writing into OUT_DIR is doing (its status.json): state, stream position and
     speed against real time, calibration, vehicles, the last vehicle, dropped frames, warnings.
 
@@ -61,42 +64,68 @@ def command(paths: tuple[Path, ...], max_age_s: float, as_json: bool) -> None:
     — are a line each and a count; exit code 0 when every one is healthy, 1 when any is not or has no readable
     status.
     """
+    if as_json and prometheus:
+        raise click.UsageError("--json or --prometheus, not both")
     files = status_files(paths)
+    if prometheus:
+        _prometheus(files, max_age_s)
     if len(files) > 1:
         _several(files, max_age_s, as_json)
     _one(files[0], max_age_s, as_json)
 
 
-def _several(files: list[Path], max_age_s: float, as_json: bool) -> None:
-    """A line per run (or a JSON list), then how many are healthy; exits 0 when all are, 1 otherwise."""
+def judged(files: list[Path], max_age_s: float, now: datetime) -> list:
+    """Each run's status read and judged (``status_metrics.RunHealth``); a missing or unreadable one is unhealthy
+    with the reason."""
     from ..errors import InputError
     from ..run_status import health, read_status
+    from ..status_metrics import RunHealth
 
-    now = datetime.now().astimezone()
-    docs, lines, unhealthy = [], [], 0
+    runs = []
     for file in files:
         try:
             if not file.exists():
                 raise InputError(f"{file}: no such file")
             status = read_status(file)
         except InputError as exc:
-            unhealthy += 1
-            why = f"no status: {str(exc).removeprefix(f'{file}: ')}"
-            docs.append({"path": str(file), "healthy": False, "problems": [why]})
-            lines.append(f"{file}: UNHEALTHY: {why}")
+            runs.append(RunHealth(str(file), None, [f"no status: {str(exc).removeprefix(f'{file}: ')}"]))
             continue
-        problems = health(status, max_age_s, now)
-        unhealthy += bool(problems)
-        docs.append({"path": str(file), **_document(status, problems)})
-        speed = "" if status.speed_x is None else f", {status.speed_x:.2f} x real time"
-        lines.append(f"{file}: {status.state}{speed}; {status.vehicles} vehicles, {status.measured} measured; last "
-                     f"{_ago(status.last_vehicle_at, now)}; "
-                     + ("; ".join(f"UNHEALTHY: {p}" for p in problems) or "healthy"))
+        runs.append(RunHealth(str(file), status, health(status, max_age_s, now)))
+    return runs
+
+
+def _several(files: list[Path], max_age_s: float, as_json: bool) -> None:
+    """A line per run (or a JSON list), then how many are healthy; exits 0 when all are, 1 otherwise."""
+    now = datetime.now().astimezone()
+    runs = judged(files, max_age_s, now)
     if as_json:
-        click.echo(json.dumps(docs, indent=1))
+        click.echo(json.dumps([{"path": r.path, **(_document(r.status, r.problems) if r.status else
+                                                   {"healthy": False, "problems": r.problems})} for r in runs],
+                              indent=1))
     else:
-        click.echo("\n".join(lines + [f"{len(files)} runs: {len(files) - unhealthy} healthy, {unhealthy} not"]))
-    sys.exit(1 if unhealthy else 0)
+        lines = []
+        for r in runs:
+            verdict = "; ".join(f"UNHEALTHY: {p}" for p in r.problems) or "healthy"
+            s = r.status
+            if s is None:
+                lines.append(f"{r.path}: {verdict}")
+                continue
+            speed = "" if s.speed_x is None else f", {s.speed_x:.2f} x real time"
+            lines.append(f"{r.path}: {s.state}{speed}; {s.vehicles} vehicles, {s.measured} measured; last "
+                         f"{_ago(s.last_vehicle_at, now)}; {verdict}")
+        bad = sum(bool(r.problems) for r in runs)
+        click.echo("\n".join(lines + [f"{len(runs)} runs: {len(runs) - bad} healthy, {bad} not"]))
+    sys.exit(1 if any(r.problems for r in runs) else 0)
+
+
+def _prometheus(files: list[Path], max_age_s: float) -> None:
+    """The runs as Prometheus metrics; exits 0 when every run is healthy, 1 otherwise."""
+    from ..status_metrics import prometheus_text
+
+    now = datetime.now().astimezone()
+    runs = judged(files, max_age_s, now)
+    click.echo(prometheus_text(runs, now), nl=False)
+    sys.exit(1 if any(r.problems for r in runs) else 0)
 
 
 def _one(file: Path, max_age_s: float, as_json: bool) -> None:
