@@ -377,6 +377,36 @@ def test_duration_stops_a_file_early(clip, tmp_path):
     assert n == 63  # the frames at 0, 0.08, ... 4.96 s (12.5 fps): the stream ends exactly there, a finished MP4
 
 
+def test_an_earlier_live_runs_outputs_are_kept_a_files_are_replaced(clip, tmp_path):
+    """A service started again into the --out of a live stream's run (after a crash or a reboot): the measurements
+    of a stream cannot be made again, so they move to --out/earlier-<start>/ — the calibration given inside --out
+    copied, since this run reads it.  A file's run into the same folder is replaced, as before."""
+    import shutil
+
+    from gst_trafficcal.run_status import StatusFile
+
+    out = tmp_path / "out"
+    out.mkdir()
+    StatusFile(out / "status.json", "rtsp://admin:***@cam/1").update(state="failed", error="the machine rebooted")
+    (out / "vehicles.jsonl").write_text('{"id": 1}\n{"id": 2}\n')
+    (out / "report.html").write_text("the earlier report")
+    shutil.copy(clip / "calibration.json", out / "calibration.json")
+    args = ("run", clip / "video.mp4", "--out", out, "--calibration", out / "calibration.json", "--duration", "3",
+            "--no-overlay")
+    proc = trafficcal(*args)
+    assert proc.returncode == 0, proc.stdout[-2000:] + proc.stderr[-2000:]
+    kept = list(out.glob("earlier-*"))
+    assert len(kept) == 1 and f"Kept the earlier run's outputs (2 vehicles of a live stream" in proc.stdout
+    assert (kept[0] / "vehicles.jsonl").read_text() == '{"id": 1}\n{"id": 2}\n'
+    assert (kept[0] / "report.html").read_text() == "the earlier report"
+    assert read_status(kept[0] / "status.json").error == "the machine rebooted"
+    assert (kept[0] / "calibration.json").read_bytes() == (out / "calibration.json").read_bytes()  # copied
+    assert read_status(out / "status.json").source == str(clip / "video.mp4")  # this run's own outputs
+    assert (out / "report.html").read_text() != "the earlier report" and read_events(out / "vehicles.jsonl").events
+    again = trafficcal(*args)  # the file's run again: replaced, nothing more set aside
+    assert again.returncode == 0 and "Kept" not in again.stdout and len(list(out.glob("earlier-*"))) == 1
+
+
 def test_start_time_now_is_for_streams(clip, tmp_path):
     line = one_line_error(trafficcal("run", clip / "video.mp4", "--out", tmp_path, "--start-time", "now"))
     assert "live streams" in line

@@ -202,6 +202,50 @@ def _read_vehicle_events(paths: RunPaths) -> list:
     return found
 
 
+def set_aside_earlier_live_run(out_dir: Path, live: bool,
+                               inputs: tuple[Path | None, ...] = ()) -> tuple[Path, int] | None:
+    """A live stream cannot be measured again: when ``out_dir`` holds an earlier run's vehicles and that run read a
+    live stream (its status.json's source is a URI; without a readable status: when this run reads one), its
+    outputs move to ``out_dir/earlier-<its start>/`` instead of being replaced, so a service restarted after a
+    crash or a reboot keeps what it measured.  A file's run is replaced as before (it can be run again).  Files
+    that are ``inputs`` of this run (``--calibration OUT/calibration.json``) are copied there, not moved.  Returns
+    the folder and the number of vehicles kept there, or None."""
+    import shutil
+    from datetime import datetime
+
+    from ..errors import InputError
+    from ..run_status import read_status
+
+    vehicles = out_dir / "vehicles.jsonl"
+    if not vehicles.is_file() or vehicles.stat().st_size == 0:
+        return None
+    started = datetime.fromtimestamp(vehicles.stat().st_mtime)
+    try:
+        earlier = read_status(out_dir / "status.json")
+        live = is_uri(earlier.source)
+        started = datetime.fromisoformat(earlier.started_at)
+    except (InputError, OSError, ValueError):
+        pass  # no status (an older version, or removed): judged by this run's input
+    if not live:
+        return None
+    folder = out_dir / f"earlier-{started:%Y%m%d-%H%M%S}"
+    k = 1
+    while folder.exists():
+        k += 1
+        folder = out_dir / f"earlier-{started:%Y%m%d-%H%M%S}-{k}"
+    folder.mkdir(parents=True)
+    with vehicles.open("rb") as f:
+        count = sum(1 for line in f if line.strip())
+    for name in OUTPUTS + ("status.json", "parts.csv"):
+        path = out_dir / name
+        if path.exists():
+            if any(_same(path, k) for k in inputs if k is not None):
+                shutil.copy2(path, folder / name)
+            else:
+                path.rename(folder / name)
+    return folder, count
+
+
 def measure_video(video: Path | str, out_dir: Path, description: str, console, label: str = "measuring",
                   keep: tuple[Path, ...] = (), stop_after_s: float | None = None, status=None) -> RunSummary:
     """Play ``description`` (see :func:`pipeline_description`) with a progress bar; read back what it wrote.
@@ -529,6 +573,10 @@ def command(videos: tuple[str, ...], out_dir: Path, calibration_path: Path | Non
         raise InputError("--reconnect is for a live stream (a URI): a file is read to its end once")
     from ..run_status import StatusFile
 
+    kept = set_aside_earlier_live_run(out_dir, is_uri(inputs[0]), (calibration_path, gt_path, regression_path))
+    if kept is not None:
+        console.print(f"[bold]Kept[/] the earlier run's outputs ({kept[1]} vehicles of a live stream, which cannot be "
+                      f"measured again) in {kept[0]}", highlight=False)
     status = StatusFile(out_dir / "status.json", shown_source(inputs[0]) if len(inputs) == 1 else
                         f"{len(inputs)} files: {', '.join(shown_source(v) for v in inputs)}", every_s=status_s,
                         warn=lambda text: console.print(f"[yellow]warning[/]: {text}", highlight=False))
