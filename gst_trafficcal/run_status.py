@@ -182,6 +182,17 @@ def _process_alive(pid: int) -> bool:
     return True
 
 
+def still_running(status: RunStatus, now: datetime | None = None, max_age_s: float = 60.0) -> bool:
+    """Whether the run that wrote ``status`` is still going: not ended, and its process alive — on this machine
+    checked, on another (a shared folder) taken at its word while the file is younger than ``max_age_s``."""
+    if status.state in FINAL_STATES:
+        return False
+    if status.host == socket.gethostname():
+        return bool(status.pid) and status.pid != os.getpid() and _process_alive(status.pid)
+    age = age_s(status.updated_at, now or datetime.now().astimezone())
+    return age is not None and age <= max_age_s
+
+
 def health(status: RunStatus, max_age_s: float = 60.0, now: datetime | None = None) -> list[str]:
     """Why ``status`` is not healthy (empty: healthy), as a container or service health check asks.
 

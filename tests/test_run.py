@@ -407,6 +407,21 @@ def test_an_earlier_live_runs_outputs_are_kept_a_files_are_replaced(clip, tmp_pa
     assert again.returncode == 0 and "Kept" not in again.stdout and len(list(out.glob("earlier-*"))) == 1
 
 
+def test_an_out_folder_another_run_is_writing_into_is_refused(clip, tmp_path):
+    """Two runs into one --out would overwrite each other's files: while the run whose status.json is there goes on
+    (its process alive: here this test's), a second one is refused in one line; once it ended, it is not."""
+    from gst_trafficcal.run_status import StatusFile
+
+    running = StatusFile(tmp_path / "status.json", "rtsp://cam/1")
+    running.update(state="running")
+    line = one_line_error(trafficcal("run", clip / "video.mp4", "--out", tmp_path))
+    assert line.startswith(f"trafficcal: error: {tmp_path}: another run is writing there (process {os.getpid()} on ")
+    assert line.endswith("reading rtsp://cam/1): give another --out, or stop that run first")
+    running.update(state="interrupted")
+    ended = trafficcal("run", clip / "video.mp4", "--out", tmp_path, "--duration", "1", "--no-overlay")
+    assert ended.returncode == 0, ended.stdout[-2000:] + ended.stderr[-2000:]
+
+
 def test_start_time_now_is_for_streams(clip, tmp_path):
     line = one_line_error(trafficcal("run", clip / "video.mp4", "--out", tmp_path, "--start-time", "now"))
     assert "live streams" in line

@@ -192,3 +192,25 @@ def test_trafficcal_status_of_a_folder_of_cameras_is_a_line_each(tmp_path):
     one = status(cameras / "east")  # a single run: in full, as before
     assert one.returncode == 0 and "  vehicles    12, 10 measured" in one.stdout
 
+
+
+def test_still_running_is_a_live_process_here_or_a_fresh_file_from_elsewhere(tmp_path):
+    import subprocess
+    import sys
+    from dataclasses import replace
+    from datetime import datetime, timedelta
+
+    from gst_trafficcal.run_status import still_running
+
+    status = StatusFile(tmp_path / "s.json", "rtsp://cam/1")
+    status.update(state="running")
+    mine = status.status
+    assert not still_running(mine)  # this very process: not another run
+    gone = int(subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True,
+                              text=True).stdout)
+    assert not still_running(replace(mine, pid=gone))  # killed without a word: its state still says running
+    parent = os.getppid()
+    assert still_running(replace(mine, pid=parent)) and not still_running(replace(mine, pid=parent, state="failed"))
+    now = datetime.fromisoformat(mine.updated_at)
+    away = replace(mine, host="another-machine")
+    assert still_running(away, now + timedelta(seconds=30)) and not still_running(away, now + timedelta(minutes=5))

@@ -571,8 +571,17 @@ def command(videos: tuple[str, ...], out_dir: Path, calibration_path: Path | Non
     limit = parse_speed_limit(speed_limit, "--speed-limit")  # a bad one: one line, before any work
     if reconnect and not is_uri(inputs[0]):
         raise InputError("--reconnect is for a live stream (a URI): a file is read to its end once")
-    from ..run_status import StatusFile
+    from ..run_status import StatusFile, read_status, still_running
 
+    if (out_dir / "status.json").is_file():
+        try:
+            other = read_status(out_dir / "status.json")
+        except InputError:
+            other = None  # broken: this run's own replaces it
+        if other is not None and still_running(other):
+            raise InputError(f"{out_dir}: another run is writing there (process {other.pid} on {other.host}, "
+                             f"{other.state} since {other.state_since}, reading {other.source}): give another --out, "
+                             "or stop that run first")
     kept = set_aside_earlier_live_run(out_dir, is_uri(inputs[0]), (calibration_path, gt_path, regression_path))
     if kept is not None:
         console.print(f"[bold]Kept[/] the earlier run's outputs ({kept[1]} vehicles of a live stream, which cannot be "
