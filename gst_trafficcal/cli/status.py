@@ -22,8 +22,9 @@ def _ago(iso: str | None, now: datetime) -> str:
 
 
 def _document(status, problems: list[str]) -> dict:
-    """What --json prints of a run: its status file's fields, with whether it is healthy and why not."""
-    return {**asdict(status), "healthy": not problems, "problems": problems}
+    """What --json prints of a run: its status file's fields (none without a status), with whether it is healthy
+    and why not."""
+    return {**(asdict(status) if status is not None else {}), "healthy": not problems, "problems": problems}
 
 
 def status_files(paths: tuple[Path, ...]) -> list[Path]:
@@ -99,9 +100,7 @@ def _several(files: list[Path], max_age_s: float, as_json: bool) -> None:
     now = datetime.now().astimezone()
     runs = judged(files, max_age_s, now)
     if as_json:
-        click.echo(json.dumps([{"path": r.path, **(_document(r.status, r.problems) if r.status else
-                                                   {"healthy": False, "problems": r.problems})} for r in runs],
-                              indent=1))
+        click.echo(json.dumps([{"path": r.path, **_document(r.status, r.problems)} for r in runs], indent=1))
     else:
         lines = []
         for r in runs:
