@@ -187,6 +187,10 @@ def test_trafficcal_status_of_a_folder_of_cameras_is_a_line_each(tmp_path):
     assert fine.returncode == 0 and [d["healthy"] for d in docs] == [True, True], fine.stdout + fine.stderr
     assert [d["source"] for d in docs] == ["rtsp://nvr/east", "rtsp://nvr/north"] and docs[1]["path"].endswith(
         "north/status.json")
+    listed = json.loads(status(cameras, "--json").stdout)
+    assert [(d["path"].split("/")[-2], d["healthy"]) for d in listed] == [("east", True), ("north", True),
+                                                                          ("south", False), ("west", False)]
+    assert listed[2]["problems"][0].startswith("no status: not valid JSON") and "state" not in listed[2]
     gone = status(cameras / "east", tmp_path / "nowhere")
     assert gone.returncode == 1 and f"{tmp_path / 'nowhere'}: UNHEALTHY: no status: no such file\n" in gone.stdout
     one = status(cameras / "east")  # a single run: in full, as before
