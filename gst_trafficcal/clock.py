@@ -64,3 +64,22 @@ def start_from_name(name: str) -> datetime | None:
         except ValueError:  # 20261399_...: digits, not a date
             continue
     return None if found is None else found.astimezone()
+
+
+_PERIOD_UNITS = {"s": 1.0, "m": 60.0, "h": 3600.0, "d": 86400.0}
+
+
+def parse_period(text: str, where: str = "period") -> float:
+    """Seconds of a period written as a number and a unit: ``90s``, ``15m``, ``1h``, ``24h``, ``1d``."""
+    m = re.fullmatch(r"\s*(\d+(?:\.\d+)?)\s*([smhd])\s*", str(text).lower())
+    if m is None or float(m.group(1)) <= 0:
+        raise InputError(f"{where}: {text!r} is not a period (a positive number and s, m, h or d: 24h, 15m, 90s)")
+    return float(m.group(1)) * _PERIOD_UNITS[m.group(2)]
+
+
+def next_boundary(now: datetime, every_s: float) -> datetime:
+    """The next time after ``now`` on the clock's grid of ``every_s`` seconds counted from midnight (24h: midnight;
+    1h: the full hours; a period that does not divide the day starts again at midnight)."""
+    midnight = now.replace(hour=0, minute=0, second=0, microsecond=0)
+    k = int((now - midnight).total_seconds() // every_s) + 1
+    return min(midnight + timedelta(seconds=k * every_s), midnight + timedelta(days=1))

@@ -38,3 +38,22 @@ def test_a_recordings_start_from_its_file_name() -> None:
     assert start_from_name("cam2_20261205_080000_20261205_090000.mp4") == local(2026, 12, 5, 9, 0)  # the last one
     for none in ("video.mp4", "20261399_080000.mp4", "cam_12345678_123456.mp4", "2026120508.mp4"):
         assert start_from_name(none) is None, none
+
+
+def test_periods_and_the_next_boundary_on_the_clock() -> None:
+    from datetime import datetime, timezone
+
+    from gst_trafficcal.clock import next_boundary, parse_period
+
+    assert [parse_period(t) for t in ("24h", "1d", "15m", "90s", "1.5h")] == [86400, 86400, 900, 90, 5400]
+    for bad in ("", "24", "h", "0h", "-1h", "1w"):
+        with pytest.raises(InputError, match="is not a period"):
+            parse_period(bad, "--split-every")
+    now = datetime(2026, 12, 5, 13, 47, 12, tzinfo=timezone.utc)
+    assert next_boundary(now, 86400) == datetime(2026, 12, 6, tzinfo=timezone.utc)  # midnight
+    assert next_boundary(now, 3600) == datetime(2026, 12, 5, 14, tzinfo=timezone.utc)  # the next full hour
+    assert next_boundary(now, 7 * 3600) == datetime(2026, 12, 5, 14, tzinfo=timezone.utc)  # 0, 7, 14, 21 h
+    assert next_boundary(datetime(2026, 12, 5, 22, tzinfo=timezone.utc), 7 * 3600) == datetime(2026, 12, 6,
+                                                                                              tzinfo=timezone.utc)
+    assert next_boundary(datetime(2026, 12, 5, 14, tzinfo=timezone.utc), 3600) == datetime(2026, 12, 5, 15,
+                                                                                           tzinfo=timezone.utc)

@@ -560,6 +560,28 @@ def test_a_live_stream_that_ends_is_connected_again(clip, rtsp_clip, tmp_path):
     assert index[0][2] == str(len(first))
 
 
+def test_split_every_ends_each_connection_on_the_clock_and_connects_again_at_once(clip, rtsp_clip, tmp_path):
+    """--split-every 4s (24h in service: a folder, outputs and report per day): each connection ends at the next
+    multiple of 4 s on the clock and the next one starts at once — no wait, "split" in parts.csv — until --duration
+    (9 s of video in all); each period's folder has its outputs."""
+    out = tmp_path / "live"
+    proc = trafficcal("run", rtsp_clip, "--out", out, "--reconnect", "--split-every", "4s", "--duration", "9",
+                      "--no-overlay", "--calibration", clip / "calibration.json")
+    assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
+    index = [r.split(",") for r in (out / "parts.csv").read_text().splitlines()[1:]]
+    assert len(index) >= 3 and [r[7] for r in index] == ["split"] * (len(index) - 1) + ["ok"], index
+    assert proc.stdout.count("the next period's connection starts") == len(index) - 1
+    assert "connecting again in" not in proc.stdout  # a new period is no failure: no wait
+    for row in index:
+        assert (out / row[1] / "vehicles.jsonl").is_file() and (out / row[1] / "report.html").is_file(), row
+    assert len(read_events(out / "vehicles.jsonl").events) == sum(int(r[2]) for r in index)  # every period's
+    line = one_line_error(trafficcal("run", rtsp_clip, "--out", tmp_path / "x", "--split-every", "24h"))
+    assert line == "trafficcal: error: --split-every is for a live stream with --reconnect (each period a " \
+                   "connection of its own)"
+    line = one_line_error(trafficcal("run", rtsp_clip, "--out", tmp_path / "x", "--reconnect", "--split-every", "1w"))
+    assert "--split-every: '1w' is not a period" in line
+
+
 def test_reconnecting_to_a_stream_that_is_not_there_goes_on_until_ctrl_c(clip, tmp_path):
     """Nothing answers: each attempt fails, the wait doubles, Ctrl-C ends it (130) with the table; a file is read
     once, so --reconnect with one is refused."""

@@ -495,6 +495,11 @@ def print_vehicles(console, events: list, speed_limit: "SpeedLimit | float | Non
                    "(after 1 s, doubling to a minute while it keeps failing) until Ctrl-C or --duration; each "
                    "connection's outputs in --out/YYYYmmdd-HHMMSS/, the calibration carried over from one to the "
                    "next (checked against the view).")
+@click.option("--split-every", "split_every", default="", metavar="PERIOD",
+              help="With --reconnect: end each connection at the next multiple of PERIOD on the clock (24h: at "
+                   "midnight; also 1h, 15m, 90s) and connect again at once, so every day (or hour) has its own "
+                   "folder, outputs and report.html, and a connection up for weeks holds one period's vehicles in "
+                   "memory.")
 @click.option("--no-overlay", is_flag=True, help="Do not encode overlay.mp4 (faster).")
 @click.option("--status-interval", "status_s", type=click.FloatRange(min=0.1), default=5.0, show_default=True,
               metavar="SECONDS",
@@ -505,7 +510,7 @@ def print_vehicles(console, events: list, speed_limit: "SpeedLimit | float | Non
 def command(videos: tuple[str, ...], out_dir: Path, calibration_path: Path | None, gt_path: Path | None,
             detector: str | None, regression_path: Path | None, body_shapes: str, speed_limit: str,
             start_time: str, interval_min: float, duration_s: float | None, events_url: str,
-            reconnect: bool, no_overlay: bool, status_s: float = 5.0) -> None:
+            reconnect: bool, no_overlay: bool, status_s: float = 5.0, split_every: str = "") -> None:
     """Calibrate and measure every vehicle of VIDEO (a file, or the URI of a stream: rtsp://, http://, file://)
     in one pass through the GStreamer elements. Ctrl-C (or --duration) ends the run as the end of the stream
     would, with every output complete; a second Ctrl-C stops at once.
@@ -571,6 +576,14 @@ def command(videos: tuple[str, ...], out_dir: Path, calibration_path: Path | Non
     limit = parse_speed_limit(speed_limit, "--speed-limit")  # a bad one: one line, before any work
     if reconnect and not is_uri(inputs[0]):
         raise InputError("--reconnect is for a live stream (a URI): a file is read to its end once")
+    split_s = None
+    if split_every:
+        from ..clock import parse_period
+
+        split_s = parse_period(split_every, "--split-every")
+        if not reconnect:
+            raise InputError("--split-every is for a live stream with --reconnect (each period a connection of its "
+                             "own)")
     from ..run_status import StatusFile, read_status, still_running
 
     if (out_dir / "status.json").is_file():
@@ -590,7 +603,7 @@ def command(videos: tuple[str, ...], out_dir: Path, calibration_path: Path | Non
                         f"{len(inputs)} files: {', '.join(shown_source(v) for v in inputs)}", every_s=status_s,
                         warn=lambda text: console.print(f"[yellow]warning[/]: {text}", highlight=False))
     options = RunOptions(detector, regression_path, body_shapes, limit, interval_min, duration_s, events_url,
-                         no_overlay, gt_path, live_clock, start, status=status)
+                         no_overlay, gt_path, live_clock, start, status=status, split_every_s=split_s)
     try:
         if reconnect:
             from .run_parts import run_stream
@@ -658,6 +671,7 @@ class RunOptions:
     start: Any = None  # datetime of the video's start, or None
     views_dir: Path | None = None  # vpdetect views-dir: the camera's views kept across parts (files, connections)
     status: Any = None  # run_status.StatusFile of --out/status.json, or None
+    split_every_s: float | None = None  # --split-every: a live stream's connections end on this grid of the clock
 
 
 def run_one(console, video: Path | str, out_dir: Path, calibration_path: Path | None, options: RunOptions,

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from ..clock import next_boundary
 from ..errors import InputError
 from .run import RunOptions, run_one
 
@@ -87,6 +88,14 @@ def run_parts(console, parts, total: int | None, out_dir: Path, calibration_path
         opts = options if starts is None else dc_replace(options, start=starts[k - 1])
         if live and options.duration_s is not None:
             opts = dc_replace(options, duration_s=max(options.duration_s - used_s, 1e-3))
+        split = False  # --split-every: this connection ends at the next period's start on the clock
+        if live and options.split_every_s:
+            from datetime import datetime
+
+            now = datetime.now().astimezone()
+            left = (next_boundary(now, options.split_every_s) - now).total_seconds()
+            if opts.duration_s is None or left < opts.duration_s:
+                opts, split = dc_replace(opts, duration_s=left), True
         summary, why = None, ""
         try:
             summary = run_one(console, video, sub, given, opts, calibration_mode=mode)
@@ -116,7 +125,9 @@ def run_parts(console, parts, total: int | None, out_dir: Path, calibration_path
                 except InputError:
                     pass
             how = "" if cal is None else ("carried over" if "carried over" in cal.source else cal.state)
-            status = {"interrupted": "interrupted", "duration": "ok"}.get(summary.stopped, "ended" if live else "ok")
+            split = split and summary.stopped == "duration"
+            status = "split" if split else {"interrupted": "interrupted", "duration": "ok"}.get(
+                summary.stopped, "ended" if live else "ok")
             rows.append([label, str(len(summary.events)), str(st.n), "–" if st.mean is None else f"{st.mean:.1f}",
                          "–" if st.v85 is None else f"{st.v85:.1f}", how, status])
             records.append({"part": label, "folder": name, "vehicles": len(summary.events), "measured": st.n,
@@ -124,6 +135,11 @@ def run_parts(console, parts, total: int | None, out_dir: Path, calibration_path
                             "v85_kmh": None if st.v85 is None else round(st.v85, 2),
                             "calibration": "" if cal is None else cal.id, "status": status})
             _write_parts(out_dir / "parts.csv", records)
+            if split:  # the next period's connection at once
+                console.print(f"[bold]--split-every[/]: {name} ends here; the next period's connection starts",
+                              highlight=False)
+                wait = 1.0
+                continue
             if summary.stopped:
                 interrupted = summary.stopped == "interrupted"
                 break
