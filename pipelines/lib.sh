@@ -40,3 +40,19 @@ analysis_queue() {  # URI: prints the queue in front of the analysis, one word p
         *) printf '%s\n' queue ;;
     esac
 }
+
+keep_earlier_live() {  # URI OUT_DIR: prints the folder a live stream's earlier results in OUT_DIR were moved to
+    # A stream cannot be measured again: a recipe started again (a service after a crash or a reboot) into the
+    # same OUT_DIR keeps what it measured before in OUT_DIR/earlier-<time of its last vehicle>/ instead of
+    # overwriting it. A file can be run again: its results are replaced.
+    local uri="$1" out="$2" kept base n=2 f
+    [[ "$uri" == file://* || ! -s "$out/vehicles.jsonl" ]] && return 0
+    base="$out/earlier-$(date -r "$out/vehicles.jsonl" +%Y%m%d-%H%M%S)"
+    kept="$base"
+    while [[ -e "$kept" ]]; do kept="$base-$n"; n=$((n + 1)); done
+    mkdir -p "$kept" || return 1
+    for f in vehicles.jsonl vehicles.csv system.json intervals.csv; do
+        if [[ -e "$out/$f" ]]; then mv "$out/$f" "$kept/" || return 1; fi
+    done
+    echo "$kept"
+}

@@ -32,6 +32,8 @@
 #   calibration, scale included, is kept there and used at once the next time the camera shows it.
 # A live source (rtsp://, udp://, srt://, rtmp://) gets a queue that keeps a second of frames and drops the oldest
 # beyond it: a machine too slow for the camera falls behind by at most that much.
+# Started again into an OUT_DIR holding an earlier run's vehicles, a live source's run moves them to
+# OUT_DIR/earlier-<time of the last vehicle>/ first (a stream cannot be measured again); a file's are replaced.
 set -euo pipefail
 
 here="$(cd "$(dirname "${BASH_SOURCE[0]}")" && pwd)"
@@ -81,6 +83,9 @@ clock=()
 [[ "$uri" == file://* ]] || clock=(start-datetime=now)  # a live source: date the vehicles by this machine's clock
 
 events="$out_dir/vehicles.jsonl"
+kept="$(keep_earlier_live "$uri" "$out_dir")" || die "$out_dir: cannot keep the earlier run's results aside"
+[[ -z "$kept" ]] || echo "measure: kept the earlier run's $(grep -c . "$kept/vehicles.jsonl" || true) vehicles of" \
+                         "a live stream in $kept (a stream cannot be measured again)" >&2
 mapfile -t queue < <(analysis_queue "$uri")  # leaky for a live source (lib.sh)
 # shellcheck disable=SC2206  # word splitting of the user's property lists is intended
 pipeline=(uridecodebin "uri=$uri" ! videoconvert ! video/x-raw,format=I420 ! "${queue[@]}"

@@ -152,6 +152,28 @@ def test_measure_dates_the_vehicles_of_a_live_source_and_of_a_recording_when_tol
     assert events and all(e.first_time == f"2026-12-05T08:00:{e.first_timestamp_s:06.3f}+00:00" for e in events)
 
 
+def test_measure_started_again_on_a_live_source_keeps_the_earlier_results(clip, tmp_path):
+    """A service running measure.sh on a camera, started again into its OUT_DIR: the earlier run's results move to
+    OUT_DIR/earlier-<time>/ before the new run writes (a stream cannot be measured again); a file's are replaced."""
+    live = tmp_path / "live"
+    live.mkdir()
+    (live / "vehicles.jsonl").write_text('{"id": 1}\n{"id": 2}\n')
+    (live / "system.json").write_text('{"cars": []}')
+    proc = script("measure.sh", "rtsp://127.0.0.1:9/none", live)  # nothing listens: fails fast, after keeping
+    kept = list(live.glob("earlier-*"))
+    assert len(kept) == 1 and (kept[0] / "vehicles.jsonl").read_text() == '{"id": 1}\n{"id": 2}\n', proc.stderr
+    assert (kept[0] / "system.json").read_text() == '{"cars": []}'  # this run writes its own
+    assert f"measure: kept the earlier run's 2 vehicles of a live stream in {kept[0]}" in proc.stderr
+    script("measure.sh", "rtsp://127.0.0.1:9/none", live)  # nothing new measured: nothing more kept
+    assert len(list(live.glob("earlier-*"))) == 1
+    rec = tmp_path / "rec"
+    rec.mkdir()
+    (rec / "vehicles.jsonl").write_text('{"id": 1}\n')
+    proc = script("measure.sh", clip / "video.mp4", rec, clip / "calibration.json")
+    assert proc.returncode == 0 and not list(rec.glob("earlier-*")), proc.stderr[-2000:]
+    assert read_events(rec / "vehicles.jsonl").events[0].label  # this run's vehicles
+
+
 def test_measure_without_a_scale_keeps_vehicles_and_says_why(clip, tmp_path):
     d = json.loads((clip / "calibration.json").read_text())
     d.update(scale=None, state="vps")
