@@ -202,6 +202,23 @@ def _read_vehicle_events(paths: RunPaths) -> list:
     return found
 
 
+def refuse_a_busy_out(out_dir: Path) -> None:
+    """InputError when another run is still writing into ``out_dir`` (its status.json not ended, its process
+    alive): two runs would overwrite each other's files."""
+    from ..run_status import read_status, still_running
+
+    if not (out_dir / "status.json").is_file():
+        return
+    try:
+        other = read_status(out_dir / "status.json")
+    except InputError:
+        return  # broken: this run's own replaces it
+    if still_running(other):
+        raise InputError(f"{out_dir}: another run is writing there (process {other.pid} on {other.host}, "
+                         f"{other.state} since {other.state_since}, reading {other.source}): give another --out, "
+                         "or stop that run first")
+
+
 def set_aside_earlier_live_run(out_dir: Path, live: bool,
                                inputs: tuple[Path | None, ...] = ()) -> tuple[Path, int] | None:
     """A live stream cannot be measured again: when ``out_dir`` holds an earlier run's vehicles and that run read a
@@ -239,7 +256,7 @@ def set_aside_earlier_live_run(out_dir: Path, live: bool,
     for name in OUTPUTS + ("status.json", "parts.csv"):
         path = out_dir / name
         if path.exists():
-            if any(_same(path, k) for k in inputs if k is not None):
+            if any(_same(path, given) for given in inputs if given is not None):
                 shutil.copy2(path, folder / name)
             else:
                 path.rename(folder / name)
@@ -584,17 +601,9 @@ def command(videos: tuple[str, ...], out_dir: Path, calibration_path: Path | Non
         if not reconnect:
             raise InputError("--split-every is for a live stream with --reconnect (each period a connection of its "
                              "own)")
-    from ..run_status import StatusFile, read_status, still_running
+    from ..run_status import StatusFile
 
-    if (out_dir / "status.json").is_file():
-        try:
-            other = read_status(out_dir / "status.json")
-        except InputError:
-            other = None  # broken: this run's own replaces it
-        if other is not None and still_running(other):
-            raise InputError(f"{out_dir}: another run is writing there (process {other.pid} on {other.host}, "
-                             f"{other.state} since {other.state_since}, reading {other.source}): give another --out, "
-                             "or stop that run first")
+    refuse_a_busy_out(out_dir)
     kept = set_aside_earlier_live_run(out_dir, is_uri(inputs[0]), (calibration_path, gt_path, regression_path))
     if kept is not None:
         console.print(f"[bold]Kept[/] the earlier run's outputs ({kept[1]} vehicles of a live stream, which cannot be "
