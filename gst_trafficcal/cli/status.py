@@ -12,13 +12,12 @@ import click
 
 
 def _ago(iso: str | None, now: datetime) -> str:
+    from ..run_status import age_s
+
     if not iso:
         return "–"
-    try:
-        s = (now - datetime.fromisoformat(iso)).total_seconds()
-    except ValueError:
-        return iso
-    return f"{iso} ({s:.0f} s ago)"
+    s = age_s(iso, now)
+    return iso if s is None else f"{iso} ({s:.0f} s ago)"
 
 
 def _document(status, problems: list[str]) -> dict:
