@@ -202,27 +202,34 @@ def _read_vehicle_events(paths: RunPaths) -> list:
     return found
 
 
-def refuse_a_busy_out(out_dir: Path) -> None:
-    """InputError when another run is still writing into ``out_dir`` (its status.json not ended, its process
-    alive): two runs would overwrite each other's files."""
-    from ..run_status import read_status, still_running
+def earlier_status(out_dir: Path):
+    """The status.json an earlier run left in ``out_dir`` (``run_status.RunStatus``); None when there is none or
+    it cannot be read (this run's own replaces it)."""
+    from ..run_status import read_status
 
     if not (out_dir / "status.json").is_file():
-        return
+        return None
     try:
-        other = read_status(out_dir / "status.json")
+        return read_status(out_dir / "status.json")
     except InputError:
-        return  # broken: this run's own replaces it
-    if still_running(other):
-        raise InputError(f"{out_dir}: another run is writing there (process {other.pid} on {other.host}, "
-                         f"{other.state} since {other.state_since}, reading {other.source}): give another --out, "
-                         "or stop that run first")
+        return None
 
 
-def set_aside_earlier_live_run(out_dir: Path, live: bool,
+def refuse_a_busy_out(out_dir: Path, earlier) -> None:
+    """InputError when the run of ``earlier`` (``out_dir``'s status) is still writing into ``out_dir`` (not ended,
+    its process alive): two runs would overwrite each other's files."""
+    from ..run_status import still_running
+
+    if earlier is not None and still_running(earlier):
+        raise InputError(f"{out_dir}: another run is writing there (process {earlier.pid} on {earlier.host}, "
+                         f"{earlier.state} since {earlier.state_since}, reading {earlier.source}): give another "
+                         "--out, or stop that run first")
+
+
+def set_aside_earlier_live_run(out_dir: Path, live: bool, earlier=None,
                                inputs: tuple[Path | None, ...] = ()) -> tuple[Path, int] | None:
     """A live stream cannot be measured again: when ``out_dir`` holds an earlier run's vehicles and that run read a
-    live stream (its status.json's source is a URI; without a readable status: when this run reads one), its
+    live stream (``earlier``, its status: the source is a URI; without one: when this run reads one, ``live``), its
     outputs move to ``out_dir/earlier-<its start>/`` instead of being replaced, so a service restarted after a
     crash or a reboot keeps what it measured.  A file's run is replaced as before (it can be run again).  Files
     that are ``inputs`` of this run (``--calibration OUT/calibration.json``) are copied there, not moved.  Returns
@@ -230,19 +237,16 @@ def set_aside_earlier_live_run(out_dir: Path, live: bool,
     import shutil
     from datetime import datetime
 
-    from ..errors import InputError
-    from ..run_status import read_status
-
     vehicles = out_dir / "vehicles.jsonl"
     if not vehicles.is_file() or vehicles.stat().st_size == 0:
         return None
     started = datetime.fromtimestamp(vehicles.stat().st_mtime)
-    try:
-        earlier = read_status(out_dir / "status.json")
+    if earlier is not None:
         live = is_uri(earlier.source)
-        started = datetime.fromisoformat(earlier.started_at)
-    except (InputError, OSError, ValueError):
-        pass  # no status (an older version, or removed): judged by this run's input
+        try:
+            started = datetime.fromisoformat(earlier.started_at)
+        except ValueError:
+            pass  # no readable start: the time of its last vehicle
     if not live:
         return None
     folder = out_dir / f"earlier-{started:%Y%m%d-%H%M%S}"
@@ -603,8 +607,9 @@ def command(videos: tuple[str, ...], out_dir: Path, calibration_path: Path | Non
                              "own)")
     from ..run_status import StatusFile
 
-    refuse_a_busy_out(out_dir)
-    kept = set_aside_earlier_live_run(out_dir, is_uri(inputs[0]), (calibration_path, gt_path, regression_path))
+    earlier = earlier_status(out_dir)
+    refuse_a_busy_out(out_dir, earlier)
+    kept = set_aside_earlier_live_run(out_dir, is_uri(inputs[0]), earlier, (calibration_path, gt_path, regression_path))
     if kept is not None:
         console.print(f"[bold]Kept[/] the earlier run's outputs ({kept[1]} vehicles of a live stream, which cannot be "
                       f"measured again) in {kept[0]}", highlight=False)
