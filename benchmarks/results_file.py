@@ -1,5 +1,6 @@
 """What a long run's BrnoCompSpeed results file (``system.json``) costs: memory per vehicle, file size, the time
-to rewrite it and the memory the rewrite takes on top.
+to rewrite it and the memory the rewrite takes on top; and what the interval table (``intervals.csv``) holds per
+vehicle.
 
 Usage:
   .venv/bin/python benchmarks/results_file.py [--vehicles 25000] [--points 80] [--out /tmp/system.json]
@@ -7,7 +8,8 @@ Usage:
 ``--vehicles`` vehicles of ``--points`` reference points each (a vehicle seen for about 3 s at 25 fps; 25 000 is
 a busy camera's day) are collected by ``outputs.BrnoResultsWriter`` as speedometer collects them, then written
 once as its checkpoints do (atomically, synced).  Memory is the process's peak resident size (``ru_maxrss``)
-before and after the write, so the rewrite's extra memory is their difference.
+before and after the write, so the rewrite's extra memory is their difference.  The interval table's memory is
+``tracemalloc``'s count of what ``traffic_stats.IntervalTable`` holds after as many vehicles' events.
 """
 
 from __future__ import annotations
@@ -15,11 +17,13 @@ from __future__ import annotations
 import argparse
 import resource
 import time
+import tracemalloc
 from pathlib import Path
 
 import numpy as np
 
-from gst_trafficcal.outputs import BrnoResultsWriter
+from gst_trafficcal.outputs import BrnoResultsWriter, VehicleEvent
+from gst_trafficcal.traffic_stats import IntervalTable
 
 
 def peak_mb() -> float:
@@ -47,6 +51,18 @@ def main() -> None:
     print(f"{args.vehicles} vehicles of {args.points} points: held in memory {held - start:.0f} MB "
           f"({(held - start) * 1024 / args.vehicles:.1f} kB a vehicle); file {size / 1e6:.0f} MB written in "
           f"{took:.1f} s; the write's extra memory {after - held:.0f} MB")
+    tracemalloc.start()
+    table = IntervalTable(args.out.with_name("intervals.csv"))
+    for i in range(args.vehicles):
+        t = 3.2 * i
+        table.vehicle(VehicleEvent(i + 1, "car", t, t + 3.0, 80.0 + i % 20, lane=i % 3, direction="towards_vp1",
+                                   calibration_id="0123456789ab", n_samples=60, length_m=4.5, width_m=1.8,
+                                   height_m=1.5, first_time=f"2026-12-05T08:00:00.{i % 1000:03d}+01:00",
+                                   last_time=f"2026-12-05T08:00:03.{i % 1000:03d}+01:00"))  # a string each
+    table_bytes = tracemalloc.get_traced_memory()[0]
+    tracemalloc.stop()
+    print(f"the interval table holds {table_bytes / 2**20:.0f} MB for them ({table_bytes / 1024 / args.vehicles:.2f} "
+          "kB a vehicle)")
 
 
 if __name__ == "__main__":
