@@ -27,6 +27,8 @@ import json
 import os
 import socket
 import time
+import types
+import typing
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
 from datetime import datetime
@@ -158,7 +160,35 @@ def read_status(path: str | Path) -> RunStatus:
         raise InputError(f"{path}: not a run's status (a JSON object expected)")
     data.setdefault("state_since", data.get("updated_at", ""))  # files of an earlier version: no such fields
     data.setdefault("host", "")
-    return RunStatus(**{k: v for k, v in data.items() if k in STATUS_FIELDS})
+    fields = {k: v for k, v in data.items() if k in STATUS_FIELDS}
+    hints = typing.get_type_hints(RunStatus)
+    for name, value in fields.items():
+        if not _of_type(value, hints[name]):
+            shown = json.dumps(value)[:60]
+            raise InputError(f"{path}: not a run's status ({name} is {shown}, not {_named(hints[name])})")
+    return RunStatus(**fields)
+
+
+def _named(hint: Any) -> str:
+    """A type hint as the JSON it stands for: 'a number or null'."""
+    if typing.get_origin(hint) in (typing.Union, types.UnionType):
+        return " or ".join(_named(arg) for arg in typing.get_args(hint))
+    names = {int: "a whole number", float: "a number", str: "a string", list: "a list", dict: "an object",
+             type(None): "null"}
+    return names.get(typing.get_origin(hint) or hint, str(hint))
+
+
+def _of_type(value: Any, hint: Any) -> bool:
+    """Whether a JSON value fits a RunStatus field's type hint (numbers: not booleans)."""
+    if typing.get_origin(hint) in (typing.Union, types.UnionType):
+        return any(_of_type(value, arg) for arg in typing.get_args(hint))
+    if hint is type(None) or hint is Any:
+        return value is None or hint is Any
+    if hint in (int, float):
+        return isinstance(value, (int, float) if hint is float else int) and not isinstance(value, bool)
+    if typing.get_origin(hint) is list:
+        return isinstance(value, list) and all(_of_type(v, typing.get_args(hint)[0]) for v in value)
+    return isinstance(value, typing.get_origin(hint) or hint)
 
 
 FINAL_STATES = ("finished", "interrupted", "failed")

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 
 import pytest
 
@@ -218,3 +219,25 @@ def test_still_running_is_a_live_process_here_or_a_fresh_file_from_elsewhere(tmp
     now = datetime.fromisoformat(mine.updated_at)
     away = replace(mine, host="another-machine")
     assert still_running(away, now + timedelta(seconds=30)) and not still_running(away, now + timedelta(minutes=5))
+
+
+@pytest.mark.parametrize("field, value, words", [("pid", "x", 'pid is "x", not a whole number'),
+                                                 ("vehicles", True, "vehicles is true, not a whole number"),
+                                                 ("speed_x", "fast", 'speed_x is "fast", not a number or null'),
+                                                 ("warnings", [1], "warnings is [1], not a list"),
+                                                 ("calibration", [], "calibration is [], not an object or null")])
+def test_a_status_with_a_field_of_the_wrong_type_is_one_line_naming_it(tmp_path, field, value, words):
+    """Not a traceback later (a pid that is not a number reached os.kill): `trafficcal status` exits 2 with the
+    line, and `trafficcal run` replaces such a file as an unreadable one."""
+    import subprocess
+    import sys
+
+    StatusFile(tmp_path / "status.json", "rtsp://cam/1").update(state="running")
+    data = on_disk(tmp_path / "status.json")
+    data[field] = value
+    (tmp_path / "status.json").write_text(json.dumps(data))
+    with pytest.raises(InputError, match=re.escape(f"status.json: not a run's status ({words}")):
+        read_status(tmp_path / "status.json")
+    run = subprocess.run([sys.executable, "-m", "gst_trafficcal", "status", str(tmp_path)], capture_output=True,
+                         text=True, timeout=60)
+    assert run.returncode == 2 and "Traceback" not in run.stderr and words in run.stderr, run.stderr
