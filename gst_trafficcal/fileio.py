@@ -57,6 +57,46 @@ def atomic_write_text(path: str | Path, text: str, what: str) -> Path:
     return atomic_write(path, lambda tmp: tmp.write_text(text, encoding="utf-8"), what)
 
 
+def free_path(path: str | Path) -> Path:
+    """``path`` if nothing is there, else the first of ``name-2.ext``, ``name-3.ext``, ... that is free (a folder's
+    ``name-2``): where something is set aside or started without replacing what is already there."""
+    path = Path(path)
+    k = 2
+    free = path
+    while free.exists():
+        free = path.with_name(f"{path.stem}-{k}{path.suffix}")
+        k += 1
+    return free
+
+
+def keep_aside(path: str | Path) -> Path | None:
+    """Move a non-empty file at ``path`` to ``name.earlier-<its last change>.ext`` beside it (numbered when taken)
+    instead of letting a new run replace it; returns where it went, or None when there was nothing to keep.
+    InputError naming the file when it cannot be moved."""
+    from datetime import datetime
+
+    path = Path(path)
+    try:
+        st = path.stat()
+    except FileNotFoundError:
+        return None
+    except OSError as exc:
+        raise InputError(f"{path}: cannot read ({exc.strerror or exc})") from None
+    if st.st_size == 0 or not path.is_file():
+        return None
+    stem, ext = (path.name.split(".", 1) + [""])[:2]
+    when = f"{datetime.fromtimestamp(st.st_mtime):%Y%m%d-%H%M%S}"
+    ext = f".{ext}" if ext else ""
+    kept, k = path.with_name(f"{stem}.earlier-{when}{ext}"), 2
+    try:
+        while kept.exists():
+            kept, k = path.with_name(f"{stem}.earlier-{when}-{k}{ext}"), k + 1
+        path.rename(kept)
+    except OSError as exc:
+        raise InputError(f"{path}: cannot keep the earlier file as {kept.name} ({exc.strerror or exc})") from None
+    return kept
+
+
 def open_video(path: str | Path):
     """An opened ``cv2.VideoCapture``; InputError "<path>: no such file" / "cannot open video" otherwise."""
     import cv2

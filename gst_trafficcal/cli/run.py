@@ -237,6 +237,8 @@ def set_aside_earlier_live_run(out_dir: Path, live: bool, earlier=None,
     import shutil
     from datetime import datetime
 
+    from ..fileio import free_path
+
     vehicles = out_dir / "vehicles.jsonl"
     if not vehicles.is_file() or vehicles.stat().st_size == 0:
         return None
@@ -249,11 +251,7 @@ def set_aside_earlier_live_run(out_dir: Path, live: bool, earlier=None,
             pass  # no readable start: the time of its last vehicle
     if not live:
         return None
-    folder = out_dir / f"earlier-{started:%Y%m%d-%H%M%S}"
-    k = 1
-    while folder.exists():
-        k += 1
-        folder = out_dir / f"earlier-{started:%Y%m%d-%H%M%S}-{k}"
+    folder = free_path(out_dir / f"earlier-{started:%Y%m%d-%H%M%S}")
     folder.mkdir(parents=True)
     with vehicles.open("rb") as f:
         count = sum(1 for line in f if line.strip())

@@ -32,13 +32,11 @@ def run_stream(console, uri: str, out_dir: Path, calibration_path: Path | None, 
     Ctrl-C or ``--duration`` seconds of video in all."""
     from datetime import datetime
 
+    from ..fileio import free_path
+
     def connections():
         while True:
-            name = f"{datetime.now():%Y%m%d-%H%M%S}"
-            k = 2
-            while (out_dir / name).exists():
-                name = f"{datetime.now():%Y%m%d-%H%M%S}-{k}"
-                k += 1
+            name = free_path(out_dir / f"{datetime.now():%Y%m%d-%H%M%S}").name
             yield uri, name, name
 
     return run_parts(console, connections(), None, out_dir, calibration_path, options, live=True)
