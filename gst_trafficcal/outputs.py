@@ -147,6 +147,27 @@ def stream_start(events: Iterable[VehicleEvent]) -> datetime | None:
     return None
 
 
+def on_one_clock(events: Sequence[VehicleEvent]) -> tuple[datetime | None, list[VehicleEvent]]:
+    """Events of several runs appended to one file (speedometer ``append``), each run's timestamps from its own
+    stream start, put on the clock of the earliest: (that start, the events with their timestamps moved). A run is
+    told by its start (date and time less timestamp) more than half a second from another's; undated events stay
+    as they are. A single run's events come back unchanged."""
+    starts = [parse_start_time(e.first_time) - timedelta(seconds=e.first_timestamp_s)
+              if e.first_time and e.first_timestamp_s is not None and e.last_timestamp_s is not None else None
+              for e in events]
+    dated = [s for s in starts if s is not None]
+    if not dated:
+        return None, list(events)
+    first = min(dated)
+    out = []
+    for e, s in zip(events, starts):
+        shift = 0.0 if s is None else (s - first).total_seconds()
+        if shift > 0.5:
+            e = replace(e, first_timestamp_s=e.first_timestamp_s + shift, last_timestamp_s=e.last_timestamp_s + shift)
+        out.append(e)
+    return first, out
+
+
 def reason_kind(reason: str) -> str:
     """A reason without its numbers: the text before the first bracket or colon ("track too short (4 reference
     points, needs 10)" -> "track too short"), so vehicles left unmeasured for the same cause count together."""

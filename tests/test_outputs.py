@@ -19,7 +19,7 @@ from gst_trafficcal.evaluation import median_speeds
 from gst_trafficcal.geometry import Camera
 from gst_trafficcal.outputs import (
     EVENT_FIELDS, BrnoResultsWriter, CsvEventWriter, EventWriters, JsonlEventWriter, VehicleEvent,
-    frames_from_times, read_events, read_events_csv, reason_kind, unmeasured_by_kind,
+    frames_from_times, on_one_clock, read_events, read_events_csv, reason_kind, unmeasured_by_kind,
 )
 from gst_trafficcal.speed import track_speed
 
@@ -80,6 +80,24 @@ def test_events_with_the_clock_round_trip(tmp_path: Path) -> None:
     # a file from before the clock fields still loads (no times)
     old = {k: v for k, v in events[0].to_dict().items() if k not in ("first_time", "last_time")}
     assert VehicleEvent.from_dict(old).first_time is None
+
+
+def test_runs_appended_to_one_file_go_on_one_clock() -> None:
+    """Two dated runs in one file (each from its own stream time 0) are put on the earliest run's clock; a single
+    run, its millisecond-rounded dates included, and undated events come back unchanged."""
+    from gst_trafficcal.clock import parse_start_time
+
+    first = [e.with_clock(parse_start_time("2026-12-05T08:00:00.0004+01:00")) for e in _events()]
+    second = [e.with_clock(parse_start_time("2026-12-05T08:10:00+01:00")) for e in _events(3)]
+    start, one = on_one_clock(first)
+    assert one == first and start == parse_start_time("2026-12-05T08:00:00+01:00")
+    start, both = on_one_clock(second + first)  # the later run first: the clock is still the earlier one's
+    assert start == parse_start_time("2026-12-05T08:00:00+01:00")
+    assert both[3:] == first
+    assert [e.first_timestamp_s for e in both[:3]] == pytest.approx([600.0 + e.first_timestamp_s for e in _events(3)])
+    assert [e.last_timestamp_s - e.first_timestamp_s for e in both] == pytest.approx(
+        [e.last_timestamp_s - e.first_timestamp_s for e in second + first])
+    assert on_one_clock(_events()) == (None, _events())
 
 
 def test_unmeasured_vehicles_count_by_the_kind_of_reason() -> None:

@@ -294,6 +294,55 @@ def test_start_datetime_dates_every_vehicle(clip, implicit, tmp_path):
         run_pipeline(f"{source(clip)} ! {detector(clip)} ! speedometer start-datetime=yesterday ! appsink name=sink")
 
 
+def test_append_keeps_what_a_run_into_the_same_files_measured_before(clip, implicit, tmp_path):
+    """append=true (a service started again into its files): the event, CSV and frame files grow, the tables of one
+    run (results-file, intervals-file) are kept beside instead of replaced, with an INFO message; trafficcal report
+    counts both runs' intervals on one clock. Without append a run replaces them."""
+    import csv
+    import sys
+
+    _, _, events, _ = implicit
+    n = len(events)
+    cal = f"calibration-file={clip / 'calibration.json'}"
+    files = (f"frames-file={tmp_path / 'frames.jsonl'} intervals-file={tmp_path / 'intervals.csv'} "
+             "interval=0.05 append=true")
+    run1, first, _ = measure(clip, tmp_path, detector(clip), f"{cal} {files} start-datetime=2026-12-05T08:00:00")
+    assert run1.infos == [] and len(first) == n
+    frames1 = (tmp_path / "frames.jsonl").read_text()
+    results1 = (tmp_path / "results.json").read_text()
+    intervals1 = (tmp_path / "intervals.csv").read_text()
+    run2, both, _ = measure(clip, tmp_path, detector(clip), f"{cal} {files} start-datetime=2026-12-05T08:01:00")
+    assert len(both) == 2 * n
+    assert [e.first_time[:16] for e in both] == ["2026-12-05T08:00"] * n + ["2026-12-05T08:01"] * n
+    assert [e.speed_kmh for e in both[n:]] == [e.speed_kmh for e in both[:n]]
+    with open(tmp_path / "events.csv", newline="") as f:
+        assert len(list(csv.DictReader(f))) == 2 * n  # one header
+    assert (tmp_path / "frames.jsonl").read_text() == 2 * frames1
+    kept = {p.name: p for p in tmp_path.glob("*.earlier-*")}
+    assert sorted(kept) == sorted(p.name for p in tmp_path.iterdir() if ".earlier-2" in p.name) and len(kept) == 2
+    (results_kept,) = [p for name, p in kept.items() if name.startswith("results.earlier-")]
+    (intervals_kept,) = [p for name, p in kept.items() if name.startswith("intervals.earlier-")]
+    assert results_kept.suffix == ".json" and intervals_kept.suffix == ".csv"
+    assert results_kept.read_text() == results1 and intervals_kept.read_text() == intervals1
+    assert sorted(i.split(": ", 1)[1] for i in run2.infos) == sorted(f"speedometer: the earlier {tmp_path / name} is kept as "
+                                        f"{kept[k]}" for name, k in (("results.json", results_kept.name),
+                                                                     ("intervals.csv", intervals_kept.name)))
+    # the report puts the second run a minute after the first, not on top of it
+    report = subprocess.run([sys.executable, "-m", "gst_trafficcal", "report", "--events",
+                             str(tmp_path / "events.jsonl"), "--interval", "0.05", "--intervals-csv",
+                             str(tmp_path / "all.csv"), "--out", str(tmp_path / "report.html")],
+                            capture_output=True, text=True, timeout=300)
+    assert report.returncode == 0, report.stderr
+    with open(tmp_path / "all.csv", newline="") as f:
+        total = [r for r in csv.DictReader(f) if r["lane"] == "all"]
+    assert sum(int(r["vehicles"]) for r in total) == 2 * n
+    early = sum(int(r["vehicles"]) for r in total if r["interval_start"] < "2026-12-05T08:01:00")
+    assert early == n, total
+    # without append: replaced, nothing more kept
+    run3, again, _ = measure(clip, tmp_path, detector(clip), f"{cal} start-datetime=2026-12-05T08:02:00")
+    assert len(again) == n and run3.infos == [] and len(list(tmp_path.glob("*.earlier-*"))) == 2
+
+
 def test_bad_calibration_file_is_a_clear_error(clip, tmp_path):
     bad = tmp_path / "bad.json"
     bad.write_text("{not json")
@@ -385,7 +434,7 @@ def test_gst_inspect_documents_every_property(tmp_path):
     for prop in ("events-file", "results-file", "csv-file", "frames-file", "calibration-file", "scale", "tau",
                  "min-track-length", "vehicle-timeout", "scale-models", "scale-min-vehicles", "scale-regression-file",
                  "start-datetime", "speed-limit", "class-limits", "events-url", "intervals-file", "interval",
-                 "max-waiting", "views-dir"):
+                 "max-waiting", "views-dir", "append"):
         assert prop in text
 
 

@@ -58,6 +58,11 @@ class Speedometer(TrafficcalTransform):
         "intervals-file": (str, "Intervals file", "CSV traffic count per interval, lane and direction (counts, "
                            "speeds, V85, over the limit, classes, seconds watched), rewritten as each interval "
                            "closes and at the end of the stream (empty: none)", "", _RW),
+        "append": (bool, "Append", "Add to an existing events-file, csv-file and frames-file instead of replacing "
+                   "them, so a pipeline started again into the same files (a service restarted after a crash or a "
+                   "reboot) keeps what it measured before; results-file and intervals-file, tables of one run, are "
+                   "then not replaced either but kept beside as NAME.earlier-<time>.EXT (trafficcal report counts "
+                   "the intervals of the whole events file)", False, _RW),
         "interval": (float, "Interval", "Minutes per row of intervals-file (aligned to the clock with "
                      "start-datetime)", 0.01, 10080.0, 15.0, _RW),
         "calibration-file": (str, "Calibration file", "Calibration JSON used when no calibration with scale "
@@ -147,9 +152,16 @@ class Speedometer(TrafficcalTransform):
                 self._start = parse_start_time(self.start_datetime, "start-datetime")
             if self.calibration_file:
                 self._file_cal = load_calibration(self.calibration_file)
+            if self.append:  # the tables of an earlier run are kept, not replaced
+                from gst_trafficcal.fileio import keep_aside
+
+                for path in (self.results_file, self.intervals_file):
+                    kept = keep_aside(path) if path else None
+                    if kept is not None:
+                        self.post_info(f"speedometer: the earlier {path} is kept as {kept}")
             # opened now so that an unwritable path fails at start; the frame rate is set from the caps
             self._outputs = VehicleOutputs(self.events_file or None, self.csv_file or None,
-                                           self.results_file or None, fps=25.0)
+                                           self.results_file or None, fps=25.0, append=self.append)
             from gst_trafficcal.traffic_stats import element_limit
 
             self._limit = element_limit(self.speed_limit, self.class_limits)
@@ -165,7 +177,7 @@ class Speedometer(TrafficcalTransform):
             if self.frames_file:
                 from gst_trafficcal.outputs import FrameJsonlWriter
 
-                self._frames = FrameJsonlWriter(self.frames_file, skip_empty=True)
+                self._frames = FrameJsonlWriter(self.frames_file, append=self.append, skip_empty=True)
             if not self._scale_given():  # built now, so bad scale-* properties are an error at start
                 self._own_stage = self._new_scale_stage()
         except Exception as exc:  # bad properties / unreadable calibration / unwritable file: readable error

@@ -65,7 +65,7 @@ def command(events_path: Path, calibration_path: Path | None, frame_path: Path |
             interval_min: float, intervals_path: Path | None, out_path: Path) -> None:
     from ..brnocompspeed import load_gt_data, load_results
     from ..calibration import Calibration, load_calibration
-    from ..outputs import read_events, stream_start
+    from ..outputs import on_one_clock, read_events
     from ..report import ReportInputs, write_report
     from ..traffic_stats import interval_rows, parse_speed_limit, write_intervals_csv
 
@@ -87,13 +87,13 @@ def command(events_path: Path, calibration_path: Path | None, frame_path: Path |
             raise InputError(f"{calibration_path or results_path}: calibration has no scale, speeds cannot be "
                              "evaluated")
         evaluation = evaluate(gt, cal.camera, results)
-    start = stream_start(log.events)
+    start, events = on_one_clock(log.events)  # an appended file's runs, each from its own stream start
     path = write_report(out_path, ReportInputs(
-        log.events, cal, frame, evaluation, ground_truth_name=str(gt_path or ""), title=title,
+        events, cal, frame, evaluation, ground_truth_name=str(gt_path or ""), title=title,
         source=str(video_path or ""), speed_limit_kmh=limit, interval_s=60 * interval_min,
         start_time=start))
     skipped = f" ({log.skipped} broken line(s) skipped)" if log.skipped else ""
     click.echo(f"{path}: {len(log.events)} vehicles{skipped}")
     if intervals_path is not None:
-        rows = interval_rows(log.events, 60 * interval_min, start, limit)
+        rows = interval_rows(events, 60 * interval_min, start, limit)
         click.echo(f"{write_intervals_csv(intervals_path, rows)}: {sum(r.total for r in rows)} intervals")

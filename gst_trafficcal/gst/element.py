@@ -181,6 +181,11 @@ class TrafficcalTransform(GstBase.BaseTransform):
         err = GLib.Error.new_literal(Gst.CoreError.quark(), text, int(Gst.CoreError.FAILED))
         self.post_message(Gst.Message.new_warning(self, err, debug or ""))
 
+    def post_info(self, text: str) -> None:
+        """Post a GStreamer INFO message (``gst-launch-1.0`` prints it): something a user should know, not wrong."""
+        err = GLib.Error.new_literal(Gst.CoreError.quark(), text, int(Gst.CoreError.FAILED))
+        self.post_message(Gst.Message.new_info(self, err, ""))
+
     # ------------------------------------------------------------------ GstBaseTransform vfuncs
     def do_accept_caps(self, direction: Gst.PadDirection, caps: Gst.Caps) -> bool:
         ok = GstBase.BaseTransform.do_accept_caps(self, direction, caps)

@@ -58,6 +58,7 @@ class PipelineRun:
     messages: list[BusMessage] = field(default_factory=list)
     calibrations: list[Calibration] = field(default_factory=list)  # every calibration event at the sink
     warnings: list[str] = field(default_factory=list)  # WARNING messages: "element: text"
+    infos: list[str] = field(default_factory=list)  # INFO messages: "element: text"
 
 
 def _error_text(msg: Gst.Message) -> str:
@@ -192,7 +193,8 @@ def _sink_frame(sample: Gst.Sample, index: int, order: collections.deque, on_buf
 
 def _drain_bus(bus: Gst.Bus, run: PipelineRun, wait: bool) -> bool:
     """Handle pending bus messages; True at EOS. Raises PipelineError on ERROR."""
-    mask = Gst.MessageType.ERROR | Gst.MessageType.EOS | Gst.MessageType.ELEMENT | Gst.MessageType.WARNING
+    mask = (Gst.MessageType.ERROR | Gst.MessageType.EOS | Gst.MessageType.ELEMENT | Gst.MessageType.WARNING
+            | Gst.MessageType.INFO)
     while True:
         msg = bus.timed_pop_filtered(50 * Gst.MSECOND if wait else 0, mask)
         if msg is None:
@@ -204,6 +206,10 @@ def _drain_bus(bus: Gst.Bus, run: PipelineRun, wait: bool) -> bool:
         if msg.type == Gst.MessageType.WARNING:
             w, _ = msg.parse_warning()
             run.warnings.append(f"{msg.src.get_name() if msg.src else 'pipeline'}: {w.message}")
+            continue
+        if msg.type == Gst.MessageType.INFO:
+            i, _ = msg.parse_info()
+            run.infos.append(f"{msg.src.get_name() if msg.src else 'pipeline'}: {i.message}")
             continue
         s = msg.get_structure()
         if s is not None:
