@@ -26,9 +26,19 @@ def clip(cuboid_clip_dense) -> Path:
     return cuboid_clip_dense
 
 
+@pytest.fixture(scope="module", autouse=True)
+def _registry(tmp_path_factory) -> None:
+    """The module's private GStreamer registry (fresh element metadata), in pytest's temporary folder."""
+    global REGISTRY
+    REGISTRY = tmp_path_factory.mktemp("registry") / "registry.bin"
+
+
+REGISTRY = Path()
+
+
 def script(name: str, *args, **env: str) -> subprocess.CompletedProcess:
-    """Run pipelines/NAME with a private GStreamer registry (fresh element metadata)."""
-    e = dict(os.environ, GST_REGISTRY=str(Path(os.environ.get("TMPDIR", "/tmp")) / f"tc-registry-{os.getpid()}.bin"))
+    """Run pipelines/NAME with the module's private GStreamer registry."""
+    e = dict(os.environ, GST_REGISTRY=str(REGISTRY))
     e.update(env)
     return subprocess.run(["bash", str(PIPELINES / name), *map(str, args)], capture_output=True, text=True,
                           timeout=300, env=e)
