@@ -16,6 +16,7 @@ import io
 import json
 import math
 import pickle
+from collections.abc import Iterable
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
@@ -388,10 +389,20 @@ def save_results(res: Results, path: str | Path) -> None:
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     with path.open("w", encoding="utf-8") as out:
-        out.write("{")
-        if res.calibration is not None:
-            out.write(f'"camera_calibration": {json.dumps(res.calibration.to_dict())}, ')
-        out.write('"cars": [')
-        for i, track in enumerate(res.cars):
-            out.write((", " if i else "") + json.dumps(_car_dict(track)))
-        out.write("]}")
+        write_results_text(out, res.calibration, (car_json(t) for t in res.cars))
+
+
+def car_json(track: Track) -> str:
+    """One car of the results file as its JSON text (what :func:`save_results` writes for it)."""
+    return json.dumps(_car_dict(track))
+
+
+def write_results_text(out, calibration: BrnoCalibration | None, cars: Iterable[str]) -> None:
+    """The results file's text into the open text file ``out``, the cars given as their JSON (:func:`car_json`)."""
+    out.write("{")
+    if calibration is not None:
+        out.write(f'"camera_calibration": {json.dumps(calibration.to_dict())}, ')
+    out.write('"cars": [')
+    for i, car in enumerate(cars):
+        out.write((", " if i else "") + car)
+    out.write("]}")

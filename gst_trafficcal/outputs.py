@@ -23,8 +23,9 @@ import io
 import json
 import math
 import os
+import tempfile
 from collections import Counter
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Iterable, Iterator, Mapping, Sequence
 from dataclasses import asdict, dataclass, field, replace
 from datetime import datetime, timedelta
 from pathlib import Path
@@ -32,7 +33,9 @@ from typing import Any
 
 import numpy as np
 
-from .brnocompspeed import BrnoCalibration, Results, Track, save_results
+from .brnocompspeed import (
+    BrnoCalibration, Results, Track, car_json, write_results_text,
+)
 from .calibration import Calibration
 from .clock import clock_time, parse_start_time
 from .errors import InputError
@@ -414,7 +417,9 @@ class BrnoResultsWriter:
     """Collects vehicles' reference-point tracks; :meth:`write` saves the BrnoCompSpeed results atomically.
 
     ``fps`` converts buffer timestamps (seconds) into the format's frame numbers (t·fps), which the official
-    evaluation divides by the recording's fps again.
+    evaluation divides by the recording's fps again.  Each car is kept as its JSON text in an anonymous file beside
+    the results (gone when the writer is closed, or the process ends however it ends), not in memory: a camera
+    measured for a week holds no more memory on its last day than on its first.
     """
 
     def __init__(self, path: str | Path, fps: float) -> None:
@@ -422,12 +427,14 @@ class BrnoResultsWriter:
             raise InputError(f"{path}: BrnoCompSpeed results need a positive frame rate, got {fps}")
         self.path = Path(path)
         self.fps = float(fps)
-        self.tracks: list[Track] = []
+        self.count = 0  # cars held
+        self._cars = None  # binary anonymous file, a car's JSON per line (opened at the first car)
 
     def add(self, vehicle_id: int, times_s: Iterable[float], points_px: Iterable[Sequence[float]]) -> bool:
         """Add one vehicle's reference points (pixels) and their timestamps; rows with NaN are dropped.
 
-        Returns False (and adds nothing) when no finite point remains.
+        Returns False (and adds nothing) when no finite point remains.  InputError naming the results file when
+        the car cannot be held (a full disk); the cars added before are kept.
         """
         t = np.asarray(list(times_s), dtype=np.float64).reshape(-1)
         p = np.asarray(list(points_px), dtype=np.float64).reshape(-1, 2)
@@ -436,29 +443,66 @@ class BrnoResultsWriter:
         keep = np.isfinite(t) & np.all(np.isfinite(p), axis=1)
         if not keep.any():
             return False
-        self.tracks.append(Track(id=int(vehicle_id), frames=frames_from_times(t[keep], self.fps), pos=p[keep]))
+        line = (car_json(Track(id=int(vehicle_id), frames=frames_from_times(t[keep], self.fps), pos=p[keep]))
+                + "\n").encode("utf-8")
+        try:
+            if self._cars is None:
+                self.path.parent.mkdir(parents=True, exist_ok=True)
+                self._cars = tempfile.TemporaryFile(dir=self.path.parent, buffering=0)
+            end = self._cars.seek(0, os.SEEK_END)
+            try:
+                done = 0
+                while done < len(line):  # unbuffered: what failed is not written later behind our back
+                    done += self._cars.write(line[done:])
+            except OSError:
+                self._cars.truncate(end)  # no half car
+                raise
+        except OSError as exc:
+            raise InputError(f"{self.path}: cannot hold vehicle {vehicle_id} for the BrnoCompSpeed results "
+                             f"({exc.strerror or exc}); the vehicles before it are kept") from None
+        self.count += 1
         return True
 
+    def cars(self) -> Iterator[str]:
+        """The cars' JSON text, in the order they were added."""
+        if self._cars is None:
+            return
+        fd, at, rest = self._cars.fileno(), 0, b""
+        while chunk := os.pread(fd, 1 << 20, at):
+            at += len(chunk)
+            lines = (rest + chunk).split(b"\n")
+            rest = lines.pop()
+            yield from (car.decode("utf-8") for car in lines if car)
+
     def results(self, calibration: Calibration | None) -> Results:
-        return Results(brno_calibration(calibration), tuple(self.tracks))
+        """Everything held, read back (for a test or a small run: a long run's tracks are large)."""
+        cars = (json.loads(c) for c in self.cars())
+        return Results(brno_calibration(calibration), tuple(
+            Track(id=c["id"], frames=np.asarray(c["frames"], dtype=np.float64),
+                  pos=np.column_stack([c["posX"], c["posY"]]).astype(np.float64)) for c in cars))
 
     def write(self, calibration: Calibration | None) -> Path:
         """Write (or rewrite) the file atomically; on failure the previous version stays and InputError says why."""
-        write_results_atomic(self.results(calibration), self.path)
+        def text(tmp: Path) -> None:
+            with tmp.open("w", encoding="utf-8") as out:
+                write_results_text(out, brno_calibration(calibration), self.cars())
+
+        atomic_write(self.path, text, "BrnoCompSpeed results")
         return self.path
+
+    def close(self) -> None:
+        """Let go of the held cars (their file is deleted); the results file stays as last written."""
+        if self._cars is not None:
+            self._cars.close()
+            self._cars = None
 
 
 def checkpoint_interval(write_s: float, minimum_s: float = 10.0, share: float = 0.01) -> float:
     """Seconds of stream between rewrites of a growing results file whose last rewrite took ``write_s`` seconds: at
     least ``minimum_s``, and long enough that rewriting costs at most ``share`` of the time.  The BrnoCompSpeed file
-    holds every vehicle's reference points; rewritten every 10 s it would, after a day of a busy camera (25 000
-    vehicles: 87 MB, 2.9 s to write on the 2-core machine), stall the stream for 3 s of every 10."""
+    holds every vehicle's reference points; rewritten every 10 s it would, after a week of a busy camera (175 000
+    vehicles: 0.7 GB, about 3.5 s to write on the 2-core machine), stall the stream for a third of the time."""
     return max(float(minimum_s), float(write_s) / share)
-
-
-def write_results_atomic(results: Results, path: str | Path) -> None:
-    """``brnocompspeed.save_results`` through a synced temporary file renamed over ``path``."""
-    atomic_write(path, lambda tmp: save_results(results, tmp), "BrnoCompSpeed results")
 
 
 class VehicleOutputs:
@@ -483,9 +527,15 @@ class VehicleOutputs:
                 points_px: Iterable[Sequence[float]] | None = None) -> None:
         """One vehicle that left: its event and (for BrnoCompSpeed) its reference points and timestamps."""
         self.count += 1
-        if self.brno is not None and times_s is not None and points_px is not None:
-            self.brno.add(event.id, times_s, points_px)
-        self.events.write(event)
+        errors = []
+        for step in (lambda: self.brno is not None and times_s is not None and points_px is not None
+                     and self.brno.add(event.id, times_s, points_px), lambda: self.events.write(event)):
+            try:
+                step()
+            except InputError as exc:
+                errors.append(str(exc))
+        if errors:
+            raise InputError("; ".join(errors))
 
     def checkpoint(self, calibration: Calibration | None) -> None:
         """Rewrite the BrnoCompSpeed file now (atomically) with what has been collected."""
@@ -495,7 +545,8 @@ class VehicleOutputs:
     def close(self, calibration: Calibration | None) -> None:
         """Write the BrnoCompSpeed file and close the event files (both attempted even if one fails)."""
         errors = []
-        for step in (lambda: self.checkpoint(calibration), self.events.close):
+        for step in (lambda: self.checkpoint(calibration), self.events.close,
+                     self.brno.close if self.brno is not None else lambda: None):
             try:
                 step()
             except InputError as exc:

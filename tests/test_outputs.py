@@ -304,21 +304,44 @@ def test_brno_results_are_written_atomically(tmp_path: Path) -> None:
         from gst_trafficcal.errors import InputError
         from gst_trafficcal.outputs import BrnoResultsWriter
         signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
-        resource.setrlimit(resource.RLIMIT_FSIZE, ({len(before) + 100}, {len(before) + 100}))
+        hard = resource.getrlimit(resource.RLIMIT_FSIZE)[1]
         w = BrnoResultsWriter({str(path)!r}, 50.0)
+        car = np.arange(30) * 0.02, np.column_stack([np.arange(30.0) + 500, np.arange(30.0) + 600])
         for k in range(1, 50):
-            w.add(k, np.arange(30) * 0.02, np.column_stack([np.arange(30.0) + 500, np.arange(30.0) + 600]))
+            w.add(k, *car)
+        resource.setrlimit(resource.RLIMIT_FSIZE, ({len(before) + 100}, hard))
         try:
             w.write(None)
         except InputError as exc:
             print(exc)
+        # the cars held beside the file on a disk that fills up: the car that does not fit is an error, no half
+        # car is left, and every car before it is written once there is room again
+        resource.setrlimit(resource.RLIMIT_FSIZE, (4000, hard))  # room for a few cars
+        w2 = BrnoResultsWriter({str(path.with_name("other.json"))!r}, 50.0)
+        held = 0
+        try:
+            for k in range(1, 50):
+                w2.add(k, *car)
+                held += 1
+        except InputError as exc:
+            print(held, exc)
+        resource.setrlimit(resource.RLIMIT_FSIZE, (hard, hard))
+        w2.write(None)
+        w2.close()
     """)
     out = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=60,
                          env=dict(os.environ, PYTHONPATH=str(ROOT)))
     assert out.returncode == 0, out.stderr
-    assert out.stdout.startswith(f"{path}: cannot write BrnoCompSpeed results (File too large)")
+    first, second = out.stdout.splitlines()
+    assert first.startswith(f"{path}: cannot write BrnoCompSpeed results (File too large)")
     assert path.read_text() == before
-    assert [p.name for p in tmp_path.iterdir()] == ["system.json"]  # no temporary file left behind
+    held, message = second.split(" ", 1)
+    assert 0 < int(held) < 49
+    assert message.startswith(f"{tmp_path / 'other.json'}: cannot hold vehicle {int(held) + 1} for the BrnoCompSpeed "
+                              "results (File too large); the vehicles before it are kept")
+    assert [c.id for c in load_results(tmp_path / "other.json").cars] == list(range(1, int(held) + 1))
+    # no temporary file left behind (the cars' own file is anonymous)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["other.json", "system.json"]
     (tmp_path / "dir.json").mkdir()
     with pytest.raises(InputError, match=r"dir\.json: cannot write BrnoCompSpeed results"):
         BrnoResultsWriter(tmp_path / "dir.json", 50.0).write(cal)
@@ -427,7 +450,10 @@ def test_a_really_full_disk(tiny_disk: Path, tmp_path: Path) -> None:
                 out.checkpoint(cal)  # a BrnoCompSpeed file with 3 vehicles, before the disk is full
         except InputError as exc:
             first_error = str(exc)
-    assert first_error is not None and first_error.startswith(f"{tiny_disk / 'v.jsonl'}: cannot write (No space left")
+    # the first file to find the disk full: the events, or the cars held for the BrnoCompSpeed file beside them
+    assert first_error is not None
+    assert first_error.startswith((f"{tiny_disk / 'v.jsonl'}: cannot write (No space left",
+                                   f"{brno}: cannot hold vehicle {n} for the BrnoCompSpeed results (No space left"))
     for k in range(3):  # the disk stays full: later vehicles still reach the CSV on the other disk
         with pytest.raises(InputError, match="No space left on device"):
             out.vehicle(VehicleEvent(n + 1 + k, "car", 0, 1, 50.0), *_track(rng, 40, cam, 60.0, 50.0))
