@@ -107,6 +107,28 @@ def test_counts_per_interval_lane_and_direction() -> None:
     assert interval_rows(events, 900, limit_kmh=parse_speed_limit("75,van=95"))[0].to_dict()["over_limit"] == 0
 
 
+def test_the_packed_vehicles_count_as_the_events_do() -> None:
+    """CountedVehicles keeps what the table needs of each event, packed: the same rows; an event without
+    timestamps is left out, as interval_rows leaves it out."""
+    from dataclasses import replace
+
+    from gst_trafficcal.traffic_stats import CountedVehicles, interval_rows, parse_speed_limit
+
+    events = [_event(1, 10, 50.0), _event(2, 100, 70.25), _event(3, 200, 90.0, label="van"),
+              _event(4, 890, None, lane=1), _event(5, 950, 60.0, direction="away_from_vp1", label="bus"),
+              replace(_event(6, 1000, 80.0), lane=None, direction=None, label=""), _event(7, 3600 * 2 + 5, 55.0),
+              replace(_event(8, 50, 99.0), first_timestamp_s=None)]
+    packed = CountedVehicles()
+    for e in events:
+        packed.append(e)
+    assert len(packed) == 7
+    back = list(packed)
+    assert [(v.first_timestamp_s, v.last_timestamp_s, v.lane, v.direction, v.speed_kmh, v.label) for v in back] == [
+        (e.first_timestamp_s, e.last_timestamp_s, e.lane, e.direction, e.speed_kmh, e.label) for e in events[:7]]
+    limit = parse_speed_limit("75,van=85")
+    assert interval_rows(back, 900, limit_kmh=limit) == interval_rows(events, 900, limit_kmh=limit)
+
+
 def test_intervals_are_aligned_to_the_clock_when_the_start_time_is_known(tmp_path) -> None:
     import csv
     from datetime import datetime
