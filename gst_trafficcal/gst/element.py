@@ -182,9 +182,10 @@ class TrafficcalTransform(GstBase.BaseTransform):
         self.post_message(Gst.Message.new_warning(self, err, debug or ""))
 
     def post_info(self, text: str) -> None:
-        """Post a GStreamer INFO message (``gst-launch-1.0`` prints it): something a user should know, not wrong."""
+        """Post a GStreamer INFO message: something a user should know, not wrong (``gst-launch-1.0`` prints an
+        INFO's debug text, so that is the text too)."""
         err = GLib.Error.new_literal(Gst.CoreError.quark(), text, int(Gst.CoreError.FAILED))
-        self.post_message(Gst.Message.new_info(self, err, ""))
+        self.post_message(Gst.Message.new_info(self, err, text))
 
     # ------------------------------------------------------------------ GstBaseTransform vfuncs
     def do_accept_caps(self, direction: Gst.PadDirection, caps: Gst.Caps) -> bool:
