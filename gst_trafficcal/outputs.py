@@ -25,7 +25,7 @@ import math
 import os
 import tempfile
 from collections import Counter
-from collections.abc import Iterable, Iterator, Mapping, Sequence
+from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from dataclasses import asdict, dataclass, field, replace
 from datetime import datetime, timedelta
 from pathlib import Path
@@ -295,6 +295,19 @@ class CsvEventWriter:
         self.close()
 
 
+def attempt_all(steps: Iterable[Callable[[], object]]) -> None:
+    """Run every step even when one fails: a failing output never costs the others their data. Their InputErrors
+    are then raised as one, joined by "; "."""
+    errors = []
+    for step in steps:
+        try:
+            step()
+        except InputError as exc:
+            errors.append(str(exc))
+    if errors:
+        raise InputError("; ".join(errors))
+
+
 @dataclass
 class EventWriters:
     """Several event writers fed together; a failing one never stops the others getting the event."""
@@ -316,24 +329,10 @@ class EventWriters:
         return out
 
     def write(self, event: VehicleEvent, extra: Mapping[str, Any] | None = None) -> None:
-        errors = []
-        for w in self.writers:
-            try:
-                w.write(event, extra)
-            except InputError as exc:
-                errors.append(str(exc))
-        if errors:
-            raise InputError("; ".join(errors))
+        attempt_all(lambda w=w: w.write(event, extra) for w in self.writers)
 
     def close(self) -> None:
-        errors = []
-        for w in self.writers:
-            try:
-                w.close()
-            except InputError as exc:
-                errors.append(str(exc))
-        if errors:
-            raise InputError("; ".join(errors))
+        attempt_all(w.close for w in self.writers)
 
     def __enter__(self) -> "EventWriters":
         return self
@@ -527,15 +526,8 @@ class VehicleOutputs:
                 points_px: Iterable[Sequence[float]] | None = None) -> None:
         """One vehicle that left: its event and (for BrnoCompSpeed) its reference points and timestamps."""
         self.count += 1
-        errors = []
-        for step in (lambda: self.brno is not None and times_s is not None and points_px is not None
-                     and self.brno.add(event.id, times_s, points_px), lambda: self.events.write(event)):
-            try:
-                step()
-            except InputError as exc:
-                errors.append(str(exc))
-        if errors:
-            raise InputError("; ".join(errors))
+        attempt_all((lambda: self.brno is not None and times_s is not None and points_px is not None
+                     and self.brno.add(event.id, times_s, points_px), lambda: self.events.write(event)))
 
     def checkpoint(self, calibration: Calibration | None) -> None:
         """Rewrite the BrnoCompSpeed file now (atomically) with what has been collected."""
@@ -544,15 +536,8 @@ class VehicleOutputs:
 
     def close(self, calibration: Calibration | None) -> None:
         """Write the BrnoCompSpeed file and close the event files (both attempted even if one fails)."""
-        errors = []
-        for step in (lambda: self.checkpoint(calibration), self.events.close,
-                     self.brno.close if self.brno is not None else lambda: None):
-            try:
-                step()
-            except InputError as exc:
-                errors.append(str(exc))
-        if errors:
-            raise InputError("; ".join(errors))
+        attempt_all((lambda: self.checkpoint(calibration), self.events.close,
+                     self.brno.close if self.brno is not None else lambda: None))
 
 
 # --------------------------------------------------------------------------- per-frame JSON (gvametaconvert's shape)
