@@ -279,6 +279,24 @@ def test_types_that_fit_about_as_well_as_the_best_pool_their_matches(cam, models
     assert est.result().raw_scale == pytest.approx(TRUE_SCALE, rel=0.01)
 
 
+def test_only_the_latest_matches_are_kept_whole_and_the_scale_uses_them_all(cam, models, monkeypatch):
+    """A stream of weeks keeps a bounded number of matches whole (KEPT_MATCHES); λ*, the agreement and the counts
+    come from every vehicle matched."""
+    from gst_trafficcal.scale import streaming
+
+    frames = vehicle_sightings(cam, models, np.random.default_rng(2), 6)
+    results = {}
+    for kept in (1000, 2):
+        monkeypatch.setattr(streaming, "KEPT_MATCHES", kept)
+        est = ScaleEstimator(models, min_vehicles=4, refine_base=False)
+        est.set_camera(cam)
+        run(est, frames)
+        results[kept] = (est.result(), [m.track_id for m in est._matches])
+    (everything, ids), (latest, last_two) = results[1000], results[2]
+    assert len(ids) == 6 and last_two == ids[-2:]
+    assert latest == everything and latest.n_matched == 6 and latest.converged
+
+
 def test_classifier_probabilities_steer_the_types(cam, models):
     """Track-mean probabilities: only the named type is aligned, and its matches carry the weight."""
     est = ScaleEstimator(models, min_vehicles=2, refine_base=False)

@@ -38,6 +38,62 @@ def kde_mode(values: np.ndarray, weights: np.ndarray, bw_method=None, step: floa
     return float(np.exp(grid[int(np.argmax(kde(grid)))]))
 
 
+class LogDensity:
+    """The weighted Gaussian density of log λ that :func:`kde_mode` maximises, kept as it grows: every value added
+    goes into a bin of ``step`` (a hundredth of the 5 % kernel), so its memory and the cost of its mode stay the same
+    after a week of vehicles as after ten, where the KDE over every value kept grew with each (a busy camera's
+    scale stage spent a quarter of its CPU time there within minutes).  ``mode(bandwidth)`` is the argmax of the
+    binned values smoothed by a kernel of ``bandwidth`` in log λ, widened as scipy's weighted KDE widens it (its
+    unbiased weighted variance); it agrees with :func:`kde_mode` with that bandwidth to within a step."""
+
+    def __init__(self, step: float = 5e-4) -> None:
+        self.step = float(step)
+        self._bins: dict[int, float] = {}
+        self.count = 0  # values added
+        self._w1 = 0.0  # sum of weights
+        self._w2 = 0.0  # sum of squared weights
+        self._wv = 0.0  # sum of weight * log value
+        self._lo, self._hi = np.inf, -np.inf  # range of log values
+
+    def __len__(self) -> int:
+        return self.count
+
+    def add(self, values: np.ndarray, weights: np.ndarray) -> None:
+        """Add positive ``values`` (λ) with positive ``weights``; the others are left out."""
+        v = np.log(np.asarray(values, np.float64))
+        w = np.asarray(weights, np.float64)
+        ok = np.isfinite(v) & np.isfinite(w) & (w > 0)
+        v, w = v[ok], w[ok]
+        if not len(v):
+            return
+        idx, inverse = np.unique(np.round(v / self.step).astype(np.int64), return_inverse=True)
+        sums = np.bincount(inverse, weights=w)
+        for i, x in zip(idx.tolist(), sums.tolist()):
+            self._bins[i] = self._bins.get(i, 0.0) + x
+        self.count += len(v)
+        self._w1 += float(w.sum())
+        self._w2 += float(np.sum(w * w))
+        self._wv += float(np.sum(w * v))
+        self._lo, self._hi = min(self._lo, float(v.min())), max(self._hi, float(v.max()))
+
+    def mode(self, bandwidth: float) -> float:
+        """λ at the density's maximum for a kernel of ``bandwidth`` (log λ); ValueError when empty."""
+        if not self.count:
+            raise ValueError("no values for the kernel density")
+        if self.count == 1 or self._hi - self._lo < 1e-12:
+            return float(np.exp(self._wv / self._w1))
+        share = self._w2 / self._w1 ** 2  # scipy's weighted KDE divides the variance by 1 - sum of w^2 (w summing to 1)
+        bw = float(bandwidth) / np.sqrt(max(1.0 - share, 1e-12))
+        reach = int(np.ceil(3 * bw / self.step)) + 1
+        first = min(self._bins)
+        hist = np.zeros(max(self._bins) - first + 1)
+        idx = np.fromiter(self._bins.keys(), np.int64, len(self._bins))
+        hist[idx - first] = np.fromiter(self._bins.values(), np.float64, len(self._bins))
+        kernel = np.exp(-0.5 * (np.arange(-reach, reach + 1) * self.step / bw) ** 2)
+        density = np.convolve(hist, kernel)  # index j: bin first - reach + j
+        return float(np.exp((first - reach + int(np.argmax(density))) * self.step))
+
+
 @dataclass
 class ScaleEstimate:
     """λ* (None when it cannot be estimated, ``status`` says why), the matches it rests on and per-observation

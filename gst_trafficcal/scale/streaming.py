@@ -19,11 +19,11 @@ Only passenger-car-shaped vehicles are aligned: the median length/width of the t
 must lie in ``shape_range`` (trucks, buses, vehicles merged into one blob and broken 3D boxes do not; on the
 BrnoCompSpeed replays those gave the matches 50-60 % off that kept λ* there).  Matches with IoU above
 ``iou_threshold`` give λ_ij (weights = IoU); λ* is the mode of the weighted kernel density
-(:func:`.estimate.kde_mode`).  It converges when ``min_vehicles`` vehicles agree with λ* (their own λ within
-``agreement`` = 8 % of it: even with exact boxes one vehicle's λ scatters by ~5 % median, because a car of
-unknown make is matched with the catalogue type of most similar shape, whose length differs from its own);
-the optional regression (:mod:`.regression`) maps λ* to λ_reg.  Alignment work
-is bounded: ``per_track`` sightings per vehicle, each aligned once.  When the vanishing points change, what
+(:class:`.estimate.LogDensity`, binned: neither its memory nor its cost grows with the vehicles).  It converges
+when ``min_vehicles`` vehicles agree with λ* (their own λ within ``agreement`` = 8 % of it: even with exact boxes
+one vehicle's λ scatters by ~5 % median, because a car of unknown make is matched with the catalogue type of most
+similar shape, whose length differs from its own); the optional regression (:mod:`.regression`) maps λ* to λ_reg.
+Alignment work is bounded: ``per_track`` sightings per vehicle, each aligned once.  When the vanishing points change, what
 was accumulated is dropped (the alignments depend on them).
 
 Vehicles seen before the vanishing points are known are not lost: a sighting without a 3D box but with its convex
@@ -34,6 +34,8 @@ shape per track), so in a clip whose calibration converges half-way the first ha
 
 from __future__ import annotations
 
+from array import array
+from collections import deque
 from dataclasses import dataclass, field
 from typing import Iterable, Mapping, Sequence
 
@@ -43,7 +45,11 @@ from ..errors import GeometryError, InputError, TrafficcalError
 from ..geometry import Camera
 from ..tracking.box3d import TypicalHeight
 from .alignment import AlignModel, Observation, align, align_model
-from .estimate import DEFAULT_IOU_THRESHOLD, kde_mode
+from .estimate import DEFAULT_IOU_THRESHOLD, LogDensity, kde_mode
+
+#: matched vehicles kept whole (their λ_ij, for diagnostics and benchmarks); the density and the agreement count use
+#: every vehicle matched, in a form that does not grow with them
+KEPT_MATCHES = 1000
 
 #: body styles aligned by default (passenger cars: common, and their boxes fit tightly); vans, buses, trucks and
 #: motorcycles are only aligned when named in ``models``
@@ -214,7 +220,10 @@ class ScaleEstimator:
         for buf in self._tracks.values():
             buf.sightings = []
         self._tracks = {tid: b for tid, b in self._tracks.items() if b.early}
-        self._matches: list[_TrackMatch] = []
+        self._density = LogDensity()  # every match's λ_ij, each vehicle's weights summing to 1
+        self._own = array("d")  # each matched vehicle's own λ
+        self._types: dict[str, int] = {}  # type name -> matched vehicles
+        self._matches: deque[_TrackMatch] = deque(maxlen=KEPT_MATCHES)  # the latest, as they were matched
         self._n_aligned = 0
         self._n_geometry_failures = 0
         self._geometry_reason = ""
@@ -439,7 +448,12 @@ class ScaleEstimator:
         lam, w = lam[ok], w[ok]
         peaks = np.array([a.lambda_ij[a.best] for a in per_type[model] if a.iou.max() > self.iou_threshold])
         spread = float(np.ptp(peaks) / np.median(peaks)) if len(peaks) > 1 else 0.0
-        self._matches.append(_TrackMatch(tid, model, lam, w, kde_mode(lam, w), spread))
+        match = _TrackMatch(tid, model, lam, w, kde_mode(lam, w), spread)
+        # each vehicle votes once (its IoU weights normalised): a vehicle with many matches cannot outvote others
+        self._density.add(lam, w / w.sum())
+        self._own.append(match.own)
+        self._types[model] = self._types.get(model, 0) + 1
+        self._matches.append(match)
         return True
 
     # ------------------------------------------------------------------ output
@@ -452,11 +466,8 @@ class ScaleEstimator:
     def _compute(self) -> ScaleResult:
         if self.camera is None:
             return ScaleResult(None, None, 0.0, "waiting for the vanishing points (no calibration yet)", False)
-        types: dict[str, int] = {}
-        for m in self._matches:
-            types[m.model] = types.get(m.model, 0) + 1
-        counts = dict(n_vehicles=self._n_aligned, n_matched=len(self._matches), types=types)
-        if not self._matches:
+        counts = dict(n_vehicles=self._n_aligned, n_matched=len(self._own), types=dict(self._types))
+        if not self._own:
             if self._n_selected and self._n_geometry_failures and not self._n_aligned:
                 return ScaleResult(None, None, 0.0, f"degenerate viewpoint: {self._geometry_reason}", False,
                                    **counts)
@@ -467,11 +478,12 @@ class ScaleEstimator:
             return ScaleResult(None, None, 0.0, f"no vehicle of a known type: none of {self._n_selected} fully "
                                f"visible vehicles{shape} matched a catalogue model with IoU > "
                                f"{self.iou_threshold:g}", False, **counts)
-        lam = np.concatenate([m.lambdas for m in self._matches])
-        # each vehicle votes once (its IoU weights normalised): a vehicle with many matches cannot outvote others
-        w = np.concatenate([m.weights / m.weights.sum() for m in self._matches])
-        raw = kde_mode(lam, w, bw_method=self._bandwidth(lam, w))
-        own = np.array([m.own for m in self._matches])
+        # a kernel of fixed width in log λ: Scott's rule on pooled matches of different vehicles grows with the
+        # outliers and drags the mode. The default 5 % is about one vehicle's own scatter (a car of unknown make
+        # matched with the catalogue type of most similar shape): a narrower kernel (2 % before stop 14) picks a
+        # noisy local peak of 10-40 votes (docs/bbscale_streaming.md)
+        raw = self._density.mode(self.bandwidth)
+        own = np.frombuffer(self._own, dtype=np.float64)
         agree = int(np.sum(np.abs(own / raw - 1.0) <= self.agreement))
         converged = agree >= self.min_vehicles
         # share of the matched vehicles that agree, discounted until min_vehicles of them do
@@ -480,17 +492,7 @@ class ScaleEstimator:
         status = "converged" if converged else \
             f"too few matches: {agree} of {len(own)} matched vehicles agree, min-vehicles is {self.min_vehicles}"
         return ScaleResult(scale if converged else None, raw, confidence, status, converged, n_agreeing=agree,
-                           n_matches=int(len(lam)), **counts)
-
-    def _bandwidth(self, lam: np.ndarray, w: np.ndarray):
-        """A kernel of fixed width ``bandwidth`` in log λ (scipy takes it as a factor of the data's spread):
-        Scott's rule on pooled matches of different vehicles grows with the outliers and drags the mode.  The
-        default 5 % is about one vehicle's own scatter (a car of unknown make matched with the catalogue type of
-        most similar shape): a narrower kernel (2 % before stop 14) picks a noisy local peak of 10-40 votes
-        (docs/bbscale_streaming.md)."""
-        v = np.log(lam)
-        sd = float(np.sqrt(np.average((v - np.average(v, weights=w)) ** 2, weights=w)))
-        return None if sd < 1e-9 else self.bandwidth / sd
+                           n_matches=len(self._density), **counts)
 
     def current_scale(self) -> float | None:
         """λ* (with regression) from the evidence so far even before convergence, None without any match."""
