@@ -1,0 +1,146 @@
+"""A camera measured for hours in one pipeline: does the process's memory stay flat?
+
+Usage:
+  .venv/bin/python benchmarks/soak.py [--video ../shared/data/videos/kraten_cars.mp4] [--loops 40]
+      [--work /tmp/soak] [--every 5] [--detector vehicleseg|background|MODEL]
+
+Plays ``--video`` ``--loops`` times back to back in one pipeline (a segment seek back to the start at each end,
+gapless, as a looping player does: the timestamps start again, as when recordings are joined) through the chain
+``trafficcal run`` uses, with every per-vehicle output written (events, CSV, BrnoCompSpeed results, the interval
+table), all in this process as ``trafficcal run`` runs it.  Every ``--every`` seconds it samples the process's
+resident memory (``VmRSS``) with the video played so far and the vehicles written; it prints the samples, the
+memory after the first loop (everything loaded, the calibration found) and at the end, and the growth after the
+first loop per hour of video and per thousand vehicles (a least-squares line through the samples); and the speed
+against real time in the second loop and in the last (a cost that grows with the vehicles slows it down).
+"""
+
+from __future__ import annotations
+
+import argparse
+import shutil
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def rss_mb() -> float:
+    """This process's resident memory (MB) from /proc."""
+    for line in Path("/proc/self/status").read_text().splitlines():
+        if line.startswith("VmRSS:"):
+            return int(line.split()[1]) / 1024.0
+    raise RuntimeError("no VmRSS in /proc/self/status")
+
+
+def lines(path: Path) -> int:
+    try:
+        with path.open("rb") as f:
+            return sum(1 for _ in f)
+    except FileNotFoundError:
+        return 0
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--video", type=Path, default=ROOT.parent / "shared/data/videos/kraten_cars.mp4")
+    ap.add_argument("--loops", type=int, default=40)
+    ap.add_argument("--work", type=Path, default=Path("/tmp/soak"))
+    ap.add_argument("--every", type=float, default=5.0, help="Seconds between memory samples.")
+    ap.add_argument("--detector", default="vehicleseg", help="As trafficcal run's --detector (background: MOG2).")
+    args = ap.parse_args()
+    if not args.video.is_file():
+        raise SystemExit(f"{args.video}: no such file")
+
+    from gst_trafficcal.cli.run import model_of, quote
+    from gst_trafficcal.gst._gi import Gst
+    from gst_trafficcal.gst.runner import ensure_elements
+
+    ensure_elements()
+    shutil.rmtree(args.work, ignore_errors=True)
+    args.work.mkdir(parents=True)
+    events = args.work / "vehicles.jsonl"
+    model = model_of(args.detector)
+    det = f"vehicledetect model={quote(model)}" if model else "vehicledetect"
+    desc = (f"filesrc location={quote(args.video)} ! decodebin ! videoconvert ! vpdetect ! {det} ! tracker ! bbscale ! "
+            f"speedometer events-file={quote(events)} csv-file={quote(args.work / 'vehicles.csv')} "
+            f"results-file={quote(args.work / 'system.json')} intervals-file={quote(args.work / 'intervals.csv')} "
+            "! fakesink sync=false")
+    pipeline = Gst.parse_launch(desc)
+    bus = pipeline.get_bus()
+    pipeline.set_state(Gst.State.PAUSED)
+    if pipeline.get_state(120 * Gst.SECOND)[0] != Gst.StateChangeReturn.SUCCESS:
+        raise SystemExit("the pipeline did not preroll")
+    duration = pipeline.query_duration(Gst.Format.TIME)[1] / Gst.SECOND
+    def loop(flags: Gst.SeekFlags, loops_after: int) -> None:
+        """Play the video from its start again; a segment seek (its end a SEGMENT_DONE, not an end-of-stream)
+        while more loops follow, a plain one for the last (its end the stream's)."""
+        if loops_after > 0:
+            flags |= Gst.SeekFlags.SEGMENT
+        pipeline.seek(1.0, Gst.Format.TIME, flags, Gst.SeekType.SET, 0, Gst.SeekType.NONE, -1)
+
+    loop(Gst.SeekFlags.FLUSH, args.loops - 1)
+    loops_done = 0
+    samples: list[tuple[float, float, int, float]] = []  # (video s, RSS MB, vehicles, wall s)
+    stop = threading.Event()
+    t0 = time.perf_counter()
+
+    def position() -> float:
+        ok, pos = pipeline.query_position(Gst.Format.TIME)
+        return loops_done * duration + (pos / Gst.SECOND if ok and pos >= 0 else 0.0)
+
+    def sample() -> None:
+        while not stop.wait(args.every):
+            samples.append((position(), rss_mb(), lines(events), time.perf_counter() - t0))
+            v, m, n, w = samples[-1]
+            print(f"{w:7.0f} s  video {v / 60:6.1f} min  RSS {m:7.1f} MB  {n:6d} vehicles", flush=True)
+
+    pipeline.set_state(Gst.State.PLAYING)
+    sampler = threading.Thread(target=sample, daemon=True)
+    sampler.start()
+    first_loop = None
+    try:
+        while True:
+            msg = bus.timed_pop_filtered(Gst.SECOND, Gst.MessageType.ERROR | Gst.MessageType.EOS
+                                         | Gst.MessageType.SEGMENT_DONE)
+            if msg is None:
+                continue
+            if msg.type == Gst.MessageType.ERROR:
+                err, debug = msg.parse_error()
+                raise SystemExit(f"{msg.src.get_name()}: {err.message} {debug or ''}")
+            if msg.type == Gst.MessageType.EOS:
+                break
+            loops_done += 1
+            if first_loop is None:
+                first_loop = (rss_mb(), lines(events))
+            loop(Gst.SeekFlags.NONE, args.loops - 1 - loops_done)  # gapless: queued before this one drains
+    finally:
+        stop.set()
+        pipeline.set_state(Gst.State.NULL)
+    wall = time.perf_counter() - t0
+    end = (rss_mb(), lines(events))
+    after = np.array([(v, m, n) for v, m, n, _ in samples if v >= duration])
+    print(f"{args.loops} loops of {args.video.name} ({duration:.1f} s): {args.loops * duration / 3600:.2f} h of "
+          f"video in {wall / 60:.1f} min, {end[1]} vehicles")
+    if first_loop is not None:
+        print(f"RSS after the first loop {first_loop[0]:.0f} MB ({first_loop[1]} vehicles), at the end {end[0]:.0f} MB")
+    timed = np.array([(v, w) for v, _, _, w in samples])
+    if args.loops >= 3 and len(timed) >= 4:  # the second loop (warmed up) against the last: does it slow down?
+        def speed(a: float, b: float) -> float:
+            part = timed[(timed[:, 0] >= a) & (timed[:, 0] <= b)]
+            return float(np.ptp(part[:, 0]) / np.ptp(part[:, 1])) if len(part) >= 2 else float("nan")
+
+        last = (args.loops - 1) * duration
+        print(f"speed against real time: second loop {speed(duration, 2 * duration):.2f}, last loop "
+              f"{speed(last, last + duration):.2f}")
+    if len(after) >= 3:
+        per_h = np.polyfit(after[:, 0] / 3600.0, after[:, 1], 1)[0]
+        per_k = np.polyfit(after[:, 2] / 1000.0, after[:, 1], 1)[0] if np.ptp(after[:, 2]) > 0 else float("nan")
+        print(f"growth after the first loop: {per_h:+.1f} MB per hour of video, {per_k:+.2f} MB per 1000 vehicles "
+              f"(least squares over {len(after)} samples)")
+
+
+if __name__ == "__main__":
+    main()
