@@ -425,7 +425,8 @@ def tiny_disk(tmp_path: Path):
     try:
         yield mnt
     finally:
-        subprocess.run(["umount", str(mnt)], capture_output=True, timeout=30)
+        # lazily: files a failed test left open must not keep it mounted under pytest's old folders
+        subprocess.run(["umount", "--lazy", str(mnt)], capture_output=True, timeout=30)
 
 
 def test_a_really_full_disk(tiny_disk: Path, tmp_path: Path) -> None:
