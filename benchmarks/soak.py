@@ -58,7 +58,10 @@ def main() -> None:
     from gst_trafficcal.gst._gi import Gst
     from gst_trafficcal.gst.runner import ensure_elements
 
+    import gst_trafficcal
+
     ensure_elements()
+    print(f"gst_trafficcal from {Path(gst_trafficcal.__file__).parent}", flush=True)
     shutil.rmtree(args.work, ignore_errors=True)
     args.work.mkdir(parents=True)
     events = args.work / "vehicles.jsonl"
