@@ -324,9 +324,9 @@ def test_append_keeps_what_a_run_into_the_same_files_measured_before(clip, impli
     (intervals_kept,) = [p for name, p in kept.items() if name.startswith("intervals.earlier-")]
     assert results_kept.suffix == ".json" and intervals_kept.suffix == ".csv"
     assert results_kept.read_text() == results1 and intervals_kept.read_text() == intervals1
-    assert sorted(i.split(": ", 1)[1] for i in run2.infos) == sorted(f"speedometer: the earlier {tmp_path / name} is kept as "
-                                        f"{kept[k]}" for name, k in (("results.json", results_kept.name),
-                                                                     ("intervals.csv", intervals_kept.name)))
+    said = sorted(i.split(": ", 1)[1] for i in run2.infos)  # "<element>: speedometer: ..."
+    assert said == sorted(f"speedometer: the earlier {tmp_path / name} is kept as {kept[k]}"
+                          for name, k in (("results.json", results_kept.name), ("intervals.csv", intervals_kept.name)))
     # the report puts the second run a minute after the first, not on top of it
     report = subprocess.run([sys.executable, "-m", "gst_trafficcal", "report", "--events",
                              str(tmp_path / "events.jsonl"), "--interval", "0.05", "--intervals-csv",

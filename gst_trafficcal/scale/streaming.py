@@ -23,8 +23,8 @@ BrnoCompSpeed replays those gave the matches 50-60 % off that kept λ* there).  
 when ``min_vehicles`` vehicles agree with λ* (their own λ within ``agreement`` = 8 % of it: even with exact boxes
 one vehicle's λ scatters by ~5 % median, because a car of unknown make is matched with the catalogue type of most
 similar shape, whose length differs from its own); the optional regression (:mod:`.regression`) maps λ* to λ_reg.
-Alignment work is bounded: ``per_track`` sightings per vehicle, each aligned once.  When the vanishing points change, what
-was accumulated is dropped (the alignments depend on them).
+Alignment work is bounded: ``per_track`` sightings per vehicle, each aligned once.  When the vanishing points
+change, what was accumulated is dropped (the alignments depend on them).
 
 Vehicles seen before the vanishing points are known are not lost: a sighting without a 3D box but with its convex
 hull (the tracker publishes the hull until a calibration arrives) is kept, and once the vanishing points are known
