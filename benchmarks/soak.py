@@ -2,7 +2,7 @@
 
 Usage:
   .venv/bin/python benchmarks/soak.py [--video ../shared/data/videos/kraten_cars.mp4] [--loops 40]
-      [--work /tmp/soak] [--every 5] [--detector vehicleseg|background|MODEL]
+      [--work /tmp/soak] [--every 5] [--detector vehicleseg|background|MODEL] [--objects]
 
 Plays ``--video`` ``--loops`` times back to back in one pipeline (a segment seek back to the start at each end,
 gapless, as a looping player does: the timestamps start again, as when recordings are joined) through the chain
@@ -10,7 +10,8 @@ gapless, as a looping player does: the timestamps start again, as when recording
 table), all in this process as ``trafficcal run`` runs it.  Every ``--every`` seconds it samples the process's
 resident memory (``VmRSS``) with the video played so far and the vehicles written; it prints the samples, the
 memory after the first loop (everything loaded, the calibration found) and at the end, and the growth after the
-first loop per hour of video and per thousand vehicles (a least-squares line through the samples); and the speed
+first loop and in the run's second half (the allocator's warm-up over: what keeps growing) per hour of video and per
+thousand vehicles (least-squares lines through the samples); and the speed
 against real time in the second loop and in the last (a cost that grows with the vehicles slows it down).
 """
 
@@ -43,6 +44,15 @@ def lines(path: Path) -> int:
         return 0
 
 
+def object_counts() -> dict[str, int]:
+    """Live Python objects (those the garbage collector tracks) by type, qualified by module."""
+    import gc
+    from collections import Counter
+
+    gc.collect()
+    return Counter(f"{type(o).__module__}.{type(o).__qualname__}" for o in gc.get_objects())
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--video", type=Path, default=ROOT.parent / "shared/data/videos/kraten_cars.mp4")
@@ -50,6 +60,9 @@ def main() -> None:
     ap.add_argument("--work", type=Path, default=Path("/tmp/soak"))
     ap.add_argument("--every", type=float, default=5.0, help="Seconds between memory samples.")
     ap.add_argument("--detector", default="vehicleseg", help="As trafficcal run's --detector (background: MOG2).")
+    ap.add_argument("--objects", action="store_true",
+                    help="Also count Python objects by type after the first loop and at the end, and print the types "
+                         "that grew most (what holds the memory that grows).")
     args = ap.parse_args()
     if not args.video.is_file():
         raise SystemExit(f"{args.video}: no such file")
@@ -86,6 +99,7 @@ def main() -> None:
 
     loop(Gst.SeekFlags.FLUSH, args.loops - 1)
     loops_done = 0
+    objects_before = None
     samples: list[tuple[float, float, int, float]] = []  # (video s, RSS MB, vehicles, wall s)
     stop = threading.Event()
     t0 = time.perf_counter()
@@ -118,9 +132,11 @@ def main() -> None:
             loops_done += 1
             if first_loop is None:
                 first_loop = (rss_mb(), lines(events))
+                objects_before = object_counts() if args.objects else None
             loop(Gst.SeekFlags.NONE, args.loops - 1 - loops_done)  # gapless: queued before this one drains
     finally:
         stop.set()
+        objects_after = object_counts() if args.objects else None
         pipeline.set_state(Gst.State.NULL)
     wall = time.perf_counter() - t0
     end = (rss_mb(), lines(events))
@@ -129,6 +145,9 @@ def main() -> None:
           f"video in {wall / 60:.1f} min, {end[1]} vehicles")
     if first_loop is not None:
         print(f"RSS after the first loop {first_loop[0]:.0f} MB ({first_loop[1]} vehicles), at the end {end[0]:.0f} MB")
+    if objects_before is not None and objects_after is not None:
+        grown = sorted(((objects_after[k] - objects_before.get(k, 0), k) for k in objects_after), reverse=True)[:15]
+        print("Python objects grown since the first loop: " + ", ".join(f"{k} +{n}" for n, k in grown if n > 0))
     timed = np.array([(v, w) for v, _, _, w in samples])
     if args.loops >= 3 and len(timed) >= 4:  # the second loop (warmed up) against the last: does it slow down?
         def speed(a: float, b: float) -> float:
@@ -138,11 +157,13 @@ def main() -> None:
         last = (args.loops - 1) * duration
         print(f"speed against real time: second loop {speed(duration, 2 * duration):.2f}, last loop "
               f"{speed(last, last + duration):.2f}")
-    if len(after) >= 3:
-        per_h = np.polyfit(after[:, 0] / 3600.0, after[:, 1], 1)[0]
-        per_k = np.polyfit(after[:, 2] / 1000.0, after[:, 1], 1)[0] if np.ptp(after[:, 2]) > 0 else float("nan")
-        print(f"growth after the first loop: {per_h:+.1f} MB per hour of video, {per_k:+.2f} MB per 1000 vehicles "
-              f"(least squares over {len(after)} samples)")
+    for name, part in (("after the first loop", after), ("in the second half", after[len(after) // 2:])):
+        if len(part) < 3:
+            continue
+        per_h = np.polyfit(part[:, 0] / 3600.0, part[:, 1], 1)[0]
+        per_k = np.polyfit(part[:, 2] / 1000.0, part[:, 1], 1)[0] if np.ptp(part[:, 2]) > 0 else float("nan")
+        print(f"growth {name}: {per_h:+.1f} MB per hour of video, {per_k:+.2f} MB per 1000 vehicles (least "
+              f"squares over {len(part)} samples, {part[0, 1]:.0f} to {part[-1, 1]:.0f} MB)")
 
 
 if __name__ == "__main__":
