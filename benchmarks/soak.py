@@ -108,16 +108,20 @@ def main() -> None:
         ok, pos = pipeline.query_position(Gst.Format.TIME)
         return loops_done * duration + (pos / Gst.SECOND if ok and pos >= 0 else 0.0)
 
+    def take(video_s: float) -> None:
+        samples.append((video_s, rss_mb(), lines(events), time.perf_counter() - t0))
+        v, m, n, w = samples[-1]
+        print(f"{w:7.0f} s  video {v / 60:6.1f} min  RSS {m:7.1f} MB  {n:6d} vehicles", flush=True)
+
     def sample() -> None:
         while not stop.wait(args.every):
-            samples.append((position(), rss_mb(), lines(events), time.perf_counter() - t0))
-            v, m, n, w = samples[-1]
-            print(f"{w:7.0f} s  video {v / 60:6.1f} min  RSS {m:7.1f} MB  {n:6d} vehicles", flush=True)
+            take(position())
 
     pipeline.set_state(Gst.State.PLAYING)
     sampler = threading.Thread(target=sample, daemon=True)
     sampler.start()
     first_loop = None
+    loop_ends = [0.0]  # wall seconds at which each loop's last frame was sent (and the start)
     try:
         while True:
             msg = bus.timed_pop_filtered(Gst.SECOND, Gst.MessageType.ERROR | Gst.MessageType.EOS
@@ -128,8 +132,12 @@ def main() -> None:
                 err, debug = msg.parse_error()
                 raise SystemExit(f"{msg.src.get_name()}: {err.message} {debug or ''}")
             if msg.type == Gst.MessageType.EOS:
+                loop_ends.append(time.perf_counter() - t0)
+                take(args.loops * duration)
                 break
             loops_done += 1
+            loop_ends.append(time.perf_counter() - t0)
+            take(loops_done * duration)  # a sample at each loop's end, however fast the loops go
             if first_loop is None:
                 first_loop = (rss_mb(), lines(events))
                 objects_before = object_counts() if args.objects else None
@@ -148,15 +156,9 @@ def main() -> None:
     if objects_before is not None and objects_after is not None:
         grown = sorted(((objects_after[k] - objects_before.get(k, 0), k) for k in objects_after), reverse=True)[:15]
         print("Python objects grown since the first loop: " + ", ".join(f"{k} +{n}" for n, k in grown if n > 0))
-    timed = np.array([(v, w) for v, _, _, w in samples])
-    if args.loops >= 3 and len(timed) >= 4:  # the second loop (warmed up) against the last: does it slow down?
-        def speed(a: float, b: float) -> float:
-            part = timed[(timed[:, 0] >= a) & (timed[:, 0] <= b)]
-            return float(np.ptp(part[:, 0]) / np.ptp(part[:, 1])) if len(part) >= 2 else float("nan")
-
-        last = (args.loops - 1) * duration
-        print(f"speed against real time: second loop {speed(duration, 2 * duration):.2f}, last loop "
-              f"{speed(last, last + duration):.2f}")
+    speeds = duration / np.diff(loop_ends)  # per loop, against real time
+    if args.loops >= 3 and len(speeds) == args.loops:  # the second loop (warmed up) against the last: slower?
+        print(f"speed against real time: second loop {speeds[1]:.2f}, last loop {speeds[-1]:.2f}")
     for name, part in (("after the first loop", after), ("in the second half", after[len(after) // 2:])):
         if len(part) < 3:
             continue
