@@ -427,7 +427,12 @@ class BrnoResultsWriter:
         self.path = Path(path)
         self.fps = float(fps)
         self.count = 0  # cars held
-        self._cars = None  # binary anonymous file, a car's JSON per line (opened at the first car)
+        try:  # opened now, so that a results file that cannot be written is an error at the start, not at the end
+            self.path.parent.mkdir(parents=True, exist_ok=True)
+            self._cars = tempfile.TemporaryFile(dir=self.path.parent, buffering=0)  # a car's JSON per line
+        except OSError as exc:
+            raise InputError(f"{self.path}: cannot write BrnoCompSpeed results there "
+                             f"({exc.strerror or exc})") from None
 
     def add(self, vehicle_id: int, times_s: Iterable[float], points_px: Iterable[Sequence[float]]) -> bool:
         """Add one vehicle's reference points (pixels) and their timestamps; rows with NaN are dropped.
@@ -446,8 +451,7 @@ class BrnoResultsWriter:
                 + "\n").encode("utf-8")
         try:
             if self._cars is None:
-                self.path.parent.mkdir(parents=True, exist_ok=True)
-                self._cars = tempfile.TemporaryFile(dir=self.path.parent, buffering=0)
+                raise OSError("the writer was closed")
             end = self._cars.seek(0, os.SEEK_END)
             try:
                 done = 0
@@ -463,9 +467,9 @@ class BrnoResultsWriter:
         return True
 
     def cars(self) -> Iterator[str]:
-        """The cars' JSON text, in the order they were added."""
+        """The cars' JSON text, in the order they were added (ValueError once closed: they are gone)."""
         if self._cars is None:
-            return
+            raise ValueError(f"{self.path}: the BrnoCompSpeed writer was closed, its cars are gone")
         fd, at, rest = self._cars.fileno(), 0, b""
         while chunk := os.pread(fd, 1 << 20, at):
             at += len(chunk)
@@ -482,6 +486,9 @@ class BrnoResultsWriter:
 
     def write(self, calibration: Calibration | None) -> Path:
         """Write (or rewrite) the file atomically; on failure the previous version stays and InputError says why."""
+        if self._cars is None:  # closed: never replace the file with one without its cars
+            raise ValueError(f"{self.path}: the BrnoCompSpeed writer was closed, its cars are gone")
+
         def text(tmp: Path) -> None:
             with tmp.open("w", encoding="utf-8") as out:
                 write_results_text(out, brno_calibration(calibration), self.cars())

@@ -217,6 +217,8 @@ def test_unwritable_location_is_a_clear_error(tmp_path: Path) -> None:
     (tmp_path / "f").write_text("x")
     with pytest.raises(InputError, match=r"f/v\.jsonl: cannot open for writing"):
         JsonlEventWriter(tmp_path / "f" / "v.jsonl")
+    with pytest.raises(InputError, match=r"f/system\.json: cannot write BrnoCompSpeed results there"):
+        BrnoResultsWriter(tmp_path / "f" / "system.json", 25.0)  # at once, not when the first car comes
 
 
 def test_reading_bad_event_files(tmp_path: Path) -> None:
@@ -286,6 +288,23 @@ def test_brno_results_drop_nan_points_and_keep_fractional_frames(tmp_path: Path)
     np.testing.assert_allclose(frames_from_times([1.0, 1.00001, 1.02], 50.0), [50, 50, 51])
     with pytest.raises(InputError, match="positive frame rate"):
         BrnoResultsWriter(tmp_path / "x.json", 0.0)
+
+
+def test_brno_results_writer_closed_keeps_its_file(tmp_path: Path) -> None:
+    """Closing lets go of the held cars (their anonymous file); the results file stays as last written, and a
+    writer closed too early cannot replace it with one without its cars."""
+    path = tmp_path / "system.json"
+    w = BrnoResultsWriter(path, 25.0)
+    w.add(1, [0.0, 0.04], [[10.0, 20.0], [11.0, 21.0]])
+    w.write(None)
+    before = path.read_text()
+    w.close()
+    w.close()  # twice: nothing more
+    with pytest.raises(ValueError, match="closed"):
+        w.write(None)
+    with pytest.raises(InputError, match="cannot hold vehicle 2"):
+        w.add(2, [0.0], [[1.0, 2.0]])
+    assert path.read_text() == before and sorted(p.name for p in tmp_path.iterdir()) == ["system.json"]
 
 
 def test_brno_results_are_written_atomically(tmp_path: Path) -> None:

@@ -350,6 +350,14 @@ def test_bad_calibration_file_is_a_clear_error(clip, tmp_path):
         run_pipeline(f"{source(clip)} ! {detector(clip)} ! speedometer calibration-file={bad} ! appsink name=sink")
 
 
+def test_a_results_file_that_cannot_be_written_is_an_error_at_start(clip, tmp_path):
+    """Not at the first checkpoint, ten seconds of stream later: the pipeline does not start."""
+    (tmp_path / "plain").write_text("a file, not a folder")
+    where = tmp_path / "plain" / "system.json"
+    with pytest.raises(PipelineError, match=r"plain/system\.json: cannot write BrnoCompSpeed results there"):
+        run_pipeline(f"{source(clip)} ! {detector(clip)} ! speedometer results-file={where} ! appsink name=sink")
+
+
 def test_calibration_of_another_image_size_is_an_error(clip, tmp_path):
     cal = load_calibration(clip / "calibration.json")
     from dataclasses import replace
