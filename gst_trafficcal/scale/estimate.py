@@ -60,7 +60,8 @@ class LogDensity:
 
     def add(self, values: np.ndarray, weights: np.ndarray) -> None:
         """Add positive ``values`` (λ) with positive ``weights``; the others are left out."""
-        v = np.log(np.asarray(values, np.float64))
+        with np.errstate(invalid="ignore", divide="ignore"):  # zero or negative λ: left out below, not a warning
+            v = np.log(np.asarray(values, np.float64))
         w = np.asarray(weights, np.float64)
         ok = np.isfinite(v) & np.isfinite(w) & (w > 0)
         v, w = v[ok], w[ok]
