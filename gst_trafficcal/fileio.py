@@ -86,11 +86,9 @@ def keep_aside(path: str | Path) -> Path | None:
         return None
     stem, ext = (path.name.split(".", 1) + [""])[:2]
     when = f"{datetime.fromtimestamp(st.st_mtime):%Y%m%d-%H%M%S}"
-    ext = f".{ext}" if ext else ""
-    kept, k = path.with_name(f"{stem}.earlier-{when}{ext}"), 2
+    kept = path.with_name(f"{stem}.earlier-{when}" + (f".{ext}" if ext else ""))
     try:
-        while kept.exists():
-            kept, k = path.with_name(f"{stem}.earlier-{when}-{k}{ext}"), k + 1
+        kept = free_path(kept)
         path.rename(kept)
     except OSError as exc:
         raise InputError(f"{path}: cannot keep the earlier file as {kept.name} ({exc.strerror or exc})") from None

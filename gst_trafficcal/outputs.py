@@ -34,7 +34,7 @@ from typing import Any
 import numpy as np
 
 from .brnocompspeed import (
-    BrnoCalibration, Results, Track, car_json, write_results_text,
+    BrnoCalibration, Track, car_json, write_results_text,
 )
 from .calibration import Calibration
 from .clock import clock_time, parse_start_time
@@ -124,6 +124,24 @@ class VehicleEvent:
         return replace(self, first_time=clock_time(start, self.first_timestamp_s),
                        last_time=clock_time(start, self.last_timestamp_s))
 
+    def moved(self, shift_s: float, ndigits: int | None = None) -> "VehicleEvent":
+        """The event with its timestamps ``shift_s`` seconds later (rounded to ``ndigits`` decimals if given): a
+        part's vehicles put on another stream's clock.  An event without timestamps, or no shift: unchanged."""
+        if not shift_s or self.first_timestamp_s is None or self.last_timestamp_s is None:
+            return self
+
+        def later(t: float) -> float:
+            return t + shift_s if ndigits is None else round(t + shift_s, ndigits)
+
+        return replace(self, first_timestamp_s=later(self.first_timestamp_s),
+                       last_timestamp_s=later(self.last_timestamp_s))
+
+    def stream_started(self) -> datetime | None:
+        """The date and time of its stream's time 0 (its first sighting's date less its timestamp); None undated."""
+        if not self.first_time or self.first_timestamp_s is None:
+            return None
+        return parse_start_time(self.first_time) - timedelta(seconds=self.first_timestamp_s)
+
     def to_dict(self) -> dict[str, Any]:
         """Plain JSON-ready dict with the keys of :data:`EVENT_FIELDS`, in that order."""
         d = asdict(self)
@@ -144,10 +162,7 @@ class VehicleEvent:
 
 def stream_start(events: Iterable[VehicleEvent]) -> datetime | None:
     """The date and time of stream time 0 from the first event that carries one (None: no event is dated)."""
-    for e in events:
-        if e.first_time and e.first_timestamp_s is not None:
-            return parse_start_time(e.first_time) - timedelta(seconds=e.first_timestamp_s)
-    return None
+    return next((s for e in events if (s := e.stream_started()) is not None), None)
 
 
 def on_one_clock(events: Sequence[VehicleEvent]) -> tuple[datetime | None, list[VehicleEvent]]:
@@ -155,20 +170,13 @@ def on_one_clock(events: Sequence[VehicleEvent]) -> tuple[datetime | None, list[
     stream start, put on the clock of the earliest: (that start, the events with their timestamps moved). A run is
     told by its start (date and time less timestamp) more than half a second from another's; undated events stay
     as they are. A single run's events come back unchanged."""
-    starts = [parse_start_time(e.first_time) - timedelta(seconds=e.first_timestamp_s)
-              if e.first_time and e.first_timestamp_s is not None and e.last_timestamp_s is not None else None
-              for e in events]
+    starts = [e.stream_started() for e in events]
     dated = [s for s in starts if s is not None]
     if not dated:
         return None, list(events)
     first = min(dated)
-    out = []
-    for e, s in zip(events, starts):
-        shift = 0.0 if s is None else (s - first).total_seconds()
-        if shift > 0.5:
-            e = replace(e, first_timestamp_s=e.first_timestamp_s + shift, last_timestamp_s=e.last_timestamp_s + shift)
-        out.append(e)
-    return first, out
+    shifts = [0.0 if s is None else (s - first).total_seconds() for s in starts]
+    return first, [e.moved(shift) if shift > 0.5 else e for e, shift in zip(events, shifts)]
 
 
 def reason_kind(reason: str) -> str:
@@ -426,7 +434,6 @@ class BrnoResultsWriter:
             raise InputError(f"{path}: BrnoCompSpeed results need a positive frame rate, got {fps}")
         self.path = Path(path)
         self.fps = float(fps)
-        self.count = 0  # cars held
         try:  # opened now, so that a results file that cannot be written is an error at the start, not at the end
             self.path.parent.mkdir(parents=True, exist_ok=True)
             self._cars = tempfile.TemporaryFile(dir=self.path.parent, buffering=0)  # a car's JSON per line
@@ -463,35 +470,31 @@ class BrnoResultsWriter:
         except OSError as exc:
             raise InputError(f"{self.path}: cannot hold vehicle {vehicle_id} for the BrnoCompSpeed results "
                              f"({exc.strerror or exc}); the vehicles before it are kept") from None
-        self.count += 1
         return True
 
     def cars(self) -> Iterator[str]:
-        """The cars' JSON text, in the order they were added (ValueError once closed: they are gone)."""
+        """The cars' JSON text, in the order they were added; ValueError, at once, when closed (they are gone:
+        the file is never rewritten without them)."""
         if self._cars is None:
             raise ValueError(f"{self.path}: the BrnoCompSpeed writer was closed, its cars are gone")
-        fd, at, rest = self._cars.fileno(), 0, b""
+        return self._lines(self._cars.fileno())
+
+    @staticmethod
+    def _lines(fd: int) -> Iterator[str]:
+        at, rest = 0, b""
         while chunk := os.pread(fd, 1 << 20, at):
             at += len(chunk)
             lines = (rest + chunk).split(b"\n")
             rest = lines.pop()
             yield from (car.decode("utf-8") for car in lines if car)
 
-    def results(self, calibration: Calibration | None) -> Results:
-        """Everything held, read back (for a test or a small run: a long run's tracks are large)."""
-        cars = (json.loads(c) for c in self.cars())
-        return Results(brno_calibration(calibration), tuple(
-            Track(id=c["id"], frames=np.asarray(c["frames"], dtype=np.float64),
-                  pos=np.column_stack([c["posX"], c["posY"]]).astype(np.float64)) for c in cars))
-
     def write(self, calibration: Calibration | None) -> Path:
         """Write (or rewrite) the file atomically; on failure the previous version stays and InputError says why."""
-        if self._cars is None:  # closed: never replace the file with one without its cars
-            raise ValueError(f"{self.path}: the BrnoCompSpeed writer was closed, its cars are gone")
+        cars = self.cars()
 
         def text(tmp: Path) -> None:
             with tmp.open("w", encoding="utf-8") as out:
-                write_results_text(out, brno_calibration(calibration), self.cars())
+                write_results_text(out, brno_calibration(calibration), cars)
 
         atomic_write(self.path, text, "BrnoCompSpeed results")
         return self.path
@@ -533,8 +536,10 @@ class VehicleOutputs:
                 points_px: Iterable[Sequence[float]] | None = None) -> None:
         """One vehicle that left: its event and (for BrnoCompSpeed) its reference points and timestamps."""
         self.count += 1
-        attempt_all((lambda: self.brno is not None and times_s is not None and points_px is not None
-                     and self.brno.add(event.id, times_s, points_px), lambda: self.events.write(event)))
+        steps = [lambda: self.events.write(event)]
+        if self.brno is not None and times_s is not None and points_px is not None:
+            steps.insert(0, lambda: self.brno.add(event.id, times_s, points_px))
+        attempt_all(steps)
 
     def checkpoint(self, calibration: Calibration | None) -> None:
         """Rewrite the BrnoCompSpeed file now (atomically) with what has been collected."""

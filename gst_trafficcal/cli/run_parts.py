@@ -248,15 +248,7 @@ def _write_day_intervals(console, path: Path, dated: list, options: RunOptions) 
 def _on_clock(events: list, shift: float, ndigits: int | None = None) -> list:
     """The vehicles of a part whose stream time 0 is ``shift`` seconds after the clock's: their timestamps moved by
     it (rounded to ``ndigits`` decimals if given); a vehicle without timestamps as it is."""
-    from dataclasses import replace as dc_replace
-
-    def moved(t: float) -> float:
-        return t + shift if ndigits is None else round(t + shift, ndigits)
-
-    if not shift:
-        return list(events)
-    return [dc_replace(e, first_timestamp_s=moved(e.first_timestamp_s), last_timestamp_s=moved(e.last_timestamp_s))
-            if e.first_timestamp_s is not None and e.last_timestamp_s is not None else e for e in events]
+    return [e.moved(shift, ndigits) for e in events]
 
 
 def _write_parts(path: Path, records: list[dict]) -> None:
