@@ -80,6 +80,7 @@ class Camera:
     scale: float | None = None
     _f: float = field(init=False, repr=False, compare=False)
     _n: np.ndarray = field(init=False, repr=False, compare=False)
+    _R: np.ndarray = field(init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
         vp1, vp2, pp = (_as_points(v, name).reshape(2) for v, name in
@@ -107,6 +108,13 @@ class Camera:
         object.__setattr__(self, "scale", None if self.scale is None else float(self.scale))
         object.__setattr__(self, "_f", float(f))
         object.__setattr__(self, "_n", n)
+        u = np.append(vp1 - pp, f)
+        d1 = u / np.linalg.norm(u)
+        d1 = d1 - n * np.dot(d1, n)  # exact orthogonality despite rounding
+        d1 /= np.linalg.norm(d1)
+        R = np.stack([d1, np.cross(n, d1), n], axis=1)
+        R.setflags(write=False)
+        object.__setattr__(self, "_R", R)  # computed once: every projection to the world uses it
 
     # ----------------------------------------------------------------- derived quantities
     @property
@@ -138,14 +146,9 @@ class Camera:
 
     @property
     def rotation(self) -> np.ndarray:
-        """World→camera rotation: columns are world x (towards VP1, forward), y, z (up) in camera coordinates."""
-        u = np.append(self.vp1 - self.pp, self._f)
-        d1 = u / np.linalg.norm(u)
-        d3 = self._n
-        d1 = d1 - d3 * np.dot(d1, d3)  # exact orthogonality despite rounding
-        d1 /= np.linalg.norm(d1)
-        d2 = np.cross(d3, d1)
-        return np.stack([d1, d2, d3], axis=1)
+        """World→camera rotation (read-only): columns are world x (towards VP1, forward), y, z (up) in camera
+        coordinates."""
+        return self._R
 
     def rays(self, points) -> np.ndarray:
         """Camera-frame rays p̄ = [p - pp, f] of image points (..., 2) -> (..., 3)."""

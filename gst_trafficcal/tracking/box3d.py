@@ -84,29 +84,14 @@ class Boxes3D:
         return road, world_to_pixels(camera, np.concatenate([road, np.zeros((len(self), 1))], axis=1))
 
 
-_FRAMES: dict[tuple[float, ...], tuple[np.ndarray, np.ndarray]] = {}
-
-
-def _frame(camera: Camera) -> tuple[np.ndarray, np.ndarray]:
-    """(rotation, normal) of a camera, cached (both are recomputed by every Camera property call)."""
-    key = (*camera.vp1, *camera.vp2, *camera.pp)
-    got = _FRAMES.get(key)
-    if got is None:
-        if len(_FRAMES) > 64:
-            _FRAMES.clear()
-        got = _FRAMES[key] = (camera.rotation, camera.normal)
-    return got
-
-
 def world_rays(camera: Camera, points: np.ndarray) -> np.ndarray:
     """Image points (..., 2) -> directions of their viewing rays in the world frame (..., 3)."""
-    return camera.rays(points) @ _frame(camera)[0]
+    return camera.rays(points) @ camera.rotation
 
 
 def world_to_pixels(camera: Camera, X: np.ndarray) -> np.ndarray:
     """World points in plane units (..., 3) -> pixels (camera at (0, 0, 1))."""
-    R, n = _frame(camera)
-    cam = np.asarray(X, np.float64) @ R.T - n
+    cam = np.asarray(X, np.float64) @ camera.rotation.T - camera.normal
     return camera.from_road(cam)
 
 
