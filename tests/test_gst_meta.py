@@ -169,3 +169,39 @@ def test_rois_travel_through_a_pipeline_to_appsink_and_a_downstream_element() ->
     checks = [m.fields for m in run.messages if m.name == "tccheck"]
     assert [c["rois"] for c in checks] == [1, 1, 1, 0]
     assert [c["box"] for c in checks[:3]] == [pytest.approx(list(b)) for b in boxes]
+
+
+PLAIN_FIELDS = [
+    {"t": 12.04, "state": "confirmed", "direction": -1, "occluded": False, "has_3d": True, "big": 2**40,
+     "small": -(2**31), "edge": 2**31 - 1, "over": 2**31, "hull_box": [100.5, 200.25, 300.125, 400.0],
+     "box3d": [[100.0 + i, 200.5 - i / 3] for i in range(8)], "calibration_id": ""},
+    {"inf": float("inf"), "minus_inf": float("-inf"), "zero": -0.0, "tiny": 5e-324, "huge": 1.7976931348623157e308,
+     "third": 1 / 3, "whole": 400.0},
+    {"quoted": 'a "b" \\c', "space": "two words", "tab": "x\ty\n", "utf8": "Brno–Kraví hora é", "null": "NULL",
+     "digits": "123", "word": "true", "path": "/a/b-c_d+e:f.g", "semi": "a;b,c=d<e>(f)"},
+]
+
+
+@pytest.mark.parametrize("fields", PLAIN_FIELDS, ids=["vehicle", "doubles", "strings"])
+def test_structures_written_as_text_equal_those_built_field_by_field(fields) -> None:
+    """make_structure writes plain fields as text parsed by GStreamer in one call: the structure must be the one
+    setting each field as a GObject value gives (same serialisation: same types and the same doubles)."""
+    from gst_trafficcal.gst import meta
+
+    text = meta._structure_text("trafficcal-vehicle", fields)
+    assert text is not None  # the fast path is taken for all of these
+    by_text = meta.make_structure("trafficcal-vehicle", fields)
+    by_field = Gst.Structure.new_empty("trafficcal-vehicle")
+    for key, value in fields.items():
+        by_field.set_value(key, meta._gvalue(value))
+    assert by_text.to_string() == by_field.to_string()
+    assert meta.structure_to_dict(by_text) == meta.structure_to_dict(by_field) == fields
+
+
+def test_structures_with_other_values_are_built_field_by_field() -> None:
+    from gst_trafficcal.gst import meta
+
+    fields = {"lane": np.int64(2), "ints": [1, 2], "mixed": [[1, 2.5]], "tuple": (1.0, 2.0), "empty": []}
+    assert meta._structure_text("speed", fields) is None
+    got = meta.structure_to_dict(meta.make_structure("speed", fields))
+    assert got == {"lane": 2, "ints": [1, 2], "mixed": [[1.0, 2.5]], "tuple": [1.0, 2.0], "empty": []}
