@@ -171,8 +171,9 @@ def test_speed_structure_on_the_rois(implicit):
                 assert "trafficcal-vehicle" in r.params
                 last[r.object_id] = s["speed_kmh"]
     assert len(last) >= 12
-    for oid, v in last.items():  # the estimate on the last frame a vehicle was seen is its reported speed
-        assert v == pytest.approx(final[oid], abs=1e-9)
+    for oid, v in last.items():  # the estimate on the last frame a vehicle was seen is its reported speed, as it
+        assert v == pytest.approx(final[oid], abs=0.3)  # stood at most LIVE_EVERY - 1 frames before
+    assert sum(v == pytest.approx(final[oid], abs=1e-9) for oid, v in last.items()) >= len(last) // 5
 
 
 def test_frames_file_has_every_tracked_vehicle_per_frame(implicit):
@@ -202,7 +203,8 @@ def test_frames_file_has_every_tracked_vehicle_per_frame(implicit):
                 speeds_seen[o["id"]] = o["speed"]["speed_kmh"]
     assert refs_seen >= 100
     final = {e.id: e.speed_kmh for e in events if e.measured}
-    assert len(speeds_seen) >= 12 and all(speeds_seen[i] == pytest.approx(final[i]) for i in speeds_seen)
+    assert len(speeds_seen) >= 12  # the last estimate is the reported speed as it stood at most 4 frames before
+    assert all(speeds_seen[i] == pytest.approx(final[i], abs=0.3) for i in speeds_seen)
 
 
 def test_explicit_tracker_gives_the_same_numbers(clip, implicit, tmp_path):
