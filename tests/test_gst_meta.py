@@ -205,3 +205,16 @@ def test_structures_with_other_values_are_built_field_by_field() -> None:
     assert meta._structure_text("speed", fields) is None
     got = meta.structure_to_dict(meta.make_structure("speed", fields))
     assert got == {"lane": 2, "ints": [1, 2], "mixed": [[1.0, 2.5]], "tuple": [1.0, 2.0], "empty": []}
+
+
+def test_reader_can_skip_structures_it_does_not_need() -> None:
+    buf = _buffer()
+    params = {"trafficcal-vehicle": {"t": 1.5, "box3d": [[1.0, 2.0]] * 8}, "speed": {"speed_kmh": 50.5},
+              HULL: {"points": [[1.0, 2.0], [3.0, 4.0], [5.0, 1.0]]}}
+    add_vehicle_roi(buf, SIZE, (10, 20, 110, 90), "car", 0.9, 2, object_id=7, params=params)
+    whole, = read_vehicle_rois(buf, SIZE)
+    some, = read_vehicle_rois(buf, SIZE, only=("trafficcal-vehicle",))
+    assert set(whole.params) == {"detection", "object_id", "trafficcal-vehicle", "speed", HULL}
+    assert set(some.params) == {"detection", "object_id", "trafficcal-vehicle"}
+    assert some.params["trafficcal-vehicle"] == whole.params["trafficcal-vehicle"] == params["trafficcal-vehicle"]
+    assert (some.box, some.object_id, some.label, some.confidence) == (whole.box, 7, "car", whole.confidence)

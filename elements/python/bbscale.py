@@ -94,6 +94,7 @@ class BBScale(TrafficcalTransform):
     def transform_frame(self, buffer):
         from gst_trafficcal.gst.meta import read_vehicle_rois
         from gst_trafficcal.scale.stage import sighting_from_fields, upstream_has_scale
+        from gst_trafficcal.tracking.vehicle_meta import STRUCTURE as VEHICLE
 
         cal = self.calibration
         if upstream_has_scale(cal):
@@ -104,8 +105,8 @@ class BBScale(TrafficcalTransform):
                 self._warned_pts = True
                 self.post_warning("bbscale: buffers without timestamps are ignored")
             return Gst.FlowReturn.OK
-        rois = [r for r in read_vehicle_rois(buffer, self.frame_size)
-                if r.object_id is not None and "trafficcal-vehicle" in r.params]
+        rois = [r for r in read_vehicle_rois(buffer, self.frame_size, only=(VEHICLE,))
+                if r.object_id is not None and VEHICLE in r.params]
         probs = [None] * len(rois)
         if self._classifier is not None and rois:
             with self.bgr(buffer) as bgr:

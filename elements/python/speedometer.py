@@ -249,6 +249,7 @@ class Speedometer(TrafficcalTransform):
     def transform_frame(self, buffer):
         from gst_trafficcal.gst.meta import read_vehicle_rois, update_roi_params
         from gst_trafficcal.measurement import END_AFTER_MARGIN, Sighting, speed_params
+        from gst_trafficcal.tracking.vehicle_meta import STRUCTURE as VEHICLE
 
         if self._failed:
             return Gst.FlowReturn.ERROR
@@ -287,7 +288,8 @@ class Speedometer(TrafficcalTransform):
                                        "scale": "internal" if self._stage is not None else "upstream"})
             if self._stage is not None and self._upstream is not None:
                 self._stage.on_calibration(self._upstream)
-        rois = read_vehicle_rois(buffer, self.frame_size)
+        rois = read_vehicle_rois(buffer, self.frame_size,  # the tracker here needs the hulls too
+                                 only=(VEHICLE,) if self._tracking is False else None)
         if self._tracking is False:
             labelled = [(r, Sighting.from_fields(r.object_id, r.label, r.confidence, r.params["trafficcal-vehicle"],
                                                  t=t))
@@ -346,9 +348,10 @@ class Speedometer(TrafficcalTransform):
         """Feed this frame's tracked vehicles to our scale stage; use the calibration it publishes."""
         from gst_trafficcal.gst.meta import read_vehicle_rois
         from gst_trafficcal.scale.stage import sighting_from_fields
+        from gst_trafficcal.tracking.vehicle_meta import STRUCTURE as VEHICLE
 
         sightings = [sighting_from_fields(r.object_id, r.label, tuple(r.box), r.params["trafficcal-vehicle"], t)
-                     for r in read_vehicle_rois(buffer, self.frame_size)
+                     for r in read_vehicle_rois(buffer, self.frame_size, only=(VEHICLE,))
                      if r.object_id is not None and "trafficcal-vehicle" in r.params]
         changed, ours = self._stage.update(t, sightings, self._upstream)
         self._scale_changed(changed, ours)

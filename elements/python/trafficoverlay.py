@@ -86,9 +86,10 @@ class TrafficOverlay(TrafficcalTransform):
         from gst_trafficcal.gst.buffers import format_name
         from gst_trafficcal.gst.meta import read_vehicle_rois
         from gst_trafficcal.overlay import OverlayOptions, canvas_for_planes, draw_overlay, marks_from_params
+        from gst_trafficcal.tracking.vehicle_meta import STRUCTURE as VEHICLE
 
         marks = [marks_from_params(r.box, r.label, r.object_id, r.params)
-                 for r in read_vehicle_rois(buffer, self.frame_size)]
+                 for r in read_vehicle_rois(buffer, self.frame_size, only=(VEHICLE, "speed"))]
         cal = self.calibration
         camera = cal.camera if cal is not None else None
         self._counter.update(marks, camera)

@@ -22,7 +22,7 @@ from __future__ import annotations
 
 import math
 import re
-from collections.abc import Mapping, Sequence
+from collections.abc import Collection, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
@@ -244,13 +244,17 @@ def add_vehicle_roi(
     return meta_id
 
 
-def read_vehicle_rois(buffer: Gst.Buffer, frame_size: tuple[int, int]) -> list[RoiRecord]:
-    """Every ROI meta on ``buffer`` as :class:`RoiRecord`, in attachment order."""
+def read_vehicle_rois(buffer: Gst.Buffer, frame_size: tuple[int, int],
+                      only: Collection[str] | None = None) -> list[RoiRecord]:
+    """Every ROI meta on ``buffer`` as :class:`RoiRecord`, in attachment order.  With ``only``, ``params`` holds
+    just the structures of those names besides "detection" and "object_id" (the others are not read: reading a
+    structure costs more than anything else an element does with a vehicle that it only passes on)."""
     width, height = float(frame_size[0]), float(frame_size[1])
+    names = None if only is None else {DETECTION, OBJECT_ID, *only}
     out: list[RoiRecord] = []
     for _addr, m in _cgst.iter_roi_metas(buffer):
         params: dict[str, dict[str, Any]] = {}
-        for s in _cgst.roi_param_structures(m):  # the first structure of a name wins, as get_param
+        for s in _cgst.roi_param_structures(m, names):  # the first structure of a name wins, as get_param
             params.setdefault(s.get_name(), structure_to_dict(s))
         det = params.get(DETECTION, {})
         label = _cgst.quark_string(m.roi_type) or str(det.get("label", ""))
