@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import itertools
+
 import numpy as np
 import pytest
 
@@ -133,6 +135,31 @@ def test_live_speed_uses_a_bounded_window(scene, truth, monkeypatch):
             assert live.n_samples <= 30 - 5 and live.speed_kmh == pytest.approx(truth[vid][0], abs=0.05)
             n += 1
     assert n > 100
+
+
+def test_live_speed_is_made_every_few_frames_and_at_once_with_a_new_scale(scene, truth):
+    """The ROI's estimate is made again every LIVE_EVERY observations of a vehicle (the frames between repeat it);
+    a new calibration makes every vehicle's again on the next frame."""
+    from gst_trafficcal.measurement import LIVE_EVERY
+
+    meter = SpeedMeter(calibration=cal_of(scene.camera))
+    history: dict[int, list[float]] = {}
+    half = len(scene.frames) // 2
+    for f in scene.frames[:half]:
+        for vid, live in meter.update(f.t, sightings(f)).speeds.items():
+            history.setdefault(vid, []).append(live.speed_kmh)
+    for values in history.values():  # a value stands for LIVE_EVERY frames before the next one replaces it
+        runs = [len(list(g)) for _, g in itertools.groupby(values)]
+        assert all(r % LIVE_EVERY == 0 for r in runs[:-1])
+    assert sum(len(v) >= 3 * LIVE_EVERY for v in history.values()) >= 5
+    before = {vid: v[-1] for vid, v in history.items()}
+    meter.set_calibration(cal_of(scene.camera.with_scale(scene.camera.scale * 1.1)))
+    f = scene.frames[half]
+    after = meter.update(f.t, sightings(f)).speeds
+    both = [vid for vid in after if vid in before]
+    assert len(both) >= 3
+    for vid in both:  # the same vehicle, one frame later, measured at the new scale
+        assert after[vid].speed_kmh == pytest.approx(1.1 * before[vid], rel=0.02)
 
 
 def test_vehicles_seen_before_the_vanishing_points_are_measured_when_they_come(scene, truth):
