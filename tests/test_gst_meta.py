@@ -198,6 +198,19 @@ def test_structures_written_as_text_equal_those_built_field_by_field(fields) -> 
     assert meta.structure_to_dict(by_text) == meta.structure_to_dict(by_field) == fields
 
 
+def test_not_a_number_is_written_as_text_too() -> None:
+    from gst_trafficcal.gst import meta
+
+    fields = {"x": float("nan"), "row": [float("nan"), 1.0], "pairs": [[2.0, float("nan")]]}
+    by_field = Gst.Structure.new_empty("n")
+    for key, value in fields.items():
+        by_field.set_value(key, meta._gvalue(value))
+    assert meta._structure_text("n", fields) is not None
+    assert meta.make_structure("n", fields).to_string() == by_field.to_string()
+    got = meta.structure_to_dict(meta.make_structure("n", fields))
+    assert np.isnan(got["x"]) and np.isnan(got["row"][0]) and got["pairs"][0][0] == 2.0
+
+
 def test_structures_with_other_values_are_built_field_by_field() -> None:
     from gst_trafficcal.gst import meta
 
