@@ -109,8 +109,10 @@ def _pyvalue(value: Any) -> Any:
     return value
 
 
-_PLAIN_TEXT = re.compile(r"[A-Za-z0-9_+/:.-]+\Z")  # GStreamer's unquoted string characters
-_FIELD_NAME = re.compile(r"[A-Za-z][A-Za-z0-9_+/:.-]*\Z")
+_PLAIN = "A-Za-z0-9_+/:.-"  # the characters GStreamer writes unquoted (a regex character class)
+_PLAIN_TEXT = re.compile(f"[{_PLAIN}]+\\Z")
+_PLAIN_CHAR = re.compile(f"[{_PLAIN}]")
+_FIELD_NAME = re.compile(f"[A-Za-z][{_PLAIN}]*\\Z")
 
 
 def _text_string(value: str) -> str:
@@ -123,7 +125,7 @@ def _text_string(value: str) -> str:
         ch = chr(c)
         if c < 0x20 or c >= 0x7F:
             out.append(f"\\{c:03o}")
-        elif ch.isalnum() or ch in "_-+/:.":
+        elif _PLAIN_CHAR.match(ch):
             out.append(ch)
         else:
             out.append("\\" + ch)
