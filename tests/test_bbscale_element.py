@@ -212,6 +212,11 @@ def test_speedometer_finds_the_scale_itself_without_bbscale(clip, tmp_path):
     explicit = run_pipeline(f"{head} ! tracker ! bbscale min-vehicles=3 ! speedometer "
                             f"events-file={tmp_path / 'explicit.jsonl'} ! appsink name=sink", timeout=300)
     assert (tmp_path / "short.jsonl").read_text() == (tmp_path / "explicit.jsonl").read_text()
+    tracked = run_pipeline(f"{head} ! tracker ! speedometer scale-min-vehicles=3 "  # the tracker's ROIs, read once
+                           f"events-file={tmp_path / 'tracked.jsonl'} ! appsink name=sink", timeout=300)
+    assert (tmp_path / "tracked.jsonl").read_text() == (tmp_path / "explicit.jsonl").read_text()
+    assert [m.fields for m in tracked.messages if m.name == "trafficcal-speedometer"][0] == {
+        "tracking": "upstream", "scale": "internal"}
     events = read_events(tmp_path / "short.jsonl").events
     measured = [e for e in events if e.speed_kmh is not None]
     assert len(measured) >= 3, [e.reason for e in events]

@@ -291,13 +291,14 @@ class Speedometer(TrafficcalTransform):
         rois = read_vehicle_rois(buffer, self.frame_size,  # the tracker here needs the hulls too
                                  only=(VEHICLE,) if self._tracking is False else None)
         if self._tracking is False:
-            labelled = [(r, Sighting.from_fields(r.object_id, r.label, r.confidence, r.params["trafficcal-vehicle"],
-                                                 t=t))
-                        for r in rois if r.object_id is not None and "trafficcal-vehicle" in r.params]
+            tracked = [r for r in rois if r.object_id is not None and VEHICLE in r.params]
+            labelled = [(r, Sighting.from_fields(r.object_id, r.label, r.confidence, r.params[VEHICLE], t=t))
+                        for r in tracked]
         else:
             labelled = self._track(buffer, rois, t)
+            tracked = None  # written into the buffer by the tracking just now: read them there
         if self._stage is not None:  # bbscale's stage, on what bbscale would read here: the tracked ROIs
-            self._scale_frame(buffer, t)
+            self._scale_frame(buffer, t, tracked)
         out = self._meter.update(t, [s for _, s in labelled])
         for roi, s in labelled:
             live = out.speeds.get(s.id)
@@ -344,15 +345,17 @@ class Speedometer(TrafficcalTransform):
             self._own_stage = self._new_scale_stage()
         return self._own_stage
 
-    def _scale_frame(self, buffer, t):
-        """Feed this frame's tracked vehicles to our scale stage; use the calibration it publishes."""
+    def _scale_frame(self, buffer, t, tracked=None):
+        """Feed this frame's tracked vehicles (``tracked``: the ROIs with a vehicle structure, already read; None:
+        read them from ``buffer``) to our scale stage; use the calibration it publishes."""
         from gst_trafficcal.gst.meta import read_vehicle_rois
         from gst_trafficcal.scale.stage import sighting_from_fields
         from gst_trafficcal.tracking.vehicle_meta import STRUCTURE as VEHICLE
 
-        sightings = [sighting_from_fields(r.object_id, r.label, tuple(r.box), r.params["trafficcal-vehicle"], t)
-                     for r in read_vehicle_rois(buffer, self.frame_size, only=(VEHICLE,))
-                     if r.object_id is not None and "trafficcal-vehicle" in r.params]
+        if tracked is None:
+            tracked = [r for r in read_vehicle_rois(buffer, self.frame_size, only=(VEHICLE,))
+                       if r.object_id is not None and VEHICLE in r.params]
+        sightings = [sighting_from_fields(r.object_id, r.label, tuple(r.box), r.params[VEHICLE], t) for r in tracked]
         changed, ours = self._stage.update(t, sightings, self._upstream)
         self._scale_changed(changed, ours)
 
