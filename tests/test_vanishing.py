@@ -188,8 +188,10 @@ def test_calibrator_moves_vp1_along_the_lanes_only_when_asked(cuboid_frames):
     assert with_speed.confidence["speed_tracks"] >= 100 and "vp1_along_px" in with_speed.confidence
     assert "vp1_along_px" not in without.confidence and cal_off.along is None
     assert np.allclose(without.camera.vp1, cal_off.vp1_diamond.xy)
+    # moved along the lanes, then across them to where the tracks' lines meet (vp1_across_lines)
     moved = np.linalg.norm(with_speed.camera.vp1 - cal_on.vp1_diamond.xy)
-    assert abs(moved - abs(with_speed.confidence["vp1_along_px"])) < 0.05
+    assert "vp1_across_px" in with_speed.confidence and "vp1_across_px" not in capped.confidence
+    assert abs(moved - np.hypot(with_speed.confidence["vp1_along_px"], with_speed.confidence["vp1_across_px"])) < 0.05
     assert np.linalg.norm(with_speed.camera.vp1 - cam.vp1) < 1.0
 
 

@@ -7,7 +7,8 @@ import pytest
 
 from gst_trafficcal.geometry import Camera
 from gst_trafficcal.vanishing.constant_speed import (LaneMotion, fit_motion, motion_terms, predicted_kappa,
-                                                     vp1_along_lanes)
+                                                     vp1_across_lines, vp1_along_lanes)
+from gst_trafficcal.vanishing.tracks import fit_lines
 from gst_trafficcal.vanishing.tracks import MotionLines, TrackParams
 from tests.test_vanishing import FPS, cached_scene, scene_camera
 
@@ -98,6 +99,40 @@ def test_vp1_along_lanes_undoes_a_shift_along_the_lanes_despite_outliers():
     # a start far outside the search range: the best point is at its edge, so no answer
     assert vp1_along_lanes(cam.vp1 + 0.8 * np.linalg.norm(cam.vp1 - centre) * along, m, 640) is None
 
+
+
+def _lines_of(tracks) -> np.ndarray:
+    """Total-least-squares lines (N, 3) of image tracks, as MotionLines fits them."""
+    sums = np.array([[len(px), px[:, 0].sum(), px[:, 1].sum(), (px[:, 0] ** 2).sum(), (px[:, 0] * px[:, 1]).sum(),
+                      (px[:, 1] ** 2).sum()] for px, _ in tracks])
+    return fit_lines(sums)[0]
+
+
+def test_vp1_across_lines_moves_vp1_across_the_lanes_to_where_the_tracks_meet():
+    """A VP1 right along the lanes but off across them (the Diamond Space's peak) comes back across to where
+    the tracks' lines meet; its position along the lanes is kept; outlier lines do not pull it."""
+    cam = scene_camera()
+    rng = np.random.default_rng(4)
+    tracks = _road_tracks(cam, 300, rng, noise=0.2)
+    lines = _lines_of(tracks)
+    # a tenth of the lines are something else (a lane change, a slipping feature): random directions
+    bad = rng.random(len(lines)) < 0.1
+    theta = rng.uniform(0, np.pi, bad.sum())
+    pts = np.array([px.mean(axis=0) for px, _ in tracks])[bad]
+    lines[bad] = np.stack([np.sin(theta), -np.cos(theta), -(np.sin(theta) * pts[:, 0] - np.cos(theta) * pts[:, 1])],
+                          axis=1)
+    centre = np.array([px.mean(axis=0) for px, _ in tracks]).mean(axis=0)
+    along = (cam.vp1 - centre) / np.linalg.norm(cam.vp1 - centre)
+    across = np.array([-along[1], along[0]])
+    for off in (-1.5, 0.8):
+        start = cam.vp1 + off * across
+        moved = vp1_across_lines(start, centre, lines, np.ones(len(lines)), image_width=640)
+        assert abs((moved - cam.vp1) @ across) < 0.15, (off, moved - cam.vp1)
+        assert abs((moved - start) @ along) < 0.05 * abs(off)  # perpendicular to the centroid's line only
+    # lines that do not say where (none, or VP1 far outside the search) leave VP1 as it is
+    far = cam.vp1 + 40 * across
+    assert np.array_equal(vp1_across_lines(far, centre, lines, np.ones(len(lines)), 640), far)
+    assert np.array_equal(vp1_across_lines(cam.vp1, centre, np.zeros((0, 3)), np.zeros(0), 640), cam.vp1)
 
 def test_klt_tracks_of_a_rendered_scene_put_vp1_where_it_is():
     """OpenCV's KLT on the rendered cuboid traffic (exact perspective, constant speeds): the tracks' projective

@@ -118,7 +118,9 @@ def command(video: Path, out_path: Path, png_path: Path | None, method: str, min
               f"vp2 {cal.confidence.get('vp2', 0):.2f} -> {out_path}, {png}", markup=False)
     if "vp1_along_px" in cal.confidence:
         out.print(f"VP1 moved {cal.confidence['vp1_along_px']:+.1f} px along the lanes (away from the traffic: +) by "
-                  f"the constant-speed motion of {cal.confidence.get('speed_tracks', 0):.0f} tracks", markup=False)
+                  f"the constant-speed motion of {cal.confidence.get('speed_tracks', 0):.0f} tracks"
+                  + (f", then {cal.confidence['vp1_across_px']:+.1f} px across them to where the tracks' lines meet"
+                     if "vp1_across_px" in cal.confidence else ""), markup=False)
     elif "vp1_along_refused_px" in cal.confidence:
         out.print(f"VP1 left where the tracks' lines meet: their speeds would move it "
                   f"{cal.confidence['vp1_along_refused_px']:+.1f} px along the lanes, too far for traffic at constant "

@@ -33,7 +33,7 @@ from ..errors import GeometryError, InputError
 from ..geometry import Camera
 from .edgelets import Edgelets, detect_edgelets, detect_gradient_edgels, interior, towards
 from .foreground import RunningForeground
-from .constant_speed import AlongLanes, LaneMotion, vp1_along_lanes
+from .constant_speed import AlongLanes, LaneMotion, vp1_across_lines, vp1_along_lanes
 from .tracks import MotionLines, TrackParams
 
 MAX_MOTION_CHUNKS = 20_000  # analysed frames whose finished tracks' motion fits are kept (bounded memory)
@@ -75,6 +75,7 @@ class CalibratorConfig:
     min_speed_tracks: int = 30      # ... when at least this many tracks have a motion fit
     max_along: float = 0.15         # ... and the move is at most this share of VP1's distance from the tracks
                                     # (larger: the traffic brakes or accelerates as a whole; VP1 is left as is)
+    vp1_across_lines: bool = True   # ... and then across the lanes to where the tracks' lines meet (docs, stop 39)
     track: TrackParams = field(default_factory=TrackParams)
 
 
@@ -132,6 +133,7 @@ class VPCalibrator:
         self.vp1_fixed = False
         self.vp1_diamond: Peak | None = None  # the Diamond Space's VP1 before the move along the lanes
         self.along: AlongLanes | None = None  # the move along the lanes the tracks asked for (made if ≤ max_along)
+        self.across_px: float | None = None  # the move across the lanes that followed it (vp1_across_lines)
         self._motion: list[LaneMotion] = []  # motion fits of the finished tracks, image pixels
         self._prev1: Peak | None = None
         self._prev2: Peak | None = None
@@ -267,12 +269,20 @@ class VPCalibrator:
         enabled and the evidence says where; else ``peak``."""
         if not (self.cfg.vp1_constant_speed and peak.finite):
             return peak
-        fit = vp1_along_lanes(peak.xy, LaneMotion.concatenate(self._motion), self.image_size[0],
-                              min_tracks=self.cfg.min_speed_tracks)
+        motion = LaneMotion.concatenate(self._motion)
+        fit = vp1_along_lanes(peak.xy, motion, self.image_size[0], min_tracks=self.cfg.min_speed_tracks)
         self.along = fit
+        self.across_px = None
         if not self._along_accepted():
             return peak
-        point = np.append(fit.vp1, 1.0)
+        vp1 = fit.vp1
+        if self.cfg.vp1_across_lines:
+            centroid = motion.points.mean(axis=0)
+            vp1 = vp1_across_lines(fit.vp1, centroid, self.ds1.lines @ self.ds1.T, self.ds1.weights,
+                                   self.image_size[0])
+            e = fit.vp1 - centroid
+            self.across_px = float((vp1 - fit.vp1) @ (np.array([-e[1], e[0]]) / np.linalg.norm(e)))
+        point = np.append(vp1, 1.0)
         return replace(peak, point=point / np.linalg.norm(point))
 
     def _along_accepted(self) -> bool:
@@ -334,6 +344,8 @@ class VPCalibrator:
         if self.along is not None:
             key = "vp1_along_px" if self._along_accepted() else "vp1_along_refused_px"
             conf[key] = round(self.along.shift_px, 2)
+            if self.across_px is not None:
+                conf["vp1_across_px"] = round(self.across_px, 2)
             conf["speed_tracks"] = float(self.along.tracks)
         self.calibration = Calibration(cam, self.image_size, state="vps", source="vpdetect", confidence=conf)
         return True
