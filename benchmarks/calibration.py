@@ -78,6 +78,14 @@ def score(scene: Path, method: str, max_duration: float, config: dict | None = N
     )
     rep = evaluate_calibration(load_gt_data(scene / "gt_data.pkl"), cam)
     row.update(ratio_mean=rep.ratio_rel_pct.mean / 100, ratio_median=rep.ratio_rel_pct.median / 100)
+    if (scene / "frames.jsonl").is_file() and truth.scale:
+        # how much the vanishing points alone stretch the road: the speed error a perfect scale would leave
+        # (benchmarks/vp1_constant_speed.py; the end-to-end benchmark's "road err % at true λ")
+        from vp1_constant_speed import reference_pairs, road_distance_error
+
+        pairs = reference_pairs(scene)
+        if len(pairs[2]):
+            row["road_err_pct"] = road_distance_error(pairs, cam, truth.scale)
     return row
 
 
@@ -205,7 +213,9 @@ def _summary(rows: list[dict], methods: list[str], label: str, key: str = "ratio
             means = np.array([r[key] for r in ok])
             print(f"{label}: {method:9s} converged {len(ok)}/{n}  ratio error over scenes: mean {means.mean():.4f} "
                   f"median {np.median(means):.4f}  VP1 {np.mean([r['vp1_deg'] for r in ok]):.2f} deg  "
-                  f"VP2 {np.mean([r['vp2_deg'] for r in ok]):.2f} deg  focal {np.mean([r['focal_err'] for r in ok]):.3f}")
+                  f"VP2 {np.mean([r['vp2_deg'] for r in ok]):.2f} deg  focal {np.mean([r['focal_err'] for r in ok]):.3f}"
+                  + (f"  road err mean |.| {np.mean([abs(r['road_err_pct']) for r in ok if 'road_err_pct' in r]):.2f} %"
+                     if any("road_err_pct" in r for r in ok) else ""))
         else:
             print(f"{label}: {method:9s} converged 0/{n}")
 
@@ -216,6 +226,8 @@ def _fmt(r: dict) -> str:
     text = (f"{r['scene']:18s} {r['method']:9s} VP1 {r['vp1_deg']:6.2f} deg  VP2 {r['vp2_deg']:6.2f} deg  "
             f"focal {r['focal_signed']:+7.3f}  ratio mean {r['ratio_mean']:.4f} median {r['ratio_median']:.4f}  "
             f"after {r['seconds']:5.1f} s  {r['fps']:5.0f} fps")
+    if "road_err_pct" in r:
+        text += f"  road err {r['road_err_pct']:+.2f} %"
     if "vs_render_mean" in r:
         text += (f"  | vs render cam {r['vs_render_mean']:.4f} / {r['vs_render_median']:.4f}"
                  f"  (render cam {r['render_mean']:.4f} / {r['render_median']:.4f})")
