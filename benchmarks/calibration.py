@@ -211,11 +211,12 @@ def _summary(rows: list[dict], methods: list[str], label: str, key: str = "ratio
             continue
         if ok:
             means = np.array([r[key] for r in ok])
+            road = [abs(r["road_err_pct"]) for r in ok if "road_err_pct" in r]
             print(f"{label}: {method:9s} converged {len(ok)}/{n}  ratio error over scenes: mean {means.mean():.4f} "
-                  f"median {np.median(means):.4f}  VP1 {np.mean([r['vp1_deg'] for r in ok]):.2f} deg  "
-                  f"VP2 {np.mean([r['vp2_deg'] for r in ok]):.2f} deg  focal {np.mean([r['focal_err'] for r in ok]):.3f}"
-                  + (f"  road err mean |.| {np.mean([abs(r['road_err_pct']) for r in ok if 'road_err_pct' in r]):.2f} %"
-                     if any("road_err_pct" in r for r in ok) else ""))
+                  f"median {np.median(means):.4f}  VP1 {np.mean([r['vp1_deg'] for r in ok]):.3f} deg  "
+                  f"VP2 {np.mean([r['vp2_deg'] for r in ok]):.2f} deg  "
+                  f"focal {np.mean([r['focal_err'] for r in ok]):.3f}" + (f"  road err mean |.| {np.mean(road):.2f} %"
+                                                                          if road else ""))
         else:
             print(f"{label}: {method:9s} converged 0/{n}")
 
