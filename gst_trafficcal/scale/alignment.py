@@ -85,6 +85,7 @@ class Observation:
     track_id: int = 0
     type_probs: dict | None = None
     body_shape: str = "box"  # the body the 3D box that gave b holds (tracking.shapes; "box" = the plain box)
+    roll: float = 0.0  # radians: box and b are in the image turned by −roll about the principal point (scale.roll)
 
 
 def heading_from_track(cam: Camera, points_px) -> float:

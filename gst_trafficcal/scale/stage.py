@@ -48,7 +48,9 @@ def sighting_from_fields(object_id: int, label: str, box: tuple[float, float, fl
                     body_shape=str(fields.get("body_shape", "box")),
                     stretched=fields.get("proportions") == "stretched",
                     hull=None if hull is None else np.asarray(hull, np.float64).reshape(-1, 2),
-                    silhouette=bool(fields.get("silhouette", False)))
+                    silhouette=bool(fields.get("silhouette", False)),
+                    derolled_box=tuple(fields["derolled_box"]) if base is not None and "derolled_box" in fields
+                    else None, roll=float(fields.get("roll", 0.0)) if base is not None else 0.0)
 
 
 def upstream_has_scale(cal: Calibration | None) -> bool:

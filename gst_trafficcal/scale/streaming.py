@@ -46,6 +46,7 @@ from ..geometry import Camera
 from ..tracking.box3d import TypicalHeight
 from .alignment import AlignModel, Observation, align, align_model
 from .estimate import DEFAULT_IOU_THRESHOLD, LogDensity, kde_mode
+from .roll import derolled_box, derolled_camera, derolled_points, tilt_to_use
 
 #: matched vehicles kept whole (their λ_ij, for diagnostics and benchmarks); the density and the agreement count use
 #: every vehicle matched, in a form that does not grow with them
@@ -82,6 +83,8 @@ class Sighting:
     hull: np.ndarray | None = None  # Kx2 convex hull, pixels: a sighting before the vanishing points were known
     silhouette: bool = False  # the hull is a segmentation's outline (car body shapes apply, tracking.tracker)
     stretched: bool = False  # a car whose plain box came out long (box3d.proportions_class): its outline is off
+    derolled_box: tuple[float, float, float, float] | None = None  # the hull's box in the image turned by −roll
+    roll: float = 0.0  # radians, the horizon's tilt that derolled_box was taken at (scale.roll)
 
 
 def length_to_width(camera: Camera, corners_px) -> float | None:
@@ -209,6 +212,7 @@ class ScaleEstimator:
             raise InputError(f"sighting selection must be one of {', '.join(SELECTIONS)}, got {select!r}")
         self.select = select
         self.camera: Camera | None = None
+        self._derolled: tuple | None = None  # (camera, roll, de-rolled camera) of the last rolled sighting
         self._tracks: dict[int, _TrackBuffer] = {}
         self._waiting: list[tuple[int, _TrackBuffer]] = []  # tracks that ended before any vanishing points
         self._reset()
@@ -329,12 +333,15 @@ class ScaleEstimator:
         if silhouette and len(first) >= TrackerConfig.shape_fits:
             self._early_heights.add(float(np.median(fits.params[0, first, 4])))
         boxes = boxes_from_fits(self.camera, fits, np.full(len(early), k))
+        roll = tilt_to_use(self.camera)
         out = []
         for j, e in enumerate(early):
             base = base_centre(boxes.corners_px[j]) if boxes.valid[j] else None
             if base is not None:
+                rolled = {} if roll is None else {"derolled_box": derolled_box(e.hull, self.camera.pp, roll),
+                                                  "roll": roll}
                 out.append(replace(e, base=base, corners=boxes.corners_px[j], body_shape=fits.names[k], hull=None,
-                                   stretched=stretched))
+                                   stretched=stretched, **rolled))
         heading = buf.heading
         if heading == 0 and len(out) >= 2:
             try:
@@ -361,13 +368,26 @@ class ScaleEstimator:
         return chosen
 
     def _observation(self, s: Sighting, probs: dict | None) -> Observation:
-        return Observation(box=tuple(float(v) for v in s.box), base=(float(s.base[0]), float(s.base[1])),
-                           heading=1.0 if s.heading > 0 else -1.0, track_id=int(s.track_id), type_probs=probs,
-                           body_shape=s.body_shape)
+        """The sighting as aligned: under a rolled camera, its hull's box and base in the de-rolled image."""
+        box, base, roll = s.box, (float(s.base[0]), float(s.base[1])), 0.0
+        if s.derolled_box is not None and s.roll:
+            box, roll = s.derolled_box, float(s.roll)
+            base = tuple(float(v) for v in derolled_points(base, self.camera.pp, roll)[0])
+        return Observation(box=tuple(float(v) for v in box), base=base, heading=1.0 if s.heading > 0 else -1.0,
+                           track_id=int(s.track_id), type_probs=probs, body_shape=s.body_shape, roll=roll)
+
+    def _camera_for(self, roll: float) -> Camera:
+        """The camera the boxes of ``roll`` are in (the de-rolled camera of the last tilt is kept)."""
+        if not roll:
+            return self.camera
+        if self._derolled is None or self._derolled[0] is not self.camera or self._derolled[1] != roll:
+            self._derolled = (self.camera, roll, derolled_camera(self.camera, roll))
+        return self._derolled[2]
 
     def _align(self, model: AlignModel, obs: Observation, refine: bool):
         try:
-            return align(self.camera, model, obs, renderer=self.renderer, refine_base=refine, loose=self.loose)
+            return align(self._camera_for(obs.roll), model, obs, renderer=self.renderer, refine_base=refine,
+                         loose=self.loose)
         except GeometryError as exc:
             self._n_geometry_failures += 1
             self._geometry_reason = str(exc)
