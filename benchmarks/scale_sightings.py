@@ -122,11 +122,16 @@ def variant_sightings(records: list[Record], variant: str) -> list[tuple[int, fl
     (a perfect classifier: each sighting's type probabilities one-hot on the renderer's model, so only vehicles of a
     catalogue type are aligned, each with its own model — what a fine-grained classifier could give at best),
     exact_sides / exact_ends (the renderer's left and right edges / top and bottom edges only, the detector's
-    other two: which pair of edges the error comes from)."""
+    other two: which pair of edges the error comes from), axis_box (the image's own boxes also under a rolled
+    camera, as before stop 39: no de-rolled boxes).  Every variant that swaps a box in aligns it in the image's own
+    axes (the renderer's boxes are axis-aligned)."""
     shift = scene_edge_shift(records) if variant == "shifted_box" else None
+    own_axes = variant not in ("chain", "true_type", "exact_base")
     out = []
     for r in records:
         s = r.sighting
+        if own_axes and getattr(s, "derolled_box", None) is not None:
+            s = replace(s, derolled_box=None, roll=0.0)
         if shift is not None:
             s = replace(s, box=tuple(float(v) for v in np.add(s.box, shift)))
         if variant.endswith("true_type"):
