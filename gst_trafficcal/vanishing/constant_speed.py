@@ -211,10 +211,10 @@ def vp1_across_lines(vp1: np.ndarray, centroid: np.ndarray, lines: np.ndarray, w
     where the tracks' ``lines`` (N, 3 homogeneous, image pixels) pass closest: the least pseudo-Huber sum of their
     weighted distances in pixels (scale half a pixel per 960 of width), searched within ± ``span`` such pixels.
 
-    The Diamond Space's peak lies 0.5–0.8 px across the lanes from where the tracks meet on the synth scenes
-    (its refinement weighs the lines' algebraic, not geometric, residuals), and along the lanes that costs
-    1–2.5 % of road length on views whose VP1 is near the image; :func:`vp1_along_lanes` then searches along a
-    line that misses VP1 (docs/vpdetect.md, "Stop 39")."""
+    The Diamond Space's peak lies 0.5–0.8 px across the lanes from the true VP1 on the synth scenes, although the
+    tracks' lines pass within 0.1–0.4 px of it (its refinement weighs the lines' algebraic residuals, not their
+    distances), and :func:`vp1_along_lanes` then searches along a line that misses VP1: along the lanes that costs
+    1–2.5 % of road length on views whose VP1 is near the image (docs/vpdetect.md, "Stop 39")."""
     vp1 = np.asarray(vp1, np.float64).reshape(2)
     e = vp1 - np.asarray(centroid, np.float64).reshape(2)
     dist = float(np.linalg.norm(e))
