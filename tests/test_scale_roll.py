@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import cv2
 import numpy as np
@@ -107,7 +108,7 @@ def test_derolled_boxes_give_the_same_scale_whatever_the_roll(models):
     assert abs(turned[1]) < abs(axis[1]) and abs(turned[1]) < 0.005, (axis, turned)
 
 
-def test_the_tracker_publishes_derolled_boxes_only_under_a_rolled_camera():
+def test_the_tracker_publishes_derolled_boxes_only_for_outlines_under_a_rolled_camera():
     track = Track(1, TrackState.CONFIRMED)
     # a 4.4 x 1.8 x 1.5 m box 20 m down the road (corner index: bit 0 along, bit 1 across, bit 2 up)
     X = np.array([[20.0 + 4.4 * (i & 1), 1.8 * ((i >> 1) & 1), 1.5 * ((i >> 2) & 1)] for i in range(8)])
@@ -117,7 +118,9 @@ def test_the_tracker_publishes_derolled_boxes_only_under_a_rolled_camera():
         hull = cv2.convexHull(corners.astype(np.float32)).reshape(-1, 2).astype(np.float64)
         obs = Observation(t=1.0, box=np.r_[hull.min(0), hull.max(0)], det_box=np.r_[hull.min(0), hull.max(0)],
                           score=0.9, label="car", hull=hull, corners_px=corners, ref_px=corners[:2].mean(0),
-                          ref_road=np.array([3.0, 0.5]))
+                          ref_road=np.array([3.0, 0.5]), silhouette=True)
+        # a background model's hull (not a segmentation's outline) keeps the detector's box: not what was measured
+        assert "derolled_box" not in vehicle_fields(track, replace(obs, silhouette=False), cam)
         fields = vehicle_fields(track, obs, cam)
         assert ("derolled_box" in fields) == (roll != 0.0)
         if roll:

@@ -5,7 +5,9 @@ the image, and an axis-aligned box of a tilted body takes its extent from the bo
 soft outline rounds off: on the strong_roll preset (12° of roll) the boxes came out narrow and λ 4.6 % high, on the
 same scene without roll −0.2 % (docs/bbscale_streaming.md, "Stop 39").  Turning the hull and the camera alike by
 the horizon's tilt keeps the geometry (a rotation of the image plane about the principal point is a rotation of the
-camera about its optical axis) and lets the boxes be taken where the vehicles stand upright.
+camera about its optical axis) and lets the boxes be taken where the vehicles stand upright.  Only for a
+segmentation's outlines (the case measured); a rectangle detector's box, or a background model's hull, is aligned as
+it is.
 """
 
 from __future__ import annotations

@@ -333,7 +333,7 @@ class ScaleEstimator:
         if silhouette and len(first) >= TrackerConfig.shape_fits:
             self._early_heights.add(float(np.median(fits.params[0, first, 4])))
         boxes = boxes_from_fits(self.camera, fits, np.full(len(early), k))
-        roll = tilt_to_use(self.camera)
+        roll = tilt_to_use(self.camera) if silhouette else None  # de-rolled boxes: segmentation outlines only
         out = []
         for j, e in enumerate(early):
             base = base_centre(boxes.corners_px[j]) if boxes.valid[j] else None

@@ -41,7 +41,7 @@ def frame_sightings(result, detections, camera, box: str = "detector") -> list[S
         o = track.last
         base = base_centre(o.corners_px) if camera is not None and o.corners_px is not None else None
         b = o.box if box == "hull" else detections.boxes[i]
-        rolled = {} if roll is None or base is None or o.hull is None else \
+        rolled = {} if roll is None or base is None or o.hull is None or not o.silhouette else \
             {"derolled_box": derolled_box(o.hull, camera.pp, roll), "roll": roll}
         out.append(Sighting(int(track.id), float(o.t), tuple(float(v) for v in b), base,
                             float(track.direction), str(detections.labels[i]), bool(o.occluded),

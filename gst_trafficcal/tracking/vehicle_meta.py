@@ -27,9 +27,10 @@ Fields (all present unless noted):
 * ``hull`` (K pairs of doubles) and ``silhouette`` (boolean), only before a calibration with vanishing points:
   the tracked convex hull and whether it is a segmentation's outline, so that bbscale can build the 3D box of
   vehicles seen before the calibration once it arrives;
-* ``derolled_box`` (4 doubles) and ``roll`` (double, radians), only with a 3D box under a camera whose horizon is
-  tilted by at least ``scale.roll.MIN_TILT_DEG``: the hull's box in the image turned by −roll about the principal
-  point, where the vehicle stands upright (bbscale aligns these: ``scale/roll.py``);
+* ``derolled_box`` (4 doubles) and ``roll`` (double, radians), only with a 3D box from a segmentation's outline
+  (``silhouette``) under a camera whose horizon is tilted by at least ``scale.roll.MIN_TILT_DEG``: the hull's box in
+  the image turned by −roll about the principal point, where the vehicle stands upright (bbscale aligns these:
+  ``scale/roll.py``; measured with vehicleseg's outlines, so other hulls keep the detector's box);
 * ``calibration_id`` (string): id of the calibration used ("" before there is one).
 """
 
@@ -65,7 +66,7 @@ def vehicle_fields(track: Track, obs: Observation, camera: Camera | None, calibr
         fields["road_x"], fields["road_y"] = (float(v) for v in obs.ref_road)
         if camera.scale is not None:
             fields["world_x"], fields["world_y"] = (float(v) * camera.scale for v in obs.ref_road)
-        roll = tilt_to_use(camera) if obs.hull is not None else None
+        roll = tilt_to_use(camera) if obs.hull is not None and obs.silhouette else None
         if roll is not None:
             fields["derolled_box"] = list(derolled_box(obs.hull, camera.pp, roll))
             fields["roll"] = float(roll)
