@@ -78,14 +78,11 @@ def score(scene: Path, method: str, max_duration: float, config: dict | None = N
     )
     rep = evaluate_calibration(load_gt_data(scene / "gt_data.pkl"), cam)
     row.update(ratio_mean=rep.ratio_rel_pct.mean / 100, ratio_median=rep.ratio_rel_pct.median / 100)
-    if (scene / "frames.jsonl").is_file() and truth.scale:
-        # how much the vanishing points alone stretch the road: the speed error a perfect scale would leave
-        # (benchmarks/vp1_constant_speed.py; the end-to-end benchmark's "road err % at true λ")
-        from vp1_constant_speed import reference_pairs, road_distance_error
+    from vp1_constant_speed import vp_road_error  # what the VPs alone stretch the road by (scenes with frames.jsonl)
 
-        pairs = reference_pairs(scene)
-        if len(pairs[2]):
-            row["road_err_pct"] = road_distance_error(pairs, cam, truth.scale)
+    road = vp_road_error(scene, cam, truth.scale)
+    if road is not None:
+        row["road_err_pct"] = road
     return row
 
 

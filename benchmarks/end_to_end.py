@@ -89,7 +89,7 @@ class Row:
     ratio_err_scene: float | None = None  # same, the segments' lengths as the scene's camera measures them
     reference_ratio_err: float | None = None  # same for the scene's true / rendering camera
     scale_err_pct: float | None = None  # λ / λ_scene − 1
-    road_err_pct: float | None = None  # the run's VPs' road distances at λ_scene against the truth (vp_road_error)
+    road_err_pct: float | None = None  # the VPs alone: road distances at λ_scene (vp1_constant_speed.vp_road_error)
     vehicles: int = 0
     measured: int = 0
     unmeasured: dict[str, int] = field(default_factory=dict)
@@ -272,6 +272,8 @@ def run_scene(scene: Scene, mode: str, work: Path, fresh: bool = False, detector
         return row
     row.ratio_err = evaluate_calibration(gt, cam).ratio_rel_pct.mean / 100
     row.ratio_err_scene = evaluate_calibration(as_measured_by(gt, reference.camera), cam).ratio_rel_pct.mean / 100
+    from vp1_constant_speed import vp_road_error
+
     row.road_err_pct = vp_road_error(scene.folder, cam, reference.camera.scale)
     if not row.has_scale or not (out / "system.json").is_file():
         return row
@@ -286,20 +288,6 @@ def run_scene(scene: Scene, mode: str, work: Path, fresh: bool = False, detector
     row.errors_kmh = [float(v) for v in sp.errors_abs_kmh]
     row.recall, row.false_positives, row.matched_valid = sp.recall, sp.false_positives, sp.matched_valid
     return row
-
-
-def vp_road_error(folder: Path, camera, true_scale: float | None) -> float | None:
-    """How much the run's vanishing points alone stretch the road (%): the distances the rendered vehicles'
-    reference points travel in five frames, measured with ``camera``'s VPs at the scene's true λ, against the
-    renderer's (``benchmarks/vp1_constant_speed.py``'s "road distance error at the true scale"). With the λ error
-    beside it, it splits a fully automatic run's speed error into its two parts: the speeds are off by about
-    (1 + λ err)(1 + road err) − 1.  None without per-frame truth (frames.jsonl) or a true scale."""
-    from vp1_constant_speed import reference_pairs, road_distance_error
-
-    if not true_scale or not (folder / "frames.jsonl").is_file():
-        return None
-    pairs = reference_pairs(folder)
-    return road_distance_error(pairs, camera, true_scale) if len(pairs[2]) else None
 
 
 def as_measured_by(gt, camera):

@@ -83,6 +83,18 @@ def road_distance_error(pairs, camera: Camera, scale: float) -> float:
     return float(100 * np.median(measured / d - 1))
 
 
+def vp_road_error(folder: Path, camera: Camera, true_scale: float | None) -> float | None:
+    """How much ``camera``'s vanishing points alone stretch the road (%): :func:`road_distance_error` of the scene's
+    :func:`reference_pairs` at its true λ. With the λ error beside it, it splits a fully automatic run's speed
+    error into its two parts (the end-to-end benchmark's "road err % at true λ"; the calibration benchmark prints it
+    too): the speeds are off by about (1 + λ err)(1 + road err) − 1.  None without per-frame truth (frames.jsonl),
+    a true scale or a vehicle's reference points."""
+    if not true_scale or not (folder / "frames.jsonl").is_file():
+        return None
+    pairs = reference_pairs(folder)
+    return road_distance_error(pairs, camera, true_scale) if len(pairs[2]) else None
+
+
 def evaluate(scene: Path) -> Row:
     row = Row(scene.name, scene.resolve().parent.name)
     truth = load_calibration(scene / "calibration.json").camera

@@ -12,18 +12,18 @@ def test_road_error_is_the_vanishing_points_part_alone(load_benchmark, cuboid_cl
     b = load_benchmark("end_to_end")
     vp1 = load_benchmark("vp1_constant_speed")
     cam = load_calibration(cuboid_clip_dense / "calibration.json").camera
-    assert abs(b.vp_road_error(cuboid_clip_dense, cam, cam.scale)) < 0.05
+    assert abs(vp1.vp_road_error(cuboid_clip_dense, cam, cam.scale)) < 0.05
     # the run's own λ does not enter: only its vanishing points, measured at the scene's true scale
-    assert abs(b.vp_road_error(cuboid_clip_dense, cam.with_scale(2 * cam.scale), cam.scale)) < 0.05
+    assert abs(vp1.vp_road_error(cuboid_clip_dense, cam.with_scale(2 * cam.scale), cam.scale)) < 0.05
     # VP2 moved out along the horizon (a longer focal length): the road is stretched, by what vp1_constant_speed's
     # road distance error says for the same reference points
     moved = Camera(cam.vp1, cam.vp1 + 1.3 * (cam.vp2 - cam.vp1), cam.pp)
-    err = b.vp_road_error(cuboid_clip_dense, moved, cam.scale)
+    err = vp1.vp_road_error(cuboid_clip_dense, moved, cam.scale)
     assert abs(err) > 1.0
     assert err == vp1.road_distance_error(vp1.reference_pairs(cuboid_clip_dense), moved, cam.scale)
     # nothing to measure against: no per-frame truth, or no true scale
-    assert b.vp_road_error(tmp_path, cam, cam.scale) is None
-    assert b.vp_road_error(cuboid_clip_dense, cam, None) is None
+    assert vp1.vp_road_error(tmp_path, cam, cam.scale) is None
+    assert vp1.vp_road_error(cuboid_clip_dense, cam, None) is None
 
 
 def test_scene_table_shows_both_parts(load_benchmark):
