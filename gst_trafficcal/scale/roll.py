@@ -55,3 +55,11 @@ def tilt_to_use(cam: Camera | None) -> float | None:
         return None
     a = horizon_tilt(cam)
     return a if abs(math.degrees(a)) >= MIN_TILT_DEG else None
+
+
+def derolled_fields(cam: Camera | None, hull, silhouette: bool) -> dict:
+    """``derolled_box`` and ``roll`` of a sighting (the tracker's structure, the scale stage's :class:`Sighting`)
+    when ``cam``'s horizon is tilted enough and ``hull`` is a segmentation's outline (``silhouette``, the case
+    measured); else nothing."""
+    tilt = tilt_to_use(cam) if hull is not None and silhouette else None
+    return {} if tilt is None else {"derolled_box": derolled_box(hull, cam.pp, tilt), "roll": tilt}

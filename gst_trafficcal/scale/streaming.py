@@ -46,7 +46,7 @@ from ..geometry import Camera
 from ..tracking.box3d import TypicalHeight
 from .alignment import AlignModel, Observation, align, align_model
 from .estimate import DEFAULT_IOU_THRESHOLD, LogDensity, kde_mode
-from .roll import derolled_box, derolled_camera, derolled_points, tilt_to_use
+from .roll import derolled_camera, derolled_fields, derolled_points
 
 #: matched vehicles kept whole (their λ_ij, for diagnostics and benchmarks); the density and the agreement count use
 #: every vehicle matched, in a form that does not grow with them
@@ -333,15 +333,12 @@ class ScaleEstimator:
         if silhouette and len(first) >= TrackerConfig.shape_fits:
             self._early_heights.add(float(np.median(fits.params[0, first, 4])))
         boxes = boxes_from_fits(self.camera, fits, np.full(len(early), k))
-        roll = tilt_to_use(self.camera) if silhouette else None  # de-rolled boxes: segmentation outlines only
         out = []
         for j, e in enumerate(early):
             base = base_centre(boxes.corners_px[j]) if boxes.valid[j] else None
             if base is not None:
-                rolled = {} if roll is None else {"derolled_box": derolled_box(e.hull, self.camera.pp, roll),
-                                                  "roll": roll}
                 out.append(replace(e, base=base, corners=boxes.corners_px[j], body_shape=fits.names[k], hull=None,
-                                   stretched=stretched, **rolled))
+                                   stretched=stretched, **derolled_fields(self.camera, e.hull, silhouette)))
         heading = buf.heading
         if heading == 0 and len(out) >= 2:
             try:

@@ -17,7 +17,7 @@ import numpy as np
 from ..calibration import Calibration
 from ..errors import InputError
 from ..tracking.tracker import body_shape_name
-from .roll import derolled_box, tilt_to_use
+from .roll import derolled_fields
 from .streaming import ScaleEstimator, ScaleResult, Sighting, base_centre
 
 
@@ -33,7 +33,6 @@ def frame_sightings(result, detections, camera, box: str = "detector") -> list[S
     if box not in BOX_SOURCES:
         raise InputError(f"box must be one of {', '.join(BOX_SOURCES)}, got {box!r}")
     out = []
-    roll = tilt_to_use(camera)
     for i in range(len(detections)):
         track = result.track_of(i)
         if track is None:
@@ -41,8 +40,7 @@ def frame_sightings(result, detections, camera, box: str = "detector") -> list[S
         o = track.last
         base = base_centre(o.corners_px) if camera is not None and o.corners_px is not None else None
         b = o.box if box == "hull" else detections.boxes[i]
-        rolled = {} if roll is None or base is None or o.hull is None or not o.silhouette else \
-            {"derolled_box": derolled_box(o.hull, camera.pp, roll), "roll": roll}
+        rolled = derolled_fields(camera, o.hull, o.silhouette) if base is not None else {}
         out.append(Sighting(int(track.id), float(o.t), tuple(float(v) for v in b), base,
                             float(track.direction), str(detections.labels[i]), bool(o.occluded),
                             bool(o.truncated), corners=o.corners_px if base is not None else None,

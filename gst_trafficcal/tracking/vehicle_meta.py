@@ -39,7 +39,7 @@ from __future__ import annotations
 from typing import Any
 
 from ..geometry import Camera
-from ..scale.roll import derolled_box, tilt_to_use
+from ..scale.roll import derolled_fields
 from .tracker import Observation, Track, body_shape_name
 
 STRUCTURE = "trafficcal-vehicle"
@@ -66,8 +66,6 @@ def vehicle_fields(track: Track, obs: Observation, camera: Camera | None, calibr
         fields["road_x"], fields["road_y"] = (float(v) for v in obs.ref_road)
         if camera.scale is not None:
             fields["world_x"], fields["world_y"] = (float(v) * camera.scale for v in obs.ref_road)
-        roll = tilt_to_use(camera) if obs.hull is not None and obs.silhouette else None
-        if roll is not None:
-            fields["derolled_box"] = list(derolled_box(obs.hull, camera.pp, roll))
-            fields["roll"] = float(roll)
+        for key, value in derolled_fields(camera, obs.hull, obs.silhouette).items():
+            fields[key] = list(value) if key == "derolled_box" else float(value)  # lists: the structure's text path
     return fields
