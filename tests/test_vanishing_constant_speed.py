@@ -126,13 +126,17 @@ def test_vp1_across_lines_moves_vp1_across_the_lanes_to_where_the_tracks_meet():
     across = np.array([-along[1], along[0]])
     for off in (-1.5, 0.8):
         start = cam.vp1 + off * across
-        moved = vp1_across_lines(start, centre, lines, np.ones(len(lines)), image_width=640)
+        moved, offset = vp1_across_lines(start, centre, lines, np.ones(len(lines)), image_width=640)
+        e = (start - centre) / np.linalg.norm(start - centre)
+        assert offset == pytest.approx((moved - start) @ np.array([-e[1], e[0]]))  # the signed move it reports
         assert abs((moved - cam.vp1) @ across) < 0.15, (off, moved - cam.vp1)
         assert abs((moved - start) @ along) < 0.05 * abs(off)  # perpendicular to the centroid's line only
     # lines that do not say where (none, or VP1 far outside the search) leave VP1 as it is
     far = cam.vp1 + 40 * across
-    assert np.array_equal(vp1_across_lines(far, centre, lines, np.ones(len(lines)), 640), far)
-    assert np.array_equal(vp1_across_lines(cam.vp1, centre, np.zeros((0, 3)), np.zeros(0), 640), cam.vp1)
+    for vp, lns in ((far, lines), (cam.vp1, np.zeros((0, 3)))):
+        kept, offset = vp1_across_lines(vp, centre, lns, np.ones(len(lns)), 640)
+        assert np.array_equal(kept, vp) and offset == 0.0
+
 
 def test_klt_tracks_of_a_rendered_scene_put_vp1_where_it_is():
     """OpenCV's KLT on the rendered cuboid traffic (exact perspective, constant speeds): the tracks' projective

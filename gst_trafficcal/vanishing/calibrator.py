@@ -277,11 +277,8 @@ class VPCalibrator:
             return peak
         vp1 = fit.vp1
         if self.cfg.vp1_across_lines:
-            centroid = motion.points.mean(axis=0)
-            vp1 = vp1_across_lines(fit.vp1, centroid, self.ds1.lines @ self.ds1.T, self.ds1.weights,
-                                   self.image_size[0])
-            e = fit.vp1 - centroid
-            self.across_px = float((vp1 - fit.vp1) @ (np.array([-e[1], e[0]]) / np.linalg.norm(e)))
+            vp1, self.across_px = vp1_across_lines(fit.vp1, motion.points.mean(axis=0), self.ds1.lines @ self.ds1.T,
+                                                   self.ds1.weights, self.image_size[0])
         point = np.append(vp1, 1.0)
         return replace(peak, point=point / np.linalg.norm(point))
 

@@ -206,10 +206,12 @@ def vp1_along_lanes(vp1: np.ndarray, motion: LaneMotion, image_width: float, min
 
 
 def vp1_across_lines(vp1: np.ndarray, centroid: np.ndarray, lines: np.ndarray, weights: np.ndarray,
-                     image_width: float, span: float = 4.0, steps: int = 801) -> np.ndarray:
+                     image_width: float, span: float = 4.0, steps: int = 801) -> tuple[np.ndarray, float]:
     """VP1 moved *across* the lanes — perpendicular to the line from the tracks' ``centroid`` through it — to
     where the tracks' ``lines`` (N, 3 homogeneous, image pixels) pass closest: the least pseudo-Huber sum of their
     weighted distances in pixels (scale half a pixel per 960 of width), searched within ± ``span`` such pixels.
+    Returns the point and the signed move in pixels (+: along (−e_y, e_x), e the unit direction from the centroid
+    to VP1 — to the right of it on screen, y down).
 
     The Diamond Space's peak lies 0.5–0.8 px across the lanes from the true VP1 on the synth scenes, although the
     tracks' lines pass within 0.1–0.4 px of it (its refinement weighs the lines' algebraic residuals, not their
@@ -221,7 +223,7 @@ def vp1_across_lines(vp1: np.ndarray, centroid: np.ndarray, lines: np.ndarray, w
     lines = np.asarray(lines, np.float64).reshape(-1, 3)
     w = np.asarray(weights, np.float64).reshape(-1)
     if dist < 1e-9 or not len(lines):
-        return vp1
+        return vp1, 0.0
     n = np.array([-e[1], e[0]]) / dist
     unit = image_width / 960.0
     norm = np.linalg.norm(lines[:, :2], axis=1)
@@ -233,5 +235,5 @@ def vp1_across_lines(vp1: np.ndarray, centroid: np.ndarray, lines: np.ndarray, w
     cost = (w[None, :] * (np.sqrt(1.0 + z * z) - 1.0)).sum(axis=1)
     k = int(np.argmin(cost))
     if k in (0, steps - 1):  # the lines do not say where within the search: leave VP1 as it is
-        return vp1
-    return pts[k]
+        return vp1, 0.0
+    return pts[k], float(offsets[k])
