@@ -33,3 +33,34 @@ def test_mixed_surfaces_change_only_the_road_surface():
         scenario_from_dict(mixed.scenario)  # valid
         assert mixed.seed == SEED_BASE + i >= 1000
     assert kinds["asphalt"] >= 10 and kinds["worn"] >= 10 and kinds["concrete"] >= 10, kinds
+
+
+def test_overhead_profile_puts_the_camera_above_a_lane_looking_down_the_road():
+    """The ``overhead`` profile (BrnoCompSpeed's kind of view): every recipe valid, the camera within 2 m of the
+    centre of a lane with traffic, and (on a straight road) the lane under it, somewhere 10-80 m ahead, in the picture."""
+    import numpy as np
+
+    from gst_trafficcal.synth.camera import build_camera
+    from gst_trafficcal.synth.scene import RoadLayout
+
+    resolutions, straight = Counter(), 0
+    for i in range(40):
+        recipe = random_recipe(i, 10.0, profile="overhead")
+        scen = scenario_from_dict(recipe.scenario)
+        lay = RoadLayout(scen.road)
+        centres = [lay.lane_centre(d, k) for d in scen.traffic.directions for k in range(scen.road.lanes)]
+        assert min(abs(scen.camera.offset - c) for c in centres) <= 2.0
+        assert 6.0 <= scen.camera.height <= 14.0 and scen.camera.hfov >= 30.0
+        resolutions[tuple(scen.camera.resolution)] += 1
+        assert random_recipe(i, 10.0).scenario["traffic"] == recipe.scenario["traffic"]  # only view and light
+        if scen.road.curve_radius:
+            continue
+        cam = build_camera(scen.camera)
+        ahead = np.array([[x, scen.camera.offset, 0.0] for x in np.linspace(10.0, 80.0, 15)])
+        uv = cam.project(ahead)
+        w, h = scen.camera.resolution
+        inside = (uv[:, 0] > 0) & (uv[:, 0] < w) & (uv[:, 1] > 0) & (uv[:, 1] < h)
+        assert inside.sum() >= 3, (i, uv)
+        straight += 1
+    assert straight >= 25, straight
+    assert resolutions[(1920, 1080)] >= 8, resolutions

@@ -59,7 +59,7 @@ class SceneRecipe:
     road_grey: float | None = None  # measured after rendering (:func:`road_grey`)
 
 
-PROFILES = ("base", "outline")
+PROFILES = ("base", "outline", "overhead")
 SURFACES = ("mixed", "asphalt")
 OUTLINE_RESOLUTIONS = ((960, 540), (1280, 720), (1920, 1080))
 
@@ -95,6 +95,32 @@ def outline_lighting(scen, rng: np.random.Generator) -> None:
     scen.camera.resolution = list(OUTLINE_RESOLUTIONS[int(rng.integers(len(OUTLINE_RESOLUTIONS)))])
     tr = scen.traffic
     tr.flow = float(min(2500.0, tr.flow * rng.uniform(1.0, 1.6)))
+
+
+def overhead_view(scen, rng: np.random.Generator) -> None:
+    """The ``overhead`` profile's camera, light and picture, drawn over a base recipe: a camera above the lanes
+    looking down the road, as in every BrnoCompSpeed view, where the first models outlined approaching vehicles a
+    work pixel behind where they are and took soft shadows beside light cars into them (docs/tracking.md "The
+    replays' boxes trail their vehicles") -- large, near vehicles seen head-on and from behind, at up to 1080p,
+    under overcast light and sun from any side."""
+    from gst_trafficcal.synth.scene import RoadLayout
+
+    scen.road.curve_radius = 0.0 if rng.random() < 0.8 else scen.road.curve_radius
+    scen.road.lanes = int(rng.integers(1, 4))
+    lane = RoadLayout(scen.road).lane_centre(int(rng.choice(scen.traffic.directions)),
+                                             int(rng.integers(scen.road.lanes)))
+    cam = scen.camera
+    cam.height = float(rng.uniform(6.0, 14.0))
+    cam.offset = float(lane + rng.uniform(-2.0, 2.0))
+    cam.pan = float(rng.normal(0.0, 4.0))
+    cam.tilt = float(np.clip(rng.normal(10.0 + cam.height * 1.2, 4.0), 8.0, 40.0))
+    cam.roll = float(np.clip(rng.normal(0.0, 3.0), -8.0, 8.0))
+    cam.hfov = float(max(30.0, rng.uniform(28.0, 60.0)))  # the scenario allows 30-90
+    cam.resolution = list(OUTLINE_RESOLUTIONS[int(rng.integers(len(OUTLINE_RESOLUTIONS)))])
+    light = scen.lighting
+    kind = str(rng.choice(["overcast", "day", "low_sun", "dusk"], p=[0.4, 0.35, 0.15, 0.1]))
+    light.preset = "day" if kind == "low_sun" else kind
+    light.sun_elevation = float(rng.uniform(8, 25) if kind in ("low_sun", "dusk") else rng.uniform(25, 70))
 
 
 def random_recipe(index: int, duration: float = 14.0, work_width: int = 480, profile: str = "base",
@@ -153,6 +179,8 @@ def random_recipe(index: int, duration: float = 14.0, work_width: int = 480, pro
     im.vignette = float(rng.uniform(0.0, 0.35))
     if profile == "outline":
         outline_lighting(scen, np.random.default_rng([seed, 17]))
+    elif profile == "overhead":
+        overhead_view(scen, np.random.default_rng([seed, 23]))
     elif profile != "base":
         raise ValueError(f"unknown data profile {profile!r} (one of {', '.join(PROFILES)})")
     if surfaces == "mixed":
@@ -279,7 +307,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--duration", type=float, default=14.0)
     ap.add_argument("--work-width", type=int, default=480)
     ap.add_argument("--profile", choices=PROFILES, default="base",
-                    help="outline: low sun, overcast, dusk, up to 1080p, busier (see outline_lighting)")
+                    help="outline: low sun, overcast, dusk, up to 1080p, busier (see outline_lighting); overhead: a "
+                         "camera above the lanes looking down the road, up to 1080p (see overhead_view)")
     ap.add_argument("--surfaces", choices=SURFACES, default="mixed",
                     help="mixed: dark asphalt to light concrete (road_surface); asphalt: the first model's data")
     args = ap.parse_args(argv)
