@@ -43,7 +43,7 @@ from .fileio import atomic_write
 
 EVENT_FIELDS: tuple[str, ...] = (
     "id", "label", "first_timestamp_s", "last_timestamp_s", "speed_kmh", "reason", "lane", "direction",
-    "calibration_id", "n_samples", "length_m", "width_m", "height_m", "first_time", "last_time",
+    "calibration_id", "n_samples", "length_m", "width_m", "height_m", "first_time", "last_time", "run",
 )
 
 TOWARDS_VP1 = "towards_vp1"
@@ -94,6 +94,8 @@ class VehicleEvent:
     height_m: float | None = None
     first_time: str | None = None  # ISO 8601 date and time of the first / last sighting, when the stream's start
     last_time: str | None = None  # time is known (clock.py)
+    run: str | None = None  # the run that wrote it (:func:`new_run_id`): runs appended to one file reuse track ids
+
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "id", int(self.id))
@@ -104,7 +106,7 @@ class VehicleEvent:
         object.__setattr__(self, "direction", direction_name(self.direction))
         object.__setattr__(self, "calibration_id", self.calibration_id or None)
         object.__setattr__(self, "n_samples", int(self.n_samples or 0))
-        for name in ("first_time", "last_time"):
+        for name in ("first_time", "last_time", "run"):
             object.__setattr__(self, name, str(getattr(self, name)) if getattr(self, name) else None)
         reason = str(self.reason or "")
         if self.speed_kmh is None and not reason:
@@ -158,6 +160,17 @@ class VehicleEvent:
             return cls(**kwargs)
         except (TypeError, ValueError) as exc:
             raise InputError(f"{where}: bad vehicle event ({exc})") from None
+
+
+def new_run_id(now: datetime | None = None) -> str:
+    """An id for one run of the speedometer: the UTC time it started and four random hex digits
+    (``20261206T053500Z-3f9a``). Every event of the run carries it, so the events of runs appended to one file
+    (whose track ids start again at 1) stay apart: (run, id) names one vehicle."""
+    import secrets
+    from datetime import timezone
+
+    now = (now or datetime.now(timezone.utc)).astimezone(timezone.utc)
+    return f"{now:%Y%m%dT%H%M%SZ}-{secrets.token_hex(2)}"
 
 
 def stream_start(events: Iterable[VehicleEvent]) -> datetime | None:
@@ -278,8 +291,24 @@ class CsvEventWriter:
         self.path = self._file.path
         self.count = 0
         self.extra_columns = tuple(extra_columns)
+        header = self._row(self.extra_columns + EVENT_FIELDS)
         if self._file.empty:
-            self._file.write_line(self._row(self.extra_columns + EVENT_FIELDS))
+            self._file.write_line(header)
+        elif append:
+            self._check_header(header)
+
+    def _check_header(self, header: str) -> None:
+        """Appending rows under another header would shift every column: refused at start, naming the file."""
+        try:
+            with open(self.path, newline="") as fh:
+                first = fh.readline()
+        except OSError as exc:
+            self._file.close()
+            raise InputError(f"{self.path}: cannot read its header to append ({exc.strerror or exc})") from None
+        if first.rstrip("\r\n") != header.rstrip("\n"):
+            self._file.close()
+            raise InputError(f"{self.path}: its columns ({first.strip()[:200]}) are not the ones written now "
+                             f"({header.strip()}); append to a new CSV file (the JSON-lines file takes both)")
 
     @staticmethod
     def _row(values: Sequence[Any]) -> str:

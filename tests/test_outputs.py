@@ -78,8 +78,43 @@ def test_events_with_the_clock_round_trip(tmp_path: Path) -> None:
             w.write(e)
     assert read_events(tmp_path / "v.jsonl").events == events and read_events_csv(tmp_path / "v.csv") == events
     # a file from before the clock fields still loads (no times)
-    old = {k: v for k, v in events[0].to_dict().items() if k not in ("first_time", "last_time")}
-    assert VehicleEvent.from_dict(old).first_time is None
+    old = {k: v for k, v in events[0].to_dict().items() if k not in ("first_time", "last_time", "run")}
+    assert VehicleEvent.from_dict(old).first_time is None and VehicleEvent.from_dict(old).run is None
+
+
+def test_a_run_id_tells_appended_runs_apart(tmp_path: Path) -> None:
+    """Each run's id (its UTC start and four random hex digits) goes with every event into both files; two runs
+    appended to one file reuse track ids, (run, id) does not."""
+    from dataclasses import replace
+    from datetime import datetime, timezone
+
+    from gst_trafficcal.outputs import new_run_id
+
+    at = datetime(2026, 12, 6, 6, 30, 5, tzinfo=timezone.utc)
+    ids = {new_run_id(at) for _ in range(20)}
+    assert all(len(i) == 21 and i.startswith("20261206T063005Z-") for i in ids) and len(ids) > 15
+    runs = [new_run_id(), new_run_id()]
+    for run in runs:
+        with EventWriters.open(tmp_path / "v.jsonl", tmp_path / "v.csv", append=True) as w:
+            for e in _events(3):
+                w.write(replace(e, run=run))
+    for read in (read_events(tmp_path / "v.jsonl").events, read_events_csv(tmp_path / "v.csv")):
+        assert [e.run for e in read] == [runs[0]] * 3 + [runs[1]] * 3
+        assert len({e.id for e in read}) == 3 and len({(e.run, e.id) for e in read}) == 6
+
+
+def test_appending_under_another_csv_header_is_refused(tmp_path: Path) -> None:
+    """A CSV written with other columns (an earlier version's, without ``run``) is not appended to: every row after
+    would sit under the wrong column. Refused at open, naming the file; the file stays as it was."""
+    path = tmp_path / "v.csv"
+    old = ",".join(f for f in EVENT_FIELDS if f != "run") + "\n1,car,0.0,1.0,50.0,,,,,0,,,,,\n"
+    path.write_text(old)
+    with pytest.raises(InputError, match=r"v\.csv: its columns .* are not the ones written now"):
+        CsvEventWriter(path, append=True)
+    assert path.read_text() == old
+    with CsvEventWriter(path) as w:  # without append the file is replaced, as before
+        w.write(_events(1)[0])
+    assert path.read_text().splitlines()[0] == ",".join(EVENT_FIELDS)
 
 
 def test_runs_appended_to_one_file_go_on_one_clock() -> None:

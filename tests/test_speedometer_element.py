@@ -298,8 +298,9 @@ def test_start_datetime_dates_every_vehicle(clip, implicit, tmp_path):
 
 def test_append_keeps_what_a_run_into_the_same_files_measured_before(clip, implicit, tmp_path):
     """append=true (a service started again into its files): the event, CSV and frame files grow, the tables of one
-    run (results-file, intervals-file) are kept beside instead of replaced, with an INFO message; trafficcal report
-    counts both runs' intervals on one clock. Without append a run replaces them."""
+    run (results-file, intervals-file) are kept beside instead of replaced, with an INFO message; each run's events
+    carry its own run id; trafficcal report counts both runs' intervals on one clock. Without append a run replaces
+    them."""
     import csv
     import sys
 
@@ -317,8 +318,14 @@ def test_append_keeps_what_a_run_into_the_same_files_measured_before(clip, impli
     assert len(both) == 2 * n
     assert [e.first_time[:16] for e in both] == ["2026-12-05T08:00"] * n + ["2026-12-05T08:01"] * n
     assert [e.speed_kmh for e in both[n:]] == [e.speed_kmh for e in both[:n]]
+    # the second run's track ids start again; its run id tells its vehicles apart
+    runs = [{e.run for e in both[:n]}, {e.run for e in both[n:]}]
+    assert all(len(r) == 1 and None not in r for r in runs) and runs[0] != runs[1]
+    assert [e.id for e in both[n:]] == [e.id for e in both[:n]] and len({(e.run, e.id) for e in both}) == 2 * n
     with open(tmp_path / "events.csv", newline="") as f:
-        assert len(list(csv.DictReader(f))) == 2 * n  # one header
+        rows = list(csv.DictReader(f))
+    assert len(rows) == 2 * n  # one header
+    assert [r["run"] for r in rows] == [e.run for e in both]
     assert (tmp_path / "frames.jsonl").read_text() == 2 * frames1
     kept = {p.name: p for p in tmp_path.glob("*.earlier-*")}
     assert sorted(kept) == sorted(p.name for p in tmp_path.iterdir() if ".earlier-2" in p.name) and len(kept) == 2

@@ -136,14 +136,16 @@ class Speedometer(TrafficcalTransform):
         self._stage = None  # ... in use: no bbscale upstream, no scale given (decided at the first frame)
         self._scaled = None  # the upstream calibration with the λ that stage found
         self._start = None  # datetime of stream time 0 (start-datetime), None while unknown
+        self._run = None  # this run's id (outputs.new_run_id), set at start
 
     # ------------------------------------------------------------------ life cycle
     def do_start(self):
         from gst_trafficcal.calibration import load_calibration
         from gst_trafficcal.measurement import SpeedMeter
-        from gst_trafficcal.outputs import VehicleOutputs
+        from gst_trafficcal.outputs import VehicleOutputs, new_run_id
 
         self._reset()
+        self._run = new_run_id()  # on every event: appended runs reuse track ids
         try:
             from gst_trafficcal.clock import NOW, parse_start_time
 
@@ -408,6 +410,12 @@ class Speedometer(TrafficcalTransform):
         return out
 
     # ------------------------------------------------------------------ outputs
+    def _stamped(self, measured):
+        """A finished vehicle's event with its date and time (start-datetime) and this run's id."""
+        from dataclasses import replace
+
+        return replace(measured.event.with_clock(self._start), run=self._run)
+
     def _emit(self, finished):
         """Post and write each finished vehicle; False (after posting an error) when a file could not be written."""
         from gst_trafficcal.errors import InputError
@@ -420,7 +428,7 @@ class Speedometer(TrafficcalTransform):
                 "tracks": self._discarded, "why": "seen only between a camera move and its notice"})
         ok = True
         for m in finished:
-            event = m.event.with_clock(self._start)
+            event = self._stamped(m)
             fields = event.to_dict()
             if self._limit:
                 fields["over_limit"] = is_over_limit(event.speed_kmh, self._limit, event.label)
@@ -482,7 +490,7 @@ class Speedometer(TrafficcalTransform):
             self._emit(finished)
         elif self._outputs is not None:  # stopping without EOS (or after an error): keep what can be kept, quietly
             for m in finished:
-                event = m.event.with_clock(self._start)
+                event = self._stamped(m)
                 try:
                     self._outputs.vehicle(event, m.times_s if len(m.points_px) else None, m.points_px)
                 except InputError:
