@@ -305,6 +305,16 @@ def _vehicles_section(events: Sequence[VehicleEvent], limit_kmh: SpeedLimit = Sp
     dirs = Counter(e.direction for e in events)
     tables.append("<h3>Per direction</h3>" + _table(["direction", "vehicles"],
                                                     [[_direction_label(d), n] for d, n in dirs.most_common()]))
+    runs = Counter(e.run for e in events)
+    if len(runs) > 1:  # runs appended to one file (speedometer append): their track ids start again at 1
+        run_rows = []
+        for run, n in runs.items():
+            mine = [e for e in events if e.run == run]
+            v = np.array([e.speed_kmh for e in mine if e.measured], float)
+            first = min((e.first_time for e in mine if e.first_time), default="–")
+            run_rows.append([run or "unknown", n, len(v), first, _num(float(np.mean(v))) if len(v) else "–"])
+        tables.append("<h3>Per run</h3>" + _table(["run", "vehicles", "measured", "first seen", "mean speed [km/h]"],
+                                                  run_rows))
     reasons = unmeasured_by_kind(events)
     if reasons:  # by kind; each vehicle's own reason, with its figures, is in the list below
         tables.append("<h3>Not measured</h3>" + _table(["reason", "vehicles"], reasons))
@@ -312,13 +322,15 @@ def _vehicles_section(events: Sequence[VehicleEvent], limit_kmh: SpeedLimit = Sp
     out.append('<div class="grid">' + "".join(blocks) + "</div>")
     listed = events[:MAX_LISTED]
     dated = any(e.first_time for e in listed)
-    rows = [[e.id, e.label, *([e.first_time or "–"] if dated else []), _num(e.first_timestamp_s, ".2f"),
+    several = len(runs) > 1
+    rows = [[*([e.run or "–"] if several else []), e.id, e.label, *([e.first_time or "–"] if dated else []), _num(e.first_timestamp_s, ".2f"),
              _num(e.last_timestamp_s, ".2f"), _num(e.speed_kmh, ".1f"), "–" if e.lane is None else e.lane,
              _direction_label(e.direction), _size(e), e.reason] for e in listed]
     more = f" (the first {MAX_LISTED} of {len(events)})" if len(events) > MAX_LISTED else ""
     out.append(f"<details><summary>Vehicle list{more}</summary>"
-               + _table(["id", "label", *(["first seen"] if dated else []), "first [s]", "last [s]", "speed [km/h]",
-                         "lane", "direction", "size L × W × H [m]", "reason"], rows, left=2) + "</details>")
+               + _table([*(["run"] if several else []), "id", "label", *(["first seen"] if dated else []),
+                         "first [s]", "last [s]", "speed [km/h]", "lane", "direction", "size L × W × H [m]", "reason"],
+                        rows, left=3 if several else 2) + "</details>")
     return "\n".join(out)
 
 

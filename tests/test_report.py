@@ -370,3 +370,23 @@ def test_cli_report_errors_are_one_line(tmp_path: Path) -> None:
                str(tmp_path / "r.html"))
     assert out.returncode == 2 and "gt.pkl: no such file" in out.stderr
     assert not (tmp_path / "r.html").exists()
+
+
+def test_report_of_appended_runs_counts_each_run() -> None:
+    """Events of two runs in one file (speedometer append; each run's track ids from 1): a per-run table with
+    each run's vehicles and measured ones, and the run beside each id in the list; one run: neither."""
+    from dataclasses import replace
+
+    events = _events()
+    second = [replace(e, run="20261206T070000Z-beef") for e in events[:3]]
+    both = [replace(e, run="20261206T063000Z-0a1b") for e in events] + second
+    page = _parse(render_report(ReportInputs(both, _calibration())))
+    runs = _table_after(page, "run")
+    assert runs[0] == ["run", "vehicles", "measured", "first seen", "mean speed [km/h]"]
+    assert {r[0]: (int(r[1]), int(r[2])) for r in runs[1:]} == {
+        "20261206T063000Z-0a1b": (len(events), sum(e.measured for e in events)),
+        "20261206T070000Z-beef": (3, sum(e.measured for e in second))}
+    (listing,) = [t for t in page.tables if t and t[0][:2] == ["run", "id"]]
+    assert len(listing) == len(both) + 1 and [r[0] for r in listing[1:]][-3:] == ["20261206T070000Z-beef"] * 3
+    single = _parse(render_report(ReportInputs(both[:len(events)], _calibration())))
+    assert not any(t[0][0] == "run" for t in single.tables if t)
