@@ -153,7 +153,7 @@ class SpeedMeter:
     def __init__(self, tau: int = DEFAULT_TAU, min_track_length: int = DEFAULT_MIN_TRACK_LENGTH,
                  end_after: float = DEFAULT_END_AFTER, calibration: Calibration | None = None,
                  checks: SpeedChecks = SpeedChecks(), stitch_gap: float = DEFAULT_STITCH_GAP,
-                 max_waiting: int = DEFAULT_MAX_WAITING) -> None:
+                 max_waiting: int = DEFAULT_MAX_WAITING, keep_measured: bool = False) -> None:
         if tau < 1:
             raise ValueError(f"tau must be at least 1, got {tau}")
         if min_track_length < tau + 1:
@@ -178,6 +178,10 @@ class SpeedMeter:
         self._retired: set[int] = set()  # ids of the vehicles cut by a camera move (their tracks must not go on)
         self._blind: dict[int, float] = {}  # tracks begun between a move and its notice -> when it was noticed
         self.discarded = 0  # such tracks never seen after the notice: not reported
+        # keep_measured: every vehicle measured, with the calibration it was measured with, for remeasure() (a file's
+        # early vehicles measured again with the calibration it ends with); memory grows with the vehicles
+        self.keep_measured = bool(keep_measured)
+        self._measured: dict[int, tuple[_Record, str | None]] = {}
         self.t: float | None = None
         if calibration is not None:
             self.set_calibration(calibration)
@@ -235,6 +239,7 @@ class SpeedMeter:
                    + ("had vanishing points" if self.camera is None else "had a scale"))
             out = [self._unmeasured(r, why, self.calibration) for r in pending]
         self.lanes = LaneModel()  # the lanes lie elsewhere in the new view
+        self._measured.clear()  # measured in the old view: never again with another view's calibration
         return out
 
     def update(self, t: float, sightings: Iterable[Sighting]) -> FrameOutput:
@@ -387,8 +392,27 @@ class SpeedMeter:
                                 f"{len(px)}, needs {self.min_track_length})", m.kept)
         return m
 
+    def remeasure(self) -> list[MeasuredVehicle]:
+        """With ``keep_measured``: the vehicles measured (or left unmeasured for their own track) under another
+        calibration than the one in force now, measured again with it — same id, the new calibration's id — in the
+        order they left.  For the end of a file, whose later calibration saw more: a scale that moved 9 % after
+        it first converged (high_camera, stop 40) had left the first vehicles' speeds 9 % off.  Not across a
+        camera move (those vehicles belong to the earlier view).  The kept vehicles are then forgotten."""
+        kept, self._measured = self._measured, {}
+        cal = self.calibration
+        if not self.can_measure:
+            return []
+        redo = sorted((rec for rec, cal_id in kept.values() if cal_id != cal.id), key=lambda r: (r.last_t, r.id))
+        self.keep_measured, keep = False, self.keep_measured
+        try:
+            return [self._measure(rec) for rec in redo]
+        finally:
+            self.keep_measured = keep
+
     def _measure(self, rec: _Record) -> MeasuredVehicle:
         cal = self.calibration
+        if self.keep_measured:
+            self._measured[rec.id] = (rec, cal.id if cal is not None else None)
         times, px, track = self._reference_points(rec, self.camera)
         if len(px) == 0:
             return self._unmeasured(rec, "no reference point (no 3D box: never fully visible, nor cut by the top edge alone)", cal)

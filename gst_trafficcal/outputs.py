@@ -39,7 +39,7 @@ from .brnocompspeed import (
 from .calibration import Calibration
 from .clock import clock_time, parse_start_time
 from .errors import InputError
-from .fileio import atomic_write
+from .fileio import atomic_write, atomic_write_text
 
 EVENT_FIELDS: tuple[str, ...] = (
     "id", "label", "first_timestamp_s", "last_timestamp_s", "speed_kmh", "reason", "lane", "direction",
@@ -219,6 +219,13 @@ class _LineFile:
             self._f = open(self.path, "ab" if append else "wb", buffering=0)
         except OSError as exc:
             raise InputError(f"{self.path}: cannot open for writing ({exc.strerror or exc})") from None
+        if append and not self.empty:  # an earlier run cut mid-line (a crash): its fragment ends before our first line
+            try:
+                with open(self.path, "rb") as fh:
+                    fh.seek(-1, os.SEEK_END)
+                    self._broken = fh.read(1) != b"\n"
+            except OSError:
+                pass
 
     @property
     def empty(self) -> bool:
@@ -463,6 +470,7 @@ class BrnoResultsWriter:
             raise InputError(f"{path}: BrnoCompSpeed results need a positive frame rate, got {fps}")
         self.path = Path(path)
         self.fps = float(fps)
+        self._revised: dict[int, str | None] = {}  # vehicles measured again: their car's JSON, None to leave out
         try:  # opened now, so that a results file that cannot be written is an error at the start, not at the end
             self.path.parent.mkdir(parents=True, exist_ok=True)
             self._cars = tempfile.TemporaryFile(dir=self.path.parent, buffering=0)  # a car's JSON per line
@@ -501,12 +509,29 @@ class BrnoResultsWriter:
                              f"({exc.strerror or exc}); the vehicles before it are kept") from None
         return True
 
+    def revise(self, vehicle_id: int, times_s: Iterable[float] | None, points_px: Iterable[Sequence[float]] | None
+               ) -> None:
+        """A vehicle measured again (:meth:`VehicleOutputs.revise`): its car replaced by these points, or left out
+        (None: no longer measured)."""
+        line = None
+        if times_s is not None and points_px is not None:
+            t = np.asarray(list(times_s), dtype=np.float64).reshape(-1)
+            p = np.asarray(list(points_px), dtype=np.float64).reshape(-1, 2)
+            keep = np.isfinite(t) & np.all(np.isfinite(p), axis=1)
+            if keep.any():
+                line = car_json(Track(id=int(vehicle_id), frames=frames_from_times(t[keep], self.fps), pos=p[keep]))
+        self._revised[int(vehicle_id)] = line
+
     def cars(self) -> Iterator[str]:
-        """The cars' JSON text, in the order they were added; ValueError, at once, when closed (they are gone:
-        the file is never rewritten without them)."""
+        """The cars' JSON text, in the order they were added (revised ones replaced); ValueError, at once, when
+        closed (they are gone: the file is never rewritten without them)."""
         if self._cars is None:
             raise ValueError(f"{self.path}: the BrnoCompSpeed writer was closed, its cars are gone")
-        return self._lines(self._cars.fileno())
+        lines = self._lines(self._cars.fileno())
+        if not self._revised:
+            return lines
+        revised = dict(self._revised)
+        return (car for car in (revised.get(int(json.loads(line)["id"]), line) for line in lines) if car is not None)
 
     @staticmethod
     def _lines(fd: int) -> Iterator[str]:
@@ -543,6 +568,46 @@ def checkpoint_interval(write_s: float, minimum_s: float = 10.0, share: float = 
     return max(float(minimum_s), float(write_s) / share)
 
 
+def revise_event_file(path: str | Path, new: Mapping[tuple[str | None, int], VehicleEvent], csv_file: bool) -> int:
+    """Replace, in a JSON-lines or CSV event file, each event whose (run, id) is in ``new`` by the new one; the file
+    rewritten atomically.  Returns how many lines were replaced."""
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except OSError as exc:
+        raise InputError(f"{path}: cannot read it to revise its vehicles ({exc.strerror or exc})") from None
+    lines, done = text.splitlines(keepends=True), 0
+    if csv_file:
+        header = next(csv.reader(lines[:1]), [])
+        col = {name: k for k, name in enumerate(header)}
+        if "id" not in col:
+            return 0
+        for k in range(1, len(lines)):
+            row = next(csv.reader([lines[k]]), [])
+            if len(row) != len(header):
+                continue
+            key = (row[col["run"]] or None if "run" in col else None, _opt_int(row[col["id"]]))
+            if key in new:
+                d = new[key].to_dict()
+                row = [d[name] if name in d else row[j] for j, name in enumerate(header)]
+                lines[k] = CsvEventWriter._row(row)
+                done += 1
+    else:
+        for k, line in enumerate(lines):
+            try:
+                d = json.loads(line)
+                key = (d.get("run"), int(d["id"]))
+            except (ValueError, KeyError, TypeError):
+                continue
+            if key in new:
+                extra = {f: v for f, v in d.items() if f not in EVENT_FIELDS}
+                lines[k] = json.dumps({**extra, **new[key].to_dict()}, separators=(", ", ": ")) + "\n"
+                done += 1
+    if done:
+        atomic_write_text(path, "".join(lines), "vehicle events")
+    return done
+
+
 class VehicleOutputs:
     """Every per-vehicle output of a run behind one object (what ``speedometer`` and ``trafficcal run`` use).
 
@@ -569,6 +634,22 @@ class VehicleOutputs:
         if self.brno is not None and times_s is not None and points_px is not None:
             steps.insert(0, lambda: self.brno.add(event.id, times_s, points_px))
         attempt_all(steps)
+
+    def revise(self, measured: Sequence[tuple[VehicleEvent, np.ndarray | None, np.ndarray | None]]) -> None:
+        """Vehicles measured again at the end (``SpeedMeter.remeasure``): each one's line in the event files
+        replaced in place — the line of the same ``run`` and ``id``; other runs' lines and any line that does not
+        parse stay as they are — each file rewritten atomically, and its car in the BrnoCompSpeed results replaced.
+        Closes the event writers first (nothing may be written after). InputError naming a file that could not be
+        rewritten; that file then keeps the first measurement."""
+        if not measured:
+            return
+        new = {(e.run, e.id): e for e, _, _ in measured}
+        if self.brno is not None:
+            for e, times, points in measured:
+                self.brno.revise(e.id, times if e.measured else None, points if e.measured else None)
+        self.events.close()
+        attempt_all(lambda w=w: revise_event_file(w.path, new, isinstance(w, CsvEventWriter))
+                    for w in self.events.writers)
 
     def checkpoint(self, calibration: Calibration | None) -> None:
         """Rewrite the BrnoCompSpeed file now (atomically) with what has been collected."""

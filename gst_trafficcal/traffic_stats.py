@@ -305,7 +305,7 @@ class CountedVehicle:
 
 
 class CountedVehicles:
-    """Many vehicles' :class:`CountedVehicle` fields in packed columns (29 bytes a vehicle instead of an event's
+    """Many vehicles' :class:`CountedVehicle` fields in packed columns (37 bytes a vehicle instead of an event's
     half kilobyte): a stream counted for weeks stays small.  Labels and directions are stored once each."""
 
     def __init__(self) -> None:
@@ -313,6 +313,7 @@ class CountedVehicles:
         self._speeds = array("d")  # NaN: not measured
         self._lanes = array("h")  # -1: no lane
         self._names = array("H")  # label code, direction code per vehicle
+        self._ids = array("q")  # the event's id per vehicle (for revise)
         self._codes: dict[str | None, int] = {}
         self._words: list[str | None] = []
 
@@ -331,6 +332,17 @@ class CountedVehicles:
         self._speeds.append(np.nan if event.speed_kmh is None else float(event.speed_kmh))
         self._lanes.append(-1 if event.lane is None else int(event.lane))
         self._names.extend((self._code(event.label), self._code(event.direction)))
+        self._ids.append(int(event.id))
+
+    def revise(self, event) -> bool:
+        """Replace the counted fields of the last vehicle with ``event``'s id (measured again); False when none."""
+        for k in range(len(self._ids) - 1, -1, -1):
+            if self._ids[k] == int(event.id):
+                self._speeds[k] = np.nan if event.speed_kmh is None else float(event.speed_kmh)
+                self._lanes[k] = -1 if event.lane is None else int(event.lane)
+                self._names[2 * k:2 * k + 2] = array("H", (self._code(event.label), self._code(event.direction)))
+                return True
+        return False
 
     def __len__(self) -> int:
         return len(self._speeds)
@@ -378,6 +390,10 @@ class IntervalTable:
 
     def vehicle(self, event) -> None:
         self.events.append(event)
+
+    def revise(self, event) -> None:
+        """A vehicle measured again at the end (speedometer ``remeasure``): its counted fields replaced."""
+        self.events.revise(event)
 
     def set_start(self, start: datetime | None) -> None:
         """The date and time of stream time 0, when it becomes known at the first frame (a live clock)."""

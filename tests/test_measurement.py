@@ -519,3 +519,51 @@ def test_tracks_seen_only_between_a_move_and_its_notice_are_not_vehicles(scene, 
     assert meter.discarded == len(blind_ids) - 1 >= 3
     assert all(m.event.first_timestamp_s < 12.0 or m.event.first_timestamp_s >= 13.6 or m.event.id == carried
                for m in out)
+
+
+def test_remeasure_measures_the_early_vehicles_again_with_the_final_calibration(scene, truth):
+    """keep_measured (a file): the scale moves by 10 % at 16 s; at the end remeasure() measures every vehicle that
+    left under the first scale again with the final one (same ids, the final calibration's id, speeds 10 % up),
+    leaves the later ones alone, and forgets them; without keep_measured it has nothing to do."""
+    first = cal_of(scene.camera)
+    final = cal_of(scene.camera.with_scale(scene.camera.scale * 1.1))
+    meter = SpeedMeter(calibration=first, keep_measured=True)
+    out = []
+    for f in scene.frames:
+        if meter.calibration is first and f.t >= 16.0:
+            out += meter.set_calibration(final)
+        out += meter.update(f.t, sightings(f)).finished
+    out += meter.flush()
+    early = {m.event.id: m.event for m in out if m.event.calibration_id == first.id}
+    assert len(early) >= 6 and len(out) - len(early) >= 5
+    again = meter.remeasure()
+    assert sorted(m.event.id for m in again) == sorted(early)
+    assert [m.event.last_timestamp_s for m in again] == sorted(m.event.last_timestamp_s for m in again)
+    for m in again:
+        e, was = m.event, early[m.event.id]
+        assert e.calibration_id == final.id and e.measured == was.measured
+        if e.measured:
+            assert e.speed_kmh == pytest.approx(1.1 * was.speed_kmh, rel=1e-6)
+            assert e.speed_kmh == pytest.approx(1.1 * truth[e.id][0], abs=0.1)
+            assert len(m.points_px) == len(m.times_s) > 0
+    assert meter.remeasure() == []  # forgotten
+    plain = SpeedMeter(calibration=first)
+    run(scene, plain)
+    plain.set_calibration(final)
+    assert plain.remeasure() == []
+
+
+def test_remeasure_leaves_the_vehicles_of_a_view_before_a_camera_move(scene, truth):
+    """Vehicles measured before the camera moved belong to the old view: remeasure() never measures them with the
+    new view's calibration."""
+    old = cal_of(scene.camera)
+    new = cal_of(scene.camera.with_scale(scene.camera.scale * 1.1))
+    meter = SpeedMeter(calibration=old, keep_measured=True)
+    for f in scene.frames:
+        if meter.calibration is old and f.t >= 12.6:
+            meter.set_calibration(_moved(12.0))
+        if meter.calibration is not old and meter.calibration is not new and f.t >= 20.0:
+            meter.set_calibration(new)
+        meter.update(f.t, sightings(f))
+    meter.flush()
+    assert all(m.event.first_timestamp_s >= 12.0 for m in meter.remeasure())

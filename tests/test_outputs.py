@@ -18,7 +18,7 @@ from gst_trafficcal.errors import InputError
 from gst_trafficcal.evaluation import median_speeds
 from gst_trafficcal.geometry import Camera
 from gst_trafficcal.outputs import (
-    EVENT_FIELDS, BrnoResultsWriter, CsvEventWriter, EventWriters, JsonlEventWriter, VehicleEvent,
+    EVENT_FIELDS, BrnoResultsWriter, CsvEventWriter, EventWriters, JsonlEventWriter, VehicleEvent, VehicleOutputs,
     frames_from_times, on_one_clock, read_events, read_events_csv, reason_kind, unmeasured_by_kind,
 )
 from gst_trafficcal.speed import track_speed
@@ -529,3 +529,34 @@ def test_a_growing_results_file_is_rewritten_less_often_as_it_grows():
     assert checkpoint_interval(0.01) == 10.0  # a small file: every 10 s
     assert checkpoint_interval(0.5) == pytest.approx(50.0)  # a day's file taking half a second: every 50 s
     assert checkpoint_interval(3.0, minimum_s=10.0, share=0.05) == pytest.approx(60.0)
+
+
+def test_vehicles_measured_again_replace_their_lines_in_every_file(tmp_path: Path) -> None:
+    """VehicleOutputs.revise (speedometer remeasure): each revised vehicle's line replaced in place in the JSON
+    lines and the CSV — only the line of its own run, lines of an earlier run with the same id and a torn line
+    left as they were — and its car in the BrnoCompSpeed results replaced, or left out when no longer measured."""
+    from dataclasses import replace
+
+    events = _events(4)
+    earlier = [replace(e, run="20261206T060000Z-aaaa") for e in events]
+    with EventWriters.open(tmp_path / "v.jsonl", tmp_path / "v.csv") as w:
+        for e in earlier:
+            w.write(e)
+    with open(tmp_path / "v.jsonl", "a") as fh:
+        fh.write('{"id": 9, "speed_k')  # torn by a crash
+    run = [replace(e, run="20261206T070000Z-bbbb") for e in events]
+    out = VehicleOutputs(tmp_path / "v.jsonl", tmp_path / "v.csv", tmp_path / "system.json", fps=25.0, append=True)
+    pts = np.array([[100.0, 200.0], [110.0, 210.0], [120.0, 220.0]])
+    for e in run:
+        out.vehicle(e, [0.0, 0.04, 0.08], pts)
+    faster = replace(run[0], speed_kmh=run[0].speed_kmh * 1.1, calibration_id="f1a1")
+    gone = replace(run[1], speed_kmh=None, reason="speed samples disagree")
+    out.revise([(faster, np.array([0.0, 0.04]), pts[:2]), (gone, None, None)])
+    out.close(None)
+    log = read_events(tmp_path / "v.jsonl")
+    assert log.skipped == 1
+    assert log.events == earlier + [faster, gone] + run[2:]
+    assert read_events_csv(tmp_path / "v.csv") == earlier + [faster, gone] + run[2:]
+    cars = {c.id: c for c in load_results(tmp_path / "system.json").cars}
+    assert sorted(cars) == sorted(e.id for e in run if e.id != gone.id)
+    assert len(cars[faster.id].frames) == 2 and len(cars[run[2].id].frames) == 3

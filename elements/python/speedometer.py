@@ -63,6 +63,12 @@ class Speedometer(TrafficcalTransform):
                    "reboot) keeps what it measured before; results-file and intervals-file, tables of one run, are "
                    "then not replaced either but kept beside as NAME.earlier-<time>.EXT (trafficcal report counts "
                    "the intervals of the whole events file)", False, _RW),
+        "remeasure": (bool, "Measure again at the end", "At end of stream, measure the vehicles measured under an "
+                      "earlier calibration again with the final one (a file: its later calibration saw more) and "
+                      "rewrite their lines in events-file, csv-file and results-file and their counts in "
+                      "intervals-file; a trafficcal-remeasured message says how many (trafficcal-speed messages and "
+                      "events-url POSTs already sent stay). Keeps every vehicle's track until the end: for files, "
+                      "not for endless live streams", False, _RW),
         "interval": (float, "Interval", "Minutes per row of intervals-file (aligned to the clock with "
                      "start-datetime)", 0.01, 10080.0, 15.0, _RW),
         "calibration-file": (str, "Calibration file", "Calibration JSON used when no calibration with scale "
@@ -149,7 +155,8 @@ class Speedometer(TrafficcalTransform):
         try:
             from gst_trafficcal.clock import NOW, parse_start_time
 
-            self._meter = SpeedMeter(tau=self.tau, min_track_length=self.min_track_length, max_waiting=self.max_waiting)
+            self._meter = SpeedMeter(tau=self.tau, min_track_length=self.min_track_length, max_waiting=self.max_waiting,
+                                     keep_measured=self.remeasure)
             if self.start_datetime.strip().lower() != NOW:
                 self._start = parse_start_time(self.start_datetime, "start-datetime")
             if self.calibration_file:
@@ -488,6 +495,8 @@ class Speedometer(TrafficcalTransform):
         finished = self._meter.flush()
         if post:
             self._emit(finished)
+            if self.remeasure and not self._failed:
+                self._revise()
         elif self._outputs is not None:  # stopping without EOS (or after an error): keep what can be kept, quietly
             for m in finished:
                 event = self._stamped(m)
@@ -497,6 +506,29 @@ class Speedometer(TrafficcalTransform):
                     pass
                 self._deliver(event, event.to_dict())
         self._close(report=post)
+
+    def _revise(self):
+        """remeasure: the vehicles measured under an earlier calibration, measured again with the final one; their
+        lines in the files replaced (outputs.VehicleOutputs.revise) and their interval counts."""
+        from gst_trafficcal.errors import InputError
+
+        again = self._meter.remeasure()
+        if not again:
+            return
+        events = [self._stamped(m) for m in again]
+        if self._intervals is not None:
+            for event in events:
+                self._intervals.revise(event)
+        cal = self._meter.calibration
+        self.post_element_message("trafficcal-remeasured", {
+            "vehicles": len(events), "measured": sum(e.measured for e in events), "calibration_id": cal.id})
+        if self._outputs is None:
+            return
+        try:
+            self._outputs.revise([(e, m.times_s, m.points_px) for e, m in zip(events, again)])
+        except InputError as exc:  # the file keeps the first measurement of its vehicles
+            self.post_error(f"speedometer: {exc}")
+            self._failed = True
 
     def _deliver(self, event, fields):
         """A vehicle that left, to the outputs that do not fail the stream: the interval table, and events-url's

@@ -118,7 +118,8 @@ def pipeline_description(video: Path | str, paths: RunPaths, calibration: Path |
     goes to speedometer (its messages say which vehicles were over it) and trafficoverlay (drawn in red, counted);
     ``start_time`` (ISO 8601, the date and time the video starts) to speedometer, which then dates every vehicle;
     ``events_url`` to speedometer, which POSTs every vehicle's event there; speedometer keeps intervals.csv (a row
-    per ``interval_min`` minutes, lane and direction) as the intervals close.  ``calibration_mode``: vpdetect's mode
+    per ``interval_min`` minutes, lane and direction) as the intervals close, and for a file (not a URI) measures
+    the vehicles measured under an earlier calibration again with the final one at the end (``remeasure``).  ``calibration_mode``: vpdetect's mode
     with ``calibration`` — fixed (a calibration the user gave) or auto (one carried over from an earlier file:
     learnt anew if the camera moved); ``views_dir``: vpdetect's folder of the camera's views.
     """
@@ -140,7 +141,7 @@ def pipeline_description(video: Path | str, paths: RunPaths, calibration: Path |
         chain.append(f"bbscale regression-file={quote(scale_regression)}" if scale_regression else "bbscale")
     chain.append(f"speedometer events-file={quote(paths.events)} csv-file={quote(paths.csv)} "
                  f"results-file={quote(paths.results)} intervals-file={quote(paths.intervals)} "
-                 f"interval={interval_min:g}{limit}{clock}")
+                 f"interval={interval_min:g}{limit}{clock}{'' if is_uri(video) else ' remeasure=true'}")
     if overlay:
         chain += [f"trafficoverlay{limit}", "videoconvert", "video/x-raw,format=I420", "queue max-size-buffers=8",
                   "x264enc speed-preset=veryfast tune=zerolatency", "mp4mux",
@@ -163,6 +164,7 @@ class RunSummary:
     position_s: float | None = None  # how far into the stream the run got
     moves: list = field(default_factory=list)  # gst.runner.Move: when the camera moved, the calibrations around it
     discarded: int = 0  # tracks seen only between a camera move and its notice (not vehicles, not reported)
+    remeasured: int = 0  # vehicles measured under an earlier calibration, measured again with the final one at the end
     scaled: list = field(default_factory=list)  # every calibration with a scale and a view posted (one per view)
 
     @property
@@ -350,6 +352,7 @@ def measure_video(video: Path | str, out_dir: Path, description: str, console, l
                          duration_s=outcome.duration_s, stopped=outcome.stopped, position_s=outcome.position_s,
                          moves=outcome.moves,
                          discarded=max((m["tracks"] for m in outcome.named("trafficcal-discarded")), default=0),
+                         remeasured=sum(m["vehicles"] for m in outcome.named("trafficcal-remeasured")),
                          scaled=_scaled_views(outcome))
     if status is not None:
         for w in outcome.warnings:
@@ -732,6 +735,9 @@ def run_one(console, video: Path | str, out_dir: Path, calibration_path: Path | 
         console.print(f"[bold]Calibration[/] ({cal.source}, {cal.state}): VP1 ({c.vp1[0]:.1f}, {c.vp1[1]:.1f}), "
                       f"VP2 ({c.vp2[0]:.1f}, {c.vp2[1]:.1f}), f = {c.focal:.0f} px, {scale}", highlight=False)
     print_moves(console, summary)
+    if summary.remeasured:
+        console.print(f"{summary.remeasured} vehicles that left while the calibration was still settling were measured "
+                      "again with the final one", highlight=False)
     print_vehicles(console, summary.events, speed_limit)
     for w in summary.warnings:
         console.print(f"[yellow]warning[/]: {w}", highlight=False)
