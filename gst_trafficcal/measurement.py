@@ -125,6 +125,19 @@ class MeasuredVehicle:
 
 
 @dataclass
+class _Kept:
+    """What :meth:`SpeedMeter.remeasure` needs of a measured vehicle — its reference points, not its observations
+    (a few kB instead of some hundred: a long file's vehicles stay small)."""
+
+    rec: "_Record"  # id, and its first and last observation only (the event's timestamps)
+    times: np.ndarray
+    px: np.ndarray  # the reference points found with the vanishing points of the time
+    label: str  # the detector's label
+    dims_plane: np.ndarray | None  # length, width, height in road-plane units (metres / λ)
+    calibration_id: str | None
+
+
+@dataclass
 class _Record:
     id: int
     observations: list[Observation] = field(default_factory=list)
@@ -178,10 +191,10 @@ class SpeedMeter:
         self._retired: set[int] = set()  # ids of the vehicles cut by a camera move (their tracks must not go on)
         self._blind: dict[int, float] = {}  # tracks begun between a move and its notice -> when it was noticed
         self.discarded = 0  # such tracks never seen after the notice: not reported
-        # keep_measured: every vehicle measured, with the calibration it was measured with, for remeasure() (a file's
-        # early vehicles measured again with the calibration it ends with); memory grows with the vehicles
+        # keep_measured: every vehicle measured (its reference points and size, _Kept: about 4 kB), with the calibration
+        # it was measured with, for remeasure() (a file's early vehicles measured again with the one it ends with)
         self.keep_measured = bool(keep_measured)
-        self._measured: dict[int, tuple[_Record, str | None]] = {}
+        self._measured: dict[int, _Kept] = {}
         self.t: float | None = None
         if calibration is not None:
             self.set_calibration(calibration)
@@ -397,38 +410,48 @@ class SpeedMeter:
         calibration than the one in force now, measured again with it — same id, the new calibration's id — in the
         order they left.  For the end of a file, whose later calibration saw more: a scale that moved 9 % after
         it first converged (high_camera, stop 40) had left the first vehicles' speeds 9 % off.  Not across a
-        camera move (those vehicles belong to the earlier view).  The kept vehicles are then forgotten."""
+        camera move (those vehicles belong to the earlier view).  From the reference points found then (the
+        vanishing points move little after the first scale; λ most) and the size rescaled.  The kept vehicles are
+        then forgotten."""
         kept, self._measured = self._measured, {}
         cal = self.calibration
         if not self.can_measure:
             return []
-        redo = sorted((rec for rec, cal_id in kept.values() if cal_id != cal.id), key=lambda r: (r.last_t, r.id))
-        self.keep_measured, keep = False, self.keep_measured
-        try:
-            return [self._measure(rec) for rec in redo]
-        finally:
-            self.keep_measured = keep
+        out = []
+        for k in sorted((k for k in kept.values() if k.calibration_id != cal.id),
+                        key=lambda k: (k.rec.last_t, k.rec.id)):
+            m = self._speed(k.px, k.times)
+            dims = None if k.dims_plane is None else k.dims_plane * self.camera.scale
+            label, dims = self._label_of(k.label, dims)
+            out.append(self._finish(k.rec, label, m.speed_kmh, m.reason, k.times, k.px, cal, m.n_pairs, m.kept, dims))
+        return out
 
     def _measure(self, rec: _Record) -> MeasuredVehicle:
         cal = self.calibration
-        if self.keep_measured:
-            self._measured[rec.id] = (rec, cal.id if cal is not None else None)
         times, px, track = self._reference_points(rec, self.camera)
         if len(px) == 0:
             return self._unmeasured(rec, "no reference point (no 3D box: never fully visible, nor cut by the top edge alone)", cal)
         m = self._speed(px, times)
         label, dims = self._label(track)
+        if self.keep_measured:
+            ends = _Record(rec.id, observations=[rec.observations[0], rec.observations[-1]], last_t=rec.last_t)
+            self._measured[rec.id] = _Kept(ends, times, px, track.label,
+                                           None if dims is None else dims / self.camera.scale, cal.id)
         return self._finish(rec, label, m.speed_kmh, m.reason, times, px, cal, m.n_pairs, m.kept, dims)
 
     def _label(self, track: Track) -> tuple[str, np.ndarray | None]:
         """(label, dimensions in metres or None): the detector's label, refined by the vehicle's measured size
         when the detector gave no class of its own (:mod:`gst_trafficcal.vehicles.classify`); dimensions no class
         explains (a flat or broken 3D box: a car 12 m long and half a metre tall) are not reported."""
-        dims = self._dimensions(track)
+        return self._label_of(track.label, self._dimensions(track))
+
+    @staticmethod
+    def _label_of(label: str, dims: np.ndarray | None) -> tuple[str, np.ndarray | None]:
+        """:meth:`_label` from the detector's label and the dimensions (metres) already measured."""
         size = None if dims is None else classify_dimensions(dims)[0]
         if size is not None and size.worst_z > MAX_Z:  # no vehicle is that shape: a degenerate 3D box, not reported
-            return track.label, None
-        return refined_label(track.label, size), dims
+            return label, None
+        return refined_label(label, size), dims
 
     def _dimensions(self, track: Track) -> np.ndarray | None:
         """Length, width and height (metres) of a vehicle whose reference points were just set: length and width

@@ -323,13 +323,15 @@ def _vehicles_section(events: Sequence[VehicleEvent], limit_kmh: SpeedLimit = Sp
     listed = events[:MAX_LISTED]
     dated = any(e.first_time for e in listed)
     several = len(runs) > 1
-    rows = [[*([e.run or "–"] if several else []), e.id, e.label, *([e.first_time or "–"] if dated else []), _num(e.first_timestamp_s, ".2f"),
-             _num(e.last_timestamp_s, ".2f"), _num(e.speed_kmh, ".1f"), "–" if e.lane is None else e.lane,
+    rows = [[*([e.run or "–"] if several else []), e.id, e.label, *([e.first_time or "–"] if dated else []),
+             _num(e.first_timestamp_s, ".2f"), _num(e.last_timestamp_s, ".2f"), _num(e.speed_kmh, ".1f"),
+             "–" if e.lane is None else e.lane,
              _direction_label(e.direction), _size(e), e.reason] for e in listed]
     more = f" (the first {MAX_LISTED} of {len(events)})" if len(events) > MAX_LISTED else ""
     out.append(f"<details><summary>Vehicle list{more}</summary>"
                + _table([*(["run"] if several else []), "id", "label", *(["first seen"] if dated else []),
-                         "first [s]", "last [s]", "speed [km/h]", "lane", "direction", "size L × W × H [m]", "reason"],
+                         "first [s]", "last [s]", "speed [km/h]", "lane", "direction", "size L × W × H [m]",
+                         "reason"],
                         rows, left=3 if several else 2) + "</details>")
     return "\n".join(out)
 

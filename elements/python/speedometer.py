@@ -67,8 +67,8 @@ class Speedometer(TrafficcalTransform):
                       "earlier calibration again with the final one (a file: its later calibration saw more) and "
                       "rewrite their lines in events-file, csv-file and results-file and their counts in "
                       "intervals-file; a trafficcal-remeasured message says how many (trafficcal-speed messages and "
-                      "events-url POSTs already sent stay). Keeps every vehicle's track until the end: for files, "
-                      "not for endless live streams", False, _RW),
+                      "events-url POSTs already sent stay). Keeps every measured vehicle's reference points (about "
+                      "4 kB each) until the end: for files, not for endless live streams", False, _RW),
         "interval": (float, "Interval", "Minutes per row of intervals-file (aligned to the clock with "
                      "start-datetime)", 0.01, 10080.0, 15.0, _RW),
         "calibration-file": (str, "Calibration file", "Calibration JSON used when no calibration with scale "

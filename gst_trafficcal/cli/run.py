@@ -119,7 +119,8 @@ def pipeline_description(video: Path | str, paths: RunPaths, calibration: Path |
     ``start_time`` (ISO 8601, the date and time the video starts) to speedometer, which then dates every vehicle;
     ``events_url`` to speedometer, which POSTs every vehicle's event there; speedometer keeps intervals.csv (a row
     per ``interval_min`` minutes, lane and direction) as the intervals close, and for a file (not a URI) measures
-    the vehicles measured under an earlier calibration again with the final one at the end (``remeasure``).  ``calibration_mode``: vpdetect's mode
+    the vehicles measured under an earlier calibration again with the final one at the end (``remeasure``).
+    ``calibration_mode``: vpdetect's mode
     with ``calibration`` — fixed (a calibration the user gave) or auto (one carried over from an earlier file:
     learnt anew if the camera moved); ``views_dir``: vpdetect's folder of the camera's views.
     """
