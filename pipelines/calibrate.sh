@@ -15,6 +15,8 @@
 #
 # Environment (optional):
 #   VPDETECT_OPTS  extra vpdetect properties, e.g. "min-duration=60 max-duration=600 focal-range=500,4000"
+# STALL_TIMEOUT (seconds, default 30; 0: wait for ever): a live source that sends no frame this long ends the run
+# with an error (GStreamer's watchdog), so a service is restarted instead of hanging on a dead camera.
 set -euo pipefail
 
 here="$(cd "$(dirname "${BASH_SOURCE[0]}")" && pwd)"
@@ -65,8 +67,9 @@ rm -f "$tmp"  # vpdetect creates it when the calibration converges
 cleanup() { rm -f "$tmp" "$log"; }
 trap cleanup EXIT
 
+set_stall_watchdog "$uri"  # a live source that stops sending ends the run (lib.sh)
 # shellcheck disable=SC2206  # word splitting of the user's property list is intended
-pipeline=(uridecodebin "uri=$uri" ! videoconvert ! video/x-raw,format=I420
+pipeline=(uridecodebin "uri=$uri" ! videoconvert ! "${stall[@]}" video/x-raw,format=I420
           ! vpdetect mode=learn "calibration-file=$tmp" ${VPDETECT_OPTS:-} ! fakesink)
 echo "calibrate: gst-launch-1.0 -e ${pipeline[*]}" >&2
 

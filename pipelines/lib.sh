@@ -41,6 +41,23 @@ analysis_queue() {  # URI: prints the queue in front of the analysis, one word p
     esac
 }
 
+set_stall_watchdog() {  # URI: sets the array `stall` to (watchdog timeout=MS !) for a live source, else to ()
+    # A camera that stops sending (or whose connection fails in a way the source does not report as an error:
+    # now and then rtspsrc says "Open failed" and the pipeline waits for ever) ends the run with an error after
+    # STALL_TIMEOUT seconds without a frame (default 30; 0: wait for ever), so a service is restarted instead of
+    # hanging. Needs GStreamer's watchdog element (gstreamer1.0-plugins-bad); without it, nothing.
+    stall=()
+    local seconds="${STALL_TIMEOUT:-30}" ms
+    [[ "$seconds" =~ ^[0-9]+([.][0-9]+)?$ ]] || die "STALL_TIMEOUT must be a number of seconds, got '$seconds'"
+    case "$1" in
+        rtsp://* | rtsps://* | rtspt://* | udp://* | srt://* | rtmp://*)
+            ms="$(awk -v s="$seconds" 'BEGIN { printf "%d", s * 1000 }')"
+            if [[ "$ms" -gt 0 ]] && gst-inspect-1.0 watchdog >/dev/null 2>&1; then
+                stall=(watchdog "timeout=$ms" '!')
+            fi ;;
+    esac
+}
+
 keep_earlier_live() {  # URI OUT_DIR: prints the folder a live stream's earlier results in OUT_DIR were moved to
     # A stream cannot be measured again: a recipe started again (a service after a crash or a reboot) into the
     # same OUT_DIR keeps what it measured before in OUT_DIR/earlier-<time of its last vehicle>/ instead of

@@ -34,6 +34,8 @@
 # beyond it: a machine too slow for the camera falls behind by at most that much.
 # Started again into an OUT_DIR holding an earlier run's vehicles, a live source's run moves them to
 # OUT_DIR/earlier-<time of the last vehicle>/ first (a stream cannot be measured again); a file's are replaced.
+# STALL_TIMEOUT (seconds, default 30; 0: wait for ever): a live source that sends no frame this long ends the run
+# with an error (GStreamer's watchdog), so a service is restarted instead of hanging on a dead camera.
 set -euo pipefail
 
 here="$(cd "$(dirname "${BASH_SOURCE[0]}")" && pwd)"
@@ -87,8 +89,9 @@ kept="$(keep_earlier_live "$uri" "$out_dir")" || die "$out_dir: cannot keep the 
 [[ -z "$kept" ]] || echo "measure: kept the earlier run's $(grep -c . "$kept/vehicles.jsonl" || true) vehicles of" \
                          "a live stream in $kept (a stream cannot be measured again)" >&2
 mapfile -t queue < <(analysis_queue "$uri")  # leaky for a live source (lib.sh)
+set_stall_watchdog "$uri"  # a live source that stops sending ends the run (lib.sh)
 # shellcheck disable=SC2206  # word splitting of the user's property lists is intended
-pipeline=(uridecodebin "uri=$uri" ! videoconvert ! video/x-raw,format=I420 ! "${queue[@]}"
+pipeline=(uridecodebin "uri=$uri" ! videoconvert ! "${stall[@]}" video/x-raw,format=I420 ! "${queue[@]}"
           ! "${vp[@]}" ${VPDETECT_OPTS:-} ! vehicledetect ${VEHICLEDETECT_OPTS:-}
           ! speedometer "events-file=$events" "csv-file=$out_dir/vehicles.csv" "results-file=$out_dir/system.json"
             "intervals-file=$out_dir/intervals.csv" "${clock[@]}" ${SPEEDOMETER_OPTS:-} ! fakesink)

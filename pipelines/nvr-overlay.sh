@@ -26,6 +26,8 @@
 #                  ("speed-limit=80 class-limits=truck=60,bus=60": trucks and buses held to limits of their own)
 #                  (vehicles over the limit drawn in red and counted)
 #   ENCODER        encoder element and properties (default "x264enc tune=zerolatency speed-preset=veryfast")
+# STALL_TIMEOUT (seconds, default 30; 0: wait for ever): a live source that sends no frame this long ends the run
+# with an error (GStreamer's watchdog), so a service is restarted instead of hanging on a dead camera.
 set -euo pipefail
 
 here="$(cd "$(dirname "${BASH_SOURCE[0]}")" && pwd)"
@@ -118,8 +120,9 @@ else
 fi
 
 mapfile -t queue < <(analysis_queue "$uri")  # leaky for a live source (lib.sh)
+set_stall_watchdog "$uri"  # a live source that stops sending ends the run (lib.sh)
 # shellcheck disable=SC2206  # word splitting of the user's property lists is intended
-pipeline=(uridecodebin "uri=$uri" ! videoconvert ! video/x-raw,format=I420 ! "${queue[@]}")
+pipeline=(uridecodebin "uri=$uri" ! videoconvert ! "${stall[@]}" video/x-raw,format=I420 ! "${queue[@]}")
 if [[ -n "${analysis// }" ]]; then
     # shellcheck disable=SC2206
     pipeline+=(! $analysis)

@@ -197,3 +197,17 @@ def test_measure_without_a_scale_keeps_vehicles_and_says_why(clip, tmp_path):
     assert len(events) >= 10 and not any(e.measured for e in events)
     assert all("no scale" in e.reason or "too short" in e.reason or "reference point" in e.reason for e in events)
     assert "measure: note: no vehicle has a speed" in proc.stderr
+
+
+def test_measure_on_a_source_that_sends_nothing_stops_after_stall_timeout(tmp_path):
+    """A live source that never sends a frame (a UDP port nobody sends to; now and then an RTSP camera whose
+    connection failed without rtspsrc saying so, which used to leave measure.sh waiting for ever) ends the run with
+    GStreamer's watchdog error after STALL_TIMEOUT seconds, so a service is restarted; a bad value stops at once."""
+    from .conftest import closed_port
+
+    uri = f"udp://127.0.0.1:{closed_port()}"
+    proc = script("measure.sh", uri, tmp_path / "out", STALL_TIMEOUT="2")
+    assert proc.returncode != 0 and "Watchdog triggered" in proc.stderr, proc.stderr[-2000:]
+    assert "! watchdog timeout=2000 ! video/x-raw,format=I420" in proc.stderr
+    bad = script("measure.sh", uri, tmp_path / "bad", STALL_TIMEOUT="soon")
+    assert bad.returncode == 2 and "STALL_TIMEOUT must be a number of seconds, got 'soon'" in bad.stderr

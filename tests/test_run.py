@@ -647,3 +647,22 @@ def test_a_camera_move_is_told_with_what_it_cost():
     console = Console(record=True, width=200)
     print_moves(console, RunSummary(None, events))
     assert console.export_text() == ""
+
+
+def test_a_source_that_sends_nothing_ends_the_run_with_an_error(tmp_path):
+    """A URI that never sends a frame (a UDP port nobody sends to; now and then an RTSP camera whose connection
+    failed without the source saying so) ends the run after STALL_TIMEOUT seconds with one clear error, not a hang;
+    a STALL_TIMEOUT that is not a number is an error at once."""
+    from .conftest import closed_port
+
+    uri = f"udp://127.0.0.1:{closed_port()}"
+    env = dict(os.environ, STALL_TIMEOUT="2")
+    proc = subprocess.run([sys.executable, "-m", "gst_trafficcal", "run", uri, "--out", str(tmp_path / "out"),
+                           "--no-overlay"], capture_output=True, text=True, timeout=120, env=env)
+    assert "! watchdog timeout=2000 !" in proc.stdout
+    line = one_line_error(proc)
+    assert f"{uri}: cannot be processed: no frame for 2 s: the source stopped sending or never connected" in line
+    env["STALL_TIMEOUT"] = "soon"
+    proc = subprocess.run([sys.executable, "-m", "gst_trafficcal", "run", uri, "--out", str(tmp_path / "out2"),
+                           "--no-overlay"], capture_output=True, text=True, timeout=120, env=env)
+    assert "STALL_TIMEOUT must be a number of seconds, got 'soon'" in one_line_error(proc)

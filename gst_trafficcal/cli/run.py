@@ -20,6 +20,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+import os
 import re
 
 import click
@@ -35,10 +36,33 @@ def is_uri(text: str | Path) -> bool:
     return isinstance(text, str) and re.match(r"^[A-Za-z][A-Za-z0-9+.-]*://", text) is not None
 
 
+STALL_TIMEOUT_S = 30.0  # a URI that sends no frame this long ends the run with an error instead of a hang
+
+
+def stall_timeout_s() -> float:
+    """``STALL_TIMEOUT_S``, or the environment's ``STALL_TIMEOUT`` (seconds; 0: wait for ever), as the scripts read
+    it; InputError when it is not a number."""
+    text = os.environ.get("STALL_TIMEOUT", "").strip()
+    try:
+        value = float(text) if text else STALL_TIMEOUT_S
+    except ValueError:
+        raise InputError(f"STALL_TIMEOUT must be a number of seconds, got {text!r}") from None
+    if not value >= 0:
+        raise InputError(f"STALL_TIMEOUT must be a number of seconds, got {text!r}")
+    return value
+
+
 def source_elements(video: Path | str) -> list[str]:
-    """The pipeline's source: ``filesrc ! decodebin`` for a file, ``uridecodebin`` for a URI (a live camera)."""
+    """The pipeline's source: ``filesrc ! decodebin`` for a file, ``uridecodebin`` for a URI (a live camera), then
+    GStreamer's ``watchdog`` (when installed): a camera that stops sending, or whose connection fails without the
+    source saying so (now and then rtspsrc reports "Open failed" and waits for ever), ends the run with an error
+    after :func:`stall_timeout_s` seconds without a frame (pipelines/lib.sh does the same for the scripts)."""
     if is_uri(video):
-        return [f"uridecodebin uri={quote(video)}"]
+        from ..gst.runner import missing_elements
+
+        ms = int(round(stall_timeout_s() * 1000))
+        stall = [] if ms == 0 or missing_elements(["watchdog"]) else [f"watchdog timeout={ms}"]
+        return [f"uridecodebin uri={quote(video)}", *stall]
     return [f"filesrc location={quote(video)}", "decodebin"]
 
 
@@ -366,6 +390,9 @@ def measure_video(video: Path | str, out_dir: Path, description: str, console, l
         except InputError as exc:
             summary.errors.append(str(exc))
     if failure is not None:
+        if "Watchdog triggered" in failure:  # source_elements' watchdog: no frame for STALL_TIMEOUT seconds
+            failure = (f"no frame for {stall_timeout_s():g} s: the source stopped sending or never connected "
+                       "(STALL_TIMEOUT sets how long to wait)")
         if not outcome.position_s and not summary.events:  # nothing was decoded: the input is at fault
             raise InputError(hidden(f"{video}: cannot be processed: {failure}"))
         kept = (f"the {len(summary.events)} vehicles that finished before it are written "
