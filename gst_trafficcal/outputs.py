@@ -96,7 +96,6 @@ class VehicleEvent:
     last_time: str | None = None  # time is known (clock.py)
     run: str | None = None  # the run that wrote it (:func:`new_run_id`): runs appended to one file reuse track ids
 
-
     def __post_init__(self) -> None:
         object.__setattr__(self, "id", int(self.id))
         object.__setattr__(self, "label", str(self.label))
@@ -275,8 +274,13 @@ class JsonlEventWriter:
 
     def write(self, event: VehicleEvent, extra: Mapping[str, Any] | None = None) -> None:
         """One line: ``extra`` fields (e.g. the part of a batch it came from) first, then the event's."""
-        self._file.write_line(json.dumps({**(extra or {}), **event.to_dict()}, separators=(", ", ": ")))
+        self._file.write_line(self.line(event, extra))
         self.count += 1
+
+    @staticmethod
+    def line(event: VehicleEvent, extra: Mapping[str, Any] | None = None) -> str:
+        """The event's JSON line (without the newline), ``extra`` fields first."""
+        return json.dumps({**(extra or {}), **event.to_dict()}, separators=(", ", ": "))
 
     def close(self) -> None:
         self._file.close()
@@ -484,15 +488,10 @@ class BrnoResultsWriter:
         Returns False (and adds nothing) when no finite point remains.  InputError naming the results file when
         the car cannot be held (a full disk); the cars added before are kept.
         """
-        t = np.asarray(list(times_s), dtype=np.float64).reshape(-1)
-        p = np.asarray(list(points_px), dtype=np.float64).reshape(-1, 2)
-        if len(t) != len(p):
-            raise ValueError(f"vehicle {vehicle_id}: {len(p)} points but {len(t)} timestamps")
-        keep = np.isfinite(t) & np.all(np.isfinite(p), axis=1)
-        if not keep.any():
+        car = self._car(vehicle_id, times_s, points_px)
+        if car is None:
             return False
-        line = (car_json(Track(id=int(vehicle_id), frames=frames_from_times(t[keep], self.fps), pos=p[keep]))
-                + "\n").encode("utf-8")
+        line = (car + "\n").encode("utf-8")
         try:
             if self._cars is None:
                 raise OSError("the writer was closed")
@@ -513,14 +512,19 @@ class BrnoResultsWriter:
                ) -> None:
         """A vehicle measured again (:meth:`VehicleOutputs.revise`): its car replaced by these points, or left out
         (None: no longer measured)."""
-        line = None
-        if times_s is not None and points_px is not None:
-            t = np.asarray(list(times_s), dtype=np.float64).reshape(-1)
-            p = np.asarray(list(points_px), dtype=np.float64).reshape(-1, 2)
-            keep = np.isfinite(t) & np.all(np.isfinite(p), axis=1)
-            if keep.any():
-                line = car_json(Track(id=int(vehicle_id), frames=frames_from_times(t[keep], self.fps), pos=p[keep]))
-        self._revised[int(vehicle_id)] = line
+        self._revised[int(vehicle_id)] = (None if times_s is None or points_px is None
+                                          else self._car(vehicle_id, times_s, points_px))
+
+    def _car(self, vehicle_id: int, times_s: Iterable[float], points_px: Iterable[Sequence[float]]) -> str | None:
+        """A car's JSON from its reference points and timestamps, rows with NaN dropped; None when none is left."""
+        t = np.asarray(list(times_s), dtype=np.float64).reshape(-1)
+        p = np.asarray(list(points_px), dtype=np.float64).reshape(-1, 2)
+        if len(t) != len(p):
+            raise ValueError(f"vehicle {vehicle_id}: {len(p)} points but {len(t)} timestamps")
+        keep = np.isfinite(t) & np.all(np.isfinite(p), axis=1)
+        if not keep.any():
+            return None
+        return car_json(Track(id=int(vehicle_id), frames=frames_from_times(t[keep], self.fps), pos=p[keep]))
 
     def cars(self) -> Iterator[str]:
         """The cars' JSON text, in the order they were added (revised ones replaced); ValueError, at once, when
@@ -601,7 +605,7 @@ def revise_event_file(path: str | Path, new: Mapping[tuple[str | None, int], Veh
                 continue
             if key in new:
                 extra = {f: v for f, v in d.items() if f not in EVENT_FIELDS}
-                lines[k] = json.dumps({**extra, **new[key].to_dict()}, separators=(", ", ": ")) + "\n"
+                lines[k] = JsonlEventWriter.line(new[key], extra) + "\n"
                 done += 1
     if done:
         atomic_write_text(path, "".join(lines), "vehicle events")

@@ -328,19 +328,24 @@ class CountedVehicles:
         :func:`interval_rows`)."""
         if event.first_timestamp_s is None or event.last_timestamp_s is None:
             return
+        speed, lane, names = self._fields(event)
         self._times.extend((float(event.first_timestamp_s), float(event.last_timestamp_s)))
-        self._speeds.append(np.nan if event.speed_kmh is None else float(event.speed_kmh))
-        self._lanes.append(-1 if event.lane is None else int(event.lane))
-        self._names.extend((self._code(event.label), self._code(event.direction)))
+        self._speeds.append(speed)
+        self._lanes.append(lane)
+        self._names.extend(names)
         self._ids.append(int(event.id))
+
+    def _fields(self, event) -> tuple[float, int, tuple[int, int]]:
+        """The packed speed (NaN: not measured), lane (-1: none) and label and direction codes of an event."""
+        return (np.nan if event.speed_kmh is None else float(event.speed_kmh),
+                -1 if event.lane is None else int(event.lane), (self._code(event.label), self._code(event.direction)))
 
     def revise(self, event) -> bool:
         """Replace the counted fields of the last vehicle with ``event``'s id (measured again); False when none."""
         for k in range(len(self._ids) - 1, -1, -1):
             if self._ids[k] == int(event.id):
-                self._speeds[k] = np.nan if event.speed_kmh is None else float(event.speed_kmh)
-                self._lanes[k] = -1 if event.lane is None else int(event.lane)
-                self._names[2 * k:2 * k + 2] = array("H", (self._code(event.label), self._code(event.direction)))
+                self._speeds[k], self._lanes[k], names = self._fields(event)
+                self._names[2 * k:2 * k + 2] = array("H", names)
                 return True
         return False
 

@@ -34,10 +34,17 @@ analysis_queue() {  # URI: prints the queue in front of the analysis, one word p
     # fall further and further behind the road. For a live source the queue keeps a second of frames (25) and
     # drops the oldest beyond that; the elements measure from timestamps, so a dropped frame costs samples only.
     # A file (or anything else) waits for the analysis: a plain queue.
+    if is_live_uri "$1"; then
+        printf '%s\n' queue leaky=downstream max-size-buffers=25 max-size-bytes=0 max-size-time=0
+    else
+        printf '%s\n' queue
+    fi
+}
+
+is_live_uri() {  # URI: true for a camera's stream (rtsp://, udp://, srt://, rtmp://), false for a file or download
     case "$1" in
-        rtsp://* | rtsps://* | rtspt://* | udp://* | srt://* | rtmp://*)
-            printf '%s\n' queue leaky=downstream max-size-buffers=25 max-size-bytes=0 max-size-time=0 ;;
-        *) printf '%s\n' queue ;;
+        rtsp://* | rtsps://* | rtspt://* | udp://* | srt://* | rtmp://*) return 0 ;;
+        *) return 1 ;;
     esac
 }
 
@@ -49,13 +56,11 @@ set_stall_watchdog() {  # URI: sets the array `stall` to (watchdog timeout=MS !)
     stall=()
     local seconds="${STALL_TIMEOUT:-30}" ms
     [[ "$seconds" =~ ^[0-9]+([.][0-9]+)?$ ]] || die "STALL_TIMEOUT must be a number of seconds, got '$seconds'"
-    case "$1" in
-        rtsp://* | rtsps://* | rtspt://* | udp://* | srt://* | rtmp://*)
-            ms="$(awk -v s="$seconds" 'BEGIN { printf "%d", s * 1000 }')"
-            if [[ "$ms" -gt 0 ]] && gst-inspect-1.0 watchdog >/dev/null 2>&1; then
-                stall=(watchdog "timeout=$ms" '!')
-            fi ;;
-    esac
+    is_live_uri "$1" || return 0
+    ms="$(awk -v s="$seconds" 'BEGIN { printf "%d", s * 1000 }')"
+    if [[ "$ms" -gt 0 ]] && gst-inspect-1.0 watchdog >/dev/null 2>&1; then
+        stall=(watchdog "timeout=$ms" '!')
+    fi
 }
 
 keep_earlier_live() {  # URI OUT_DIR: prints the folder a live stream's earlier results in OUT_DIR were moved to
