@@ -329,7 +329,7 @@ def _why(warnings: list[str], element: str) -> str:
 def scene_table(rows: list[Row]) -> str:
     lines = ["| scene | mode | calibration | ratio err vs segments / vs scene camera (scene camera's) | λ err % | "
              "road err % at true λ | vehicles (measured) | mean / median / p95 km/h | recall | FP | "
-             "every measured vehicle: n, mean / p95 km/h | fps wall / CPU |",
+             "every measured vehicle: n, mean / p95 km/h (signed mean) | fps wall / CPU |",
              "|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
         if r.failure and not r.vehicles:
@@ -347,7 +347,8 @@ def scene_table(rows: list[Row]) -> str:
             f"{_f(r.stat('mean'))} / "
             f"{_f(r.stat('median'))} / {_f(r.stat('p95'))} | {_f(r.recall, '.3f')} "
             f"({r.matched_valid}/{r.gt_valid}) | {_f(r.false_positives, 'd')} | {len(r.truth_errors_kmh)}, "
-            f"{_f(_stat(np.abs(r.truth_errors_kmh), 'mean'))} / {_f(_stat(np.abs(r.truth_errors_kmh), 'p95'))} | "
+            f"{_f(_stat(np.abs(r.truth_errors_kmh), 'mean'))} / {_f(_stat(np.abs(r.truth_errors_kmh), 'p95'))} "
+            f"({_f(_stat(np.asarray(r.truth_errors_kmh), 'mean'), '+.2f')}) | "
             f"{_f(r.frames / r.wall_s if r.wall_s else None, '.1f')} / {_f(r.frames / r.cpu_s if r.cpu_s else None, '.1f')} |")
     return "\n".join(lines)
 

@@ -30,7 +30,7 @@ def test_scene_table_shows_both_parts(load_benchmark):
     b = load_benchmark("end_to_end")
     row = b.Row("session3_center", "replay", "auto", frames=3000, state="calibrated (vpdetect+bbscale)",
                 has_vps=True, has_scale=True, scale_err_pct=-2.3, road_err_pct=-5.86, vehicles=21, measured=15,
-                errors_kmh=[4.0, 5.0])
+                errors_kmh=[4.0, 5.0], truth_errors_kmh=[-3.0, -1.0, 1.0])
     no_vps = b.Row("zoom", "synth", "auto", state="vps (vpdetect)")
     text = b.scene_table([row, no_vps])
     header = text.splitlines()[0].split("|")
@@ -38,6 +38,8 @@ def test_scene_table_shows_both_parts(load_benchmark):
     assert cells[header.index(" λ err % ")] == " -2.3 "
     assert cells[header.index(" road err % at true λ ")] == " -5.9 "
     assert text.splitlines()[3].split("|")[header.index(" road err % at true λ ")] == " – "
+    # every measured vehicle: the mean of the absolute errors, their 95th percentile and the signed mean (a bias)
+    assert cells[header.index(" every measured vehicle: n, mean / p95 km/h (signed mean) ")] == " 3, 1.67 / 2.80 (-1.00) "
     figs = b.pooled([row, no_vps])
     assert figs["scale_err_mean_abs_pct"] == 2.3 and np.isclose(figs["road_err_mean_abs_pct"], 5.86)
 
