@@ -129,6 +129,22 @@ def test_the_packed_vehicles_count_as_the_events_do() -> None:
     assert interval_rows(back, 900, limit_kmh=limit) == interval_rows(events, 900, limit_kmh=limit)
 
 
+def test_a_revised_vehicle_replaces_the_last_one_with_its_id() -> None:
+    """speedometer remeasure: the vehicle measured again replaces its counted fields — the last vehicle with that id
+    (ids start again in a new run appended to the same table), nothing else."""
+    from dataclasses import replace
+
+    from gst_trafficcal.traffic_stats import CountedVehicles
+
+    packed = CountedVehicles()
+    for e in (_event(1, 10, 50.0), _event(2, 20, 60.0), _event(1, 30, 70.0), _event(3, 40, None)):
+        packed.append(e)
+    assert packed.revise(replace(_event(1, 30, 88.0), lane=2, label="van"))
+    assert packed.revise(_event(3, 40, 66.0)) and not packed.revise(_event(9, 50, 1.0))
+    assert [(v.speed_kmh, v.lane, v.label) for v in packed] == [(50.0, 0, "car"), (60.0, 0, "car"), (88.0, 2, "van"),
+                                                                (66.0, 0, "car")]
+
+
 def test_intervals_are_aligned_to_the_clock_when_the_start_time_is_known(tmp_path) -> None:
     import csv
     from datetime import datetime
