@@ -14,8 +14,12 @@ Example::
       "scale": 7.9,                    # λ: metres per road-plane unit = camera height in metres, or null
       "confidence": {"vp1": 0.98, ...},
       "camera": {"K": [[...]], "R": [[...]], "t": [...]},       # present when the scale is known
-      "camera_calibration": {"vp1": [...], "vp2": [...], "pp": [...], "scale": s}  # BrnoCompSpeed convention
+      "camera_calibration": {"vp1": [...], "vp2": [...], "pp": [...], "scale": s},  # BrnoCompSpeed convention
+      "conditioning": {"vp2_image_widths": 3.1, "turn_deg": 0.1, "speed_pct": 0.7, "poor": false}
     }
+
+``conditioning`` (derived, written for readers, ignored when loading): how much the speeds change when the lines
+towards VP2 turn by ``turn_deg`` (:mod:`gst_trafficcal.vanishing.conditioning`); ``poor`` for a view along the road.
 
 ``state`` is one of :data:`STATES`.  Loading validates everything and raises :class:`InputError` with a
 one-line message naming the file for anything that is not our format or is corrupt.
@@ -28,13 +32,16 @@ import json
 import math
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from .errors import GeometryError, InputError
 from .fileio import atomic_write_text, read_json
 from .geometry import Camera
+
+if TYPE_CHECKING:
+    from .vanishing.conditioning import Conditioning
 
 FORMAT = "gst-trafficcal-calibration"
 VERSION = 1
@@ -82,6 +89,15 @@ class Calibration:
         state = "calibrated" if scale is not None else "vps"
         return replace(self, camera=self.camera.with_scale(scale), state=state, **changes)
 
+    def conditioning(self) -> "Conditioning":
+        """How firmly this view pins the speeds down (:mod:`gst_trafficcal.vanishing.conditioning`); needs the
+        vanishing points."""
+        from .vanishing.conditioning import view_conditioning
+
+        if self.camera is None:
+            raise GeometryError("no vanishing points yet: the view's conditioning is unknown")
+        return view_conditioning(self.camera, self.image_size)
+
     # ------------------------------------------------------------------ JSON
     def to_dict(self) -> dict[str, Any]:
         d: dict[str, Any] = {"format": FORMAT, "version": VERSION, "id": self.id, "state": self.state,
@@ -98,6 +114,7 @@ class Calibration:
                 d["camera"] = {"K": K.tolist(), "R": R.tolist(), "t": t.tolist()}
             d["camera_calibration"] = {"vp1": c.vp1.tolist(), "vp2": c.vp2.tolist(), "pp": c.pp.tolist(),
                                        "scale": None if c.scale is None else c.brno_scale()}
+            d["conditioning"] = self.conditioning().to_dict()
         d["confidence"] = dict(self.confidence)
         if self.view is not None:
             d["view"] = dict(self.view)

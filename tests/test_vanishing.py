@@ -40,9 +40,11 @@ FACES = [(0, 1, 2, 3), (4, 5, 6, 7), (0, 1, 5, 4), (1, 2, 6, 5), (2, 3, 7, 6), (
 SHADES = [40, 215, 150, 95, 175, 120]
 
 
-def render_scene(seconds: float, seed: int = 0, traffic: bool = True) -> list[np.ndarray]:
-    """Grey frames of cuboid vehicles driving along world x on a textured road, drawn with OpenCV."""
-    cam = scene_camera()
+def render_scene(seconds: float, seed: int = 0, traffic: bool = True, camera: Camera | None = None
+                 ) -> list[np.ndarray]:
+    """Grey frames of cuboid vehicles driving along world x on a textured road, drawn with OpenCV (seen by
+    :func:`scene_camera` unless another ``camera`` is given)."""
+    cam = scene_camera() if camera is None else camera
     rng = np.random.default_rng(seed)
     bg = cv2.GaussianBlur(rng.normal(110, 25, (H, W)).astype(np.float32), (0, 0), 2.0)
     for lane_y in (-3.5, 0.0, 3.5, 7.0):  # painted lines towards VP1

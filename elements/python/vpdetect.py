@@ -77,6 +77,7 @@ class VpDetect(TrafficcalTransform):
     def __init__(self):
         super().__init__()
         self._learner = None
+        self._warned_view_of = None  # the learner whose view was said to pin the speeds down poorly
         self._frames = 0
         self._fps = 25.0
         self._format = "I420"
@@ -401,6 +402,11 @@ class VpDetect(TrafficcalTransform):
 
             cal = replace(cal, view=encode_view(self._views.view(), self.frame_size[0]))
         self.publish_calibration(cal)
+        if cal.camera is not None and self._learner is not None and self._warned_view_of is not self._learner:
+            cond = cal.conditioning()
+            if cond.poor:  # once per view learnt
+                self._warned_view_of = self._learner
+                self.post_warning(f"vpdetect: {cond.describe()}")
         if cal.camera is not None and cal.view is not None and self.view_check and self._learner.done:
             from gst_trafficcal.vanishing.view import decode_view
 
