@@ -40,6 +40,7 @@ h1{font-size:1.6em;margin-bottom:.2em}h2{border-bottom:1px solid #ccc;padding-bo
 table{border-collapse:collapse;margin:.6em 0}td,th{border:1px solid #ccc;padding:.25em .6em;text-align:right}
 th{background:#f2f2f2}td.l,th.l{text-align:left}img{max-width:100%;border:1px solid #ddd}
 .muted{color:#777}.grid{display:flex;flex-wrap:wrap;gap:2em;align-items:flex-start}
+.warn{background:#fff4d6;border-left:4px solid #e0a800;padding:.4em .8em}
 """
 
 
@@ -235,6 +236,9 @@ def _calibration_section(cal: Calibration | None, frame: np.ndarray | None, spac
                      ("VP2 (across the road) [px]", f"{c.vp2[0]:.1f}, {c.vp2[1]:.1f}"),
                      ("principal point [px]", f"{c.pp[0]:.1f}, {c.pp[1]:.1f}"),
                      ("focal length [px]", f"{c.focal:.1f}")]
+            cond = cal.conditioning()
+            rows.append(("speeds change under a 0.1° error of VP2 [%]",
+                         f"{cond.speed_pct:.2f}" + (" (poorly conditioned view)" if cond.poor else "")))
             if c.scale is not None:
                 rows += [("scale λ = camera height [m]", f"{c.scale:.3f}"),
                          ("BrnoCompSpeed scale", f"{c.brno_scale():.6g}")]
@@ -243,6 +247,8 @@ def _calibration_section(cal: Calibration | None, frame: np.ndarray | None, spac
         for k, v in cal.confidence.items():
             rows.append((f"confidence: {k}", f"{v:.3g}"))
         out.append(_table(["", "value"], rows))
+        if c is not None and cond.poor:
+            out.append(f'<p class="warn">{_esc(cond.describe())}.</p>')
     pic = calibration_picture(cal, frame, spacing)
     if pic is not None:
         caption = (f"Road grid ({spacing:g} m cells; amber lines run towards VP1, blue towards VP2) and the "

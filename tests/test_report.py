@@ -161,6 +161,24 @@ def test_report_without_ground_truth() -> None:
     calib = {r[0]: r[1] for r in _table_after(page, "")[1:]}
     assert calib["state"] == "calibrated" and calib["scale λ = camera height [m]"] == "7.000"
     assert calib["confidence: vp1"] == "0.93"
+    sensitivity = _calibration().conditioning().speed_pct
+    assert calib["speeds change under a 0.1° error of VP2 [%]"] == f"{sensitivity:.2f}" and sensitivity < 2
+    assert not [a for tag, a in page.attrs if a.get("class") == "warn"]
+
+
+def test_report_warns_about_a_view_along_the_road() -> None:
+    """A camera looking along the road (pan 4°): VP2 far away, the speeds poorly pinned down — said in the table
+    and in a paragraph that says what to do."""
+    K = np.array([[900.0, 0, W / 2], [0, 900.0, H / 2], [0, 0, 1]])
+    R = rotation_matrix(4.0, 8.0, 0.0)
+    cal = Calibration(Camera.from_KRt(K, R, -R @ np.array([0.0, 0.0, 7.0])), (W, H), source="vpdetect")
+    cond = cal.conditioning()
+    assert cond.poor
+    page = _parse(render_report(ReportInputs(_events(), cal)))
+    calib = {r[0]: r[1] for r in _table_after(page, "")[1:]}
+    assert calib["speeds change under a 0.1° error of VP2 [%]"] == f"{cond.speed_pct:.2f} (poorly conditioned view)"
+    assert [a for tag, a in page.attrs if tag == "p" and a.get("class") == "warn"]
+    assert "calibrate-manual" in "".join(page.text) and "looks along the road" in "".join(page.text)
 
 
 def test_report_with_a_speed_limit() -> None:

@@ -90,6 +90,9 @@ def test_run_writes_every_output(clip, with_truth):
     assert "Per lane" in report and "gt_data.pkl" in report
     assert "measuring" in proc.stdout and "Against gt_data.pkl" in proc.stdout
     assert not [ln for ln in user_lines(proc.stderr) if "warning" in ln], proc.stderr
+    cond = load_calibration(out / "calibration.json").conditioning()  # how firmly the view pins the speeds down
+    assert f"View: VP2 lies {cond.vp2_widths:.1f} image widths away" in " ".join(proc.stdout.split())
+    assert "speeds change under a 0.1° error of VP2" in report
     # --speed-limit 80: to the overlay and the meter, counted in the summary and the report
     assert (' speed-limit=80 start-datetime="2026-12-05T07:59:55+01:00" remeasure=true ! trafficoverlay speed-limit=80 !'
             in proc.stdout)  # a file: the vehicles measured while the calibration settled are measured again

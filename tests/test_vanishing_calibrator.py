@@ -219,6 +219,9 @@ def test_cli_constant_speed_switch(tmp_path):
         assert r.returncode == 0, r.stderr
         assert ("px along the lanes" in r.stdout) == (flag == "--constant-speed"), r.stdout
         cals[flag] = load_calibration(out)
+        cond, text = cals[flag].conditioning(), " ".join(r.stdout.split())  # rich wraps long lines
+        assert f"View: VP2 lies {cond.vp2_widths:.1f} image widths away" in text and not cond.poor, text
+        assert f"changes the speeds by {cond.speed_pct:.1f} %" in text
     on, off = cals["--constant-speed"], cals["--no-constant-speed"]
     assert "vp1_along_px" in on.confidence and "vp1_along_px" not in off.confidence
     moved = np.hypot(on.confidence["vp1_along_px"], on.confidence["vp1_across_px"])  # along, then across the lanes

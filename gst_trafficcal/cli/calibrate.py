@@ -116,6 +116,8 @@ def command(video: Path, out_path: Path, png_path: Path | None, method: str, min
               f"after {cal.confidence.get('seconds', 0):.1f} s of video ({result.frames_read} frames, "
               f"{fps:.0f} fps analysis)  confidence vp1 {cal.confidence.get('vp1', 0):.2f} "
               f"vp2 {cal.confidence.get('vp2', 0):.2f} -> {out_path}, {png}", markup=False)
+    cond = cal.conditioning()
+    out.print(("[yellow]warning[/]: " if cond.poor else "View: ") + cond.describe(), highlight=False)
     if "vp1_along_px" in cal.confidence:
         out.print(f"VP1 moved {cal.confidence['vp1_along_px']:+.1f} px along the lanes (away from the traffic: +) by "
                   f"the constant-speed motion of {cal.confidence.get('speed_tracks', 0):.0f} tracks"
