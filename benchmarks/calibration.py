@@ -40,6 +40,7 @@ from gst_trafficcal.diamond import angle_between
 from gst_trafficcal.evaluation import evaluate_calibration
 from gst_trafficcal.geometry import homogeneous
 from gst_trafficcal.vanishing.calibrator import CalibratorConfig, calibrate_video
+from gst_trafficcal.vanishing.conditioning import POOR_PCT, TURN_DEG, view_conditioning
 
 DEFAULT_PRESETS = "highway_day,vp2_far,strong_roll,high_camera,low_camera,left_side,right_side_oneway,zoom,wide"
 
@@ -59,7 +60,8 @@ def render(preset: str, duration: float, out: Path, boxes: bool) -> Path:
 def score(scene: Path, method: str, max_duration: float, config: dict | None = None) -> dict:
     """Calibrate one rendered scene and compare with its exact calibration; ``config``: more
     ``CalibratorConfig`` fields."""
-    truth = load_calibration(scene / "calibration.json").camera
+    true_cal = load_calibration(scene / "calibration.json")
+    truth = true_cal.camera
     res = calibrate_video(scene / "video.mp4", CalibratorConfig(**{"method": method, "max_duration": max_duration,
                                                                    **(config or {})}))
     row: dict = {"scene": scene.name, "method": method, "state": res.calibration.state,
@@ -83,6 +85,9 @@ def score(scene: Path, method: str, max_duration: float, config: dict | None = N
     road = vp_road_error(scene, cam, truth.scale)
     if road is not None:
         row["road_err_pct"] = road
+    # how firmly the view pins the speeds down, as the product reports it (its own VPs) and with the true camera
+    row["sens_pct"] = view_conditioning(cam, res.calibration.image_size).speed_pct
+    row["sens_true_pct"] = view_conditioning(truth, true_cal.image_size).speed_pct
     return row
 
 
@@ -192,6 +197,7 @@ def main() -> None:
         own = [r["render_mean"] for r in replay_rows if r["method"] == methods[0]]
         print(f"rendering cameras vs recordings: mean {np.mean(own):.4f} median {np.median(own):.4f}")
         rows += replay_rows
+    print(conditioning_summary(rows))
     if args.speed:
         first = args.work / args.presets.split(",")[0]
         print(f"VPCalibrator on 1920x1080 grey frames: {speed_1080p(first):.0f} fps (decoding excluded)")
@@ -218,6 +224,30 @@ def _summary(rows: list[dict], methods: list[str], label: str, key: str = "ratio
             print(f"{label}: {method:9s} converged 0/{n}")
 
 
+def conditioning_summary(rows: list[dict]) -> str:
+    """Does the view's sensitivity to VP2 (vanishing/conditioning.py, from each run's own VPs) tell the scenes
+    whose VPs stretched the road? Spearman's rank correlation with |road err|, and the scenes it calls poorly
+    conditioned against those stretched by ``POOR_PCT`` or more."""
+    from scipy.stats import spearmanr
+
+    ok = [r for r in rows if "road_err_pct" in r and "sens_pct" in r]
+    if len(ok) < 3:
+        return "view conditioning: fewer than 3 scenes with a road error"
+    sens = np.array([r["sens_pct"] for r in ok])
+    err = np.abs([r["road_err_pct"] for r in ok])
+    rho = spearmanr(np.minimum(sens, 1e9), err).statistic  # inf (unbounded) ranks first
+    poor, bad = sens >= POOR_PCT, err >= POOR_PCT
+    lines = [f"view conditioning over {len(ok)} runs: Spearman rho {rho:.2f} between the speeds' change under a "
+             f"{TURN_DEG:g}° turn of VP2 and |road err|",
+             f"  called poor (>= {POOR_PCT:g} %): {poor.sum()}, of which road err >= {POOR_PCT:g} %: "
+             f"{(poor & bad).sum()} ({', '.join(r['scene'] for r, p, b in zip(ok, poor, bad) if p and b) or '-'}); "
+             f"not called poor but road err >= {POOR_PCT:g} %: {(bad & ~poor).sum()} "
+             f"({', '.join(r['scene'] for r, p, b in zip(ok, poor, bad) if b and not p) or '-'})",
+             f"  mean |road err|: poor views {err[poor].mean() if poor.any() else math.nan:.2f} %, "
+             f"the others {err[~poor].mean() if (~poor).any() else math.nan:.2f} %"]
+    return "\n".join(lines)
+
+
 def _fmt(r: dict) -> str:
     if "ratio_mean" not in r:
         return f"{r['scene']:18s} {r['method']:9s} {r['state']:7s} {r['reason']}  ({r['fps']:.0f} fps)"
@@ -226,6 +256,8 @@ def _fmt(r: dict) -> str:
             f"after {r['seconds']:5.1f} s  {r['fps']:5.0f} fps")
     if "road_err_pct" in r:
         text += f"  road err {r['road_err_pct']:+.2f} %"
+    if "sens_pct" in r:
+        text += f"  sens {r['sens_pct']:.2f} % (true cam {r['sens_true_pct']:.2f})"
     if "vs_render_mean" in r:
         text += (f"  | vs render cam {r['vs_render_mean']:.4f} / {r['vs_render_median']:.4f}"
                  f"  (render cam {r['render_mean']:.4f} / {r['render_median']:.4f})")

@@ -14,6 +14,11 @@ def test_config_fields_reach_the_calibrator(load_benchmark, cuboid_clip_dense):
     # the interior ones alone (about 400) are enough for a VP2 too
     row = b.score(cuboid_clip_dense, "edgelets", 60.0, {"min_edgelets": 300})
     assert row["state"] == "vps" and row["ratio_mean"] < 0.05
+    # the view's conditioning, from the run's VPs and from the scene's own camera (an oblique view: well conditioned)
+    from gst_trafficcal.vanishing.conditioning import view_conditioning
+
+    assert row["sens_pct"] == view_conditioning(row["_camera"], (480, 270)).speed_pct
+    assert 0 < row["sens_true_pct"] < 2 and abs(row["sens_pct"] / row["sens_true_pct"] - 1) < 0.5
     # and a focal range the scene's camera is far outside of: no second vanishing point is accepted
     narrow = b.score(cuboid_clip_dense, "edgelets", 60.0, {"min_edgelets": 300, "focal_range": (1.0, 2.0)})
     assert narrow["state"] == "failed" and "ratio_mean" not in narrow
@@ -35,3 +40,16 @@ def test_scene_folders_are_checked_before_any_run(tmp_path, cuboid_clip_dense):
     assert f"{tmp_path / 'half'}: no calibration.json" in proc.stderr
     assert f"{tmp_path / 'nowhere'}: no video.mp4" in proc.stderr
     assert str(cuboid_clip_dense) + ":" not in proc.stderr and proc.stdout == ""
+
+
+def test_conditioning_summary_counts_and_ranks(load_benchmark):
+    b = load_benchmark("calibration")
+    rows = [{"scene": "a", "sens_pct": 0.3, "road_err_pct": -0.2}, {"scene": "b", "sens_pct": 12.0, "road_err_pct": -4.0},
+            {"scene": "c", "sens_pct": 4.0, "road_err_pct": 0.5}, {"scene": "d", "sens_pct": 1.5, "road_err_pct": 3.0},
+            {"scene": "e", "sens_pct": float("inf"), "road_err_pct": 5.0}, {"scene": "f", "state": "failed"}]
+    text = b.conditioning_summary(rows)
+    assert "over 5 runs: Spearman rho 0.90" in text  # ranks 1,4,3,2,5 against 1,4,2,3,5: 1 - 6·2/120
+    assert "called poor (>= 2 %): 3, of which road err >= 2 %: 2 (b, e)" in text
+    assert "not called poor but road err >= 2 %: 1 (d)" in text
+    assert "poor views 3.17 %, the others 1.60 %" in text
+    assert "fewer than 3" in b.conditioning_summary(rows[:2])
