@@ -80,10 +80,13 @@ STATUS_FIELDS = tuple(RunStatus.__dataclass_fields__)
 
 
 def calibration_fields(cal) -> dict[str, Any]:
-    """What status.json says about a :class:`~gst_trafficcal.calibration.Calibration`."""
+    """What status.json says about a :class:`~gst_trafficcal.calibration.Calibration`; ``speed_sensitivity_pct``:
+    how much the speeds change under a 0.1° error of VP2 (vanishing/conditioning.py; None before the vanishing
+    points or when unbounded)."""
     scale = cal.camera.scale if cal.camera is not None else None
+    sensitivity = cal.conditioning().to_dict()["speed_pct"] if cal.camera is not None else None
     return {"state": cal.state, "id": cal.id, "source": cal.source,
-            "scale_m": None if scale is None else round(float(scale), 4)}
+            "scale_m": None if scale is None else round(float(scale), 4), "speed_sensitivity_pct": sensitivity}
 
 
 class StatusFile:

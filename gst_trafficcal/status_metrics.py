@@ -3,8 +3,8 @@
 Monitoring that already scrapes Prometheus — node_exporter's textfile collector fed by a cron job, or any scraper
 of a text file — gets every camera's run as series labelled ``run`` (the status file's folder) and ``source``:
 whether it is healthy, its state, vehicles and measured vehicles, a live stream's frames and dropped frames,
-camera moves (counters), speed against real time, the stream position, and how old the status and the last
-vehicle are (gauges).  A run without a readable status is ``trafficcal_healthy 0`` with nothing else.  The text is
+camera moves (counters), speed against real time, the stream position, how old the status and the last
+vehicle are, and how firmly the view pins the speeds down (gauges).  A run without a readable status is ``trafficcal_healthy 0`` with nothing else.  The text is
 made by ``prometheus_client``, which also escapes the labels.
 """
 
@@ -52,6 +52,8 @@ class _RunsCollector:
             ("speed_ratio", "Stream seconds measured per wall-clock second"),
             ("position_seconds", "Stream position of the part being measured"),
             ("calibrated", "1 when the calibration in force has a scale (speeds are measured)"),
+            ("view_speed_sensitivity_percent", "How much the speeds change (%) under a 0.1 degree error of VP2: "
+             "2 or more for a view along the road"),
             ("status_age_seconds", "Seconds since the status file was last written"),
             ("last_vehicle_age_seconds", "Seconds since the last vehicle left the view"))}
         for run in self.runs:
@@ -68,6 +70,8 @@ class _RunsCollector:
             scaled = bool(s.calibration) and s.calibration.get("scale_m") is not None
             for name, value in (("speed_ratio", s.speed_x), ("position_seconds", s.position_s),
                                 ("calibrated", float(scaled)), ("status_age_seconds", age_s(s.updated_at, self.now)),
+                                ("view_speed_sensitivity_percent", _number((s.calibration or {}).get(
+                                    "speed_sensitivity_pct"))),
                                 ("last_vehicle_age_seconds", age_s(s.last_vehicle_at or "", self.now))):
                 if value is not None:
                     gauges[name].add_metric(labels, float(value))
@@ -75,6 +79,11 @@ class _RunsCollector:
         yield state
         yield from counters.values()
         yield from gauges.values()
+
+
+def _number(value) -> float | None:
+    """A status field's number, or None for anything else (a hand-edited file, an unbounded sensitivity)."""
+    return float(value) if isinstance(value, (int, float)) and not isinstance(value, bool) else None
 
 
 def prometheus_text(runs: Sequence[RunHealth], now: datetime) -> str:

@@ -126,10 +126,12 @@ def test_run_writes_every_output(clip, with_truth):
     assert status.last_vehicle_s == pytest.approx(max(e.last_timestamp_s for e in events), abs=1e-6)
     assert status.calibration["id"] == cal.id and status.calibration["scale_m"] == pytest.approx(cal.camera.scale,
                                                                                                abs=1e-4)
+    assert status.calibration["speed_sensitivity_pct"] == round(cal.conditioning().speed_pct, 3)
     assert status.position_s == pytest.approx(12.0, abs=0.2) and status.duration_s == pytest.approx(12.0, abs=0.2)
     assert status.camera_moves == 0 and (status.speed_x is None or status.speed_x > 0)
     shown = trafficcal("status", out)  # for people and health checks: ended as it should, exit 0
     assert shown.returncode == 0 and "status.json: finished since" in shown.stdout, shown.stdout + shown.stderr
+    assert f"speeds {cal.conditioning().speed_pct:.1f} % per 0.1° of VP2" in shown.stdout
     assert f"{len(events)}, {sum(e.measured for e in events)} measured" in shown.stdout and "healthy" in shown.stdout
 
 

@@ -20,7 +20,8 @@ def test_trafficcal_status_as_prometheus_metrics(tmp_path):
     (cameras / "west").mkdir()
     east = StatusFile(cameras / "east" / "status.json", 'rtsp://nvr/"east"')
     east.update(state="running", vehicles=12, measured=10, frames=3000, frames_dropped=7, camera_moves=1,
-                speed_x=1.0, position_s=120.0, calibration={"state": "calibrated", "id": "a", "scale_m": 9.2},
+                speed_x=1.0, position_s=120.0, calibration={"state": "calibrated", "id": "a", "scale_m": 9.2,
+                                                     "speed_sensitivity_pct": 12.5},
                 last_vehicle_at=(datetime.now().astimezone() - timedelta(seconds=30)).isoformat())
     (cameras / "west" / "status.json").write_text("{not json")
     run = subprocess.run([sys.executable, "-m", "gst_trafficcal", "status", str(cameras), "--prometheus"],
@@ -35,6 +36,10 @@ def test_trafficcal_status_as_prometheus_metrics(tmp_path):
             ("vehicles", "vehicles_measured", "frames", "frames_dropped", "camera_moves")] == [12, 10, 3000, 7, 1]
     assert series[("trafficcal_speed_ratio", e, None)] == 1.0 and series[("trafficcal_calibrated", e, None)] == 1.0
     assert 29 < series[("trafficcal_last_vehicle_age_seconds", e, None)] < 90
+    assert series[("trafficcal_view_speed_sensitivity_percent", e, None)] == 12.5
+    shown = subprocess.run([sys.executable, "-m", "gst_trafficcal", "status", str(cameras / "east")],
+                           capture_output=True, text=True, timeout=60)
+    assert "scale 9.2); speeds 12.5 % per 0.1° of VP2 (a view along the road)" in shown.stdout, shown.stdout
     assert 0 <= series[("trafficcal_status_age_seconds", e, None)] < 60
     assert [k for k in series if k[1] == w] == [("trafficcal_healthy", w, None)]
     sources = {s.labels["source"] for f in text_string_to_metric_families(run.stdout) for s in f.samples}

@@ -148,6 +148,7 @@ def _one(file: Path, max_age_s: float, as_json: bool) -> None:
         f"  position    {position}" + ("" if status.speed_x is None else f", {status.speed_x:.2f} x real time"),
         "  calibration " + (f"{cal.get('state')} ({cal.get('source')}, id {cal.get('id')}, "
                             + ("no scale" if cal.get("scale_m") is None else f"scale {cal['scale_m']:g}") + ")"
+                            + _sensitivity(cal.get("speed_sensitivity_pct"))
                             if cal else "none yet"),
         f"  vehicles    {status.vehicles}, {status.measured} measured; last {_ago(status.last_vehicle_at, now)}",
     ]
@@ -164,3 +165,12 @@ def _one(file: Path, max_age_s: float, as_json: bool) -> None:
     lines += [f"UNHEALTHY: {p}" for p in problems] or ["healthy"]
     click.echo("\n".join(lines))
     sys.exit(1 if problems else 0)
+
+
+def _sensitivity(pct) -> str:
+    """The view's sensitivity to VP2 as the status line says it ("" when the status has none)."""
+    from ..vanishing.conditioning import POOR_PCT, TURN_DEG
+
+    if not isinstance(pct, (int, float)):
+        return ""
+    return f"; speeds {pct:.1f} % per {TURN_DEG:g}° of VP2" + (" (a view along the road)" if pct >= POOR_PCT else "")
