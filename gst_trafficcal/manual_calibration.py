@@ -140,19 +140,44 @@ def _costs(vp1, pp, vp2, p1, p2, d, to_vp1) -> np.ndarray:
     return np.where(np.isfinite(cost), cost, np.inf)
 
 
+@dataclass(frozen=True, eq=False)
+class RoadMarkings:
+    """What the manual calibration needs: lines that run with the traffic (lane dividers, kerbs) and road
+    segments of measured length, along the traffic (towards VP1) or across it (towards VP2); image pixels."""
+
+    lane_lines: np.ndarray  # (L, 3) homogeneous image lines
+    p1: np.ndarray  # (S, 2) segment ends
+    p2: np.ndarray  # (S, 2)
+    metres: np.ndarray  # (S,) measured lengths
+    to_vp1: np.ndarray  # (S,) bool: along the traffic
+    source: str = "road markings"
+
+    @classmethod
+    def from_gt(cls, gt: GroundTruth) -> "RoadMarkings":
+        """A BrnoCompSpeed ground truth's lane dividers and measured segments."""
+        return cls(np.asarray(gt.lane_div_lines, float).reshape(-1, 3), gt.distances_p1, gt.distances_p2,
+                   gt.distances_m, gt.distances_to_vp1, str(gt.source or "ground truth"))
+
+
 def calibrate_manual(gt: GroundTruth, image_size: tuple[int, int] = (1920, 1080), pp=None,
                      focal_range: tuple[float, float] = DEFAULT_FOCAL_RANGE) -> ManualCalibration:
     """ManualCalib + ManualScale from the lane dividers and measured segments of a ground truth."""
-    where = gt.source or "ground truth"
+    return calibrate_markings(RoadMarkings.from_gt(gt), image_size, pp, focal_range)
+
+
+def calibrate_markings(m: RoadMarkings, image_size: tuple[int, int] = (1920, 1080), pp=None,
+                       focal_range: tuple[float, float] = DEFAULT_FOCAL_RANGE) -> ManualCalibration:
+    """ManualCalib + ManualScale from road markings (:class:`RoadMarkings`)."""
+    where = m.source
     pp = image_centre(image_size) if pp is None else np.asarray(pp, float)
-    if len(gt.lane_div_lines) < 2:
+    if len(m.lane_lines) < 2:
         raise InputError(f"{where}: needs at least two lane-divider lines for VP1")
-    p1, p2, d, to_vp1 = gt.distances_p1, gt.distances_p2, gt.distances_m, gt.distances_to_vp1
+    p1, p2, d, to_vp1 = m.p1, m.p2, np.asarray(m.metres, float), np.asarray(m.to_vp1, bool)
     n1, n2 = int(np.count_nonzero(to_vp1)), int(np.count_nonzero(~to_vp1))
     if n1 == 0 or n2 == 0:
         raise InputError(f"{where}: needs measured segments both towards VP1 ({n1}) and towards VP2 ({n2})")
     try:
-        vp1 = intersect_lines_lsq(gt.lane_div_lines)
+        vp1 = intersect_lines_lsq(m.lane_lines)
     except GeometryError as exc:
         raise GeometryError(f"{where}: lane dividers: {exc}") from None
     if np.linalg.norm(vp1 - pp) < 1e-6 * image_size[0]:
