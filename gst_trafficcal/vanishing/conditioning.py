@@ -63,7 +63,7 @@ class Conditioning:
         elif self.poor:
             text += (": the camera looks along the road, which pins the speed scale down poorly — expect automatic "
                      "speeds a few per cent off; a view that sees the road more obliquely, or a calibration from "
-                     "road measurements (trafficcal calibrate-manual), measures better")
+                     "road measurements (trafficcal calibrate-manual --measurements), measures better")
         return text
 
 
