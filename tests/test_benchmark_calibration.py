@@ -44,7 +44,8 @@ def test_scene_folders_are_checked_before_any_run(tmp_path, cuboid_clip_dense):
 
 def test_conditioning_summary_counts_and_ranks(load_benchmark):
     b = load_benchmark("calibration")
-    rows = [{"scene": "a", "sens_pct": 0.3, "road_err_pct": -0.2}, {"scene": "b", "sens_pct": 12.0, "road_err_pct": -4.0},
+    rows = [{"scene": "a", "sens_pct": 0.3, "road_err_pct": -0.2},
+            {"scene": "b", "sens_pct": 12.0, "road_err_pct": -4.0},
             {"scene": "c", "sens_pct": 4.0, "road_err_pct": 0.5}, {"scene": "d", "sens_pct": 1.5, "road_err_pct": 3.0},
             {"scene": "e", "sens_pct": float("inf"), "road_err_pct": 5.0}, {"scene": "f", "state": "failed"}]
     text = b.conditioning_summary(rows)
