@@ -32,3 +32,10 @@ def test_demo_writes_every_output(tmp_path):
     assert "data:image/png;base64," in (out / "report.html").read_text()
     assert "Against the ground truth" in proc.stdout
     assert "vehicle classes right" in proc.stdout  # the labels by size, against the render's classes
+    from gst_trafficcal.calibration import load_calibration
+
+    auto, printed = load_calibration(out / "calibration_auto.json"), " ".join(proc.stdout.split())
+    if auto.camera is not None:  # the automatic VPs with how firmly the view pins the speeds down
+        assert f"VP2 lies {auto.conditioning().vp2_widths:.1f} image widths away" in printed
+    else:
+        assert "Automatic VPs (vpdetect): not converged" in printed
