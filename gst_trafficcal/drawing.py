@@ -144,11 +144,16 @@ def road_grid_segments(camera: Camera, image_size: tuple[int, int], spacing_m: f
 
 def horizon_segment(camera: Camera, image_size: tuple[int, int]) -> np.ndarray | None:
     """The horizon (line through VP1 and VP2) clipped to the frame as a (2, 2) segment, None when off-frame."""
+    return line_segment(camera.horizon, image_size)
+
+
+def line_segment(line: np.ndarray, image_size: tuple[int, int]) -> np.ndarray | None:
+    """A homogeneous image line (a, b, c) clipped to the frame as a (2, 2) segment, None when off-frame."""
     w, h = image_size
-    a, b, c = camera.horizon
+    a, b, c = np.asarray(line, dtype=np.float64) / np.hypot(line[0], line[1])
     big = 4.0 * (w + h)
     centre = np.array([w / 2.0, h / 2.0])
-    foot = centre - (a * centre[0] + b * centre[1] + c) * np.array([a, b])  # nearest horizon point
+    foot = centre - (a * centre[0] + b * centre[1] + c) * np.array([a, b])  # the line's point nearest it
     direction = np.array([-b, a])
     seg = np.stack([foot - big * direction, foot + big * direction])[None]
     out, _ = clip_segments(seg, w, h)

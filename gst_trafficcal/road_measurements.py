@@ -113,30 +113,14 @@ def load_road_measurements(path: str | Path) -> tuple[RoadMarkings, tuple[int, i
     return parse_road_measurements(data, str(path))
 
 
-def line_in_image(line: np.ndarray, image_size: tuple[int, int]) -> np.ndarray | None:
-    """The two points (2, 2) where a homogeneous line crosses the image's border, or None when it misses it."""
-    w, h = image_size
-    pts = []
-    a, b, c = line
-    if abs(b) > 1e-12:
-        pts += [(x, -(a * x + c) / b) for x in (0.0, w - 1.0)]
-    if abs(a) > 1e-12:
-        pts += [(-(b * y + c) / a, y) for y in (0.0, h - 1.0)]
-    inside = [p for p in pts if -1e-6 <= p[0] <= w - 1 + 1e-6 and -1e-6 <= p[1] <= h - 1 + 1e-6]
-    if len(inside) < 2:
-        return None
-    inside = np.array(inside)
-    far = np.linalg.norm(inside[:, None] - inside[None], axis=-1)
-    i, j = np.unravel_index(int(np.argmax(far)), far.shape)
-    return inside[[i, j]] if far[i, j] > 1.0 else None
-
-
 def road_measurements_dict(m: RoadMarkings, image_size: tuple[int, int]) -> dict:
     """``m`` as a measurements mapping (each lane divider by its two image-border points): e.g. a BrnoCompSpeed
     recording's markings written as a file a person can read and edit."""
+    from .drawing import line_segment
+
     dividers = []
     for k, line in enumerate(m.lane_lines):
-        ends = line_in_image(line, image_size)
+        ends = line_segment(line, image_size)
         if ends is None:
             raise InputError(f"{m.source}: lane divider {k} does not cross the {image_size[0]}x{image_size[1]} image")
         dividers.append(np.round(ends, 3).tolist())

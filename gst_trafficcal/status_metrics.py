@@ -4,8 +4,9 @@ Monitoring that already scrapes Prometheus — node_exporter's textfile collecto
 of a text file — gets every camera's run as series labelled ``run`` (the status file's folder) and ``source``:
 whether it is healthy, its state, vehicles and measured vehicles, a live stream's frames and dropped frames,
 camera moves (counters), speed against real time, the stream position, how old the status and the last
-vehicle are, and how firmly the view pins the speeds down (gauges).  A run without a readable status is ``trafficcal_healthy 0`` with nothing else.  The text is
-made by ``prometheus_client``, which also escapes the labels.
+vehicle are, and how firmly the view pins the speeds down (gauges).  A run without a readable status is
+``trafficcal_healthy 0`` with nothing else.  The text is made by ``prometheus_client``, which also escapes the
+labels.
 """
 
 from __future__ import annotations

@@ -17,8 +17,8 @@ from gst_trafficcal.calibration import load_calibration
 from gst_trafficcal.errors import InputError
 from gst_trafficcal.geometry import Camera, rotation_matrix
 from gst_trafficcal.manual_calibration import RoadMarkings, calibrate_manual
-from gst_trafficcal.road_measurements import (fit_line, line_in_image, load_road_measurements,
-                                              road_measurements_dict)
+from gst_trafficcal.drawing import line_segment
+from gst_trafficcal.road_measurements import fit_line, load_road_measurements, road_measurements_dict
 
 from .conftest import BRNO, ROOT, require_shared
 
@@ -58,10 +58,10 @@ def test_fit_line_and_its_image_border_points():
     line = fit_line(pts)
     assert np.hypot(*line[:2]) == pytest.approx(1.0)
     assert abs(abs(line[:2] @ np.array([0.8, -0.6])) - 1) < 1e-4  # the normal of direction (0.6, 0.8)
-    ends = line_in_image(line, SIZE)
+    ends = line_segment(line, SIZE)
     assert np.all(np.abs(np.c_[ends, np.ones(2)] @ line) < 1e-6)
     assert np.all((ends >= 0) & (ends <= np.array(SIZE) - 1 + 1e-6)) and np.linalg.norm(ends[1] - ends[0]) > 500
-    assert line_in_image(np.array([0.0, 1.0, 10.0]), SIZE) is None  # y = -10: above the image
+    assert line_segment(np.array([0.0, 1.0, 10.0]), SIZE) is None  # y = -10: above the image
 
 
 def test_cli_recovers_the_camera_from_measurements_of_an_exact_scene(tmp_path):

@@ -116,8 +116,7 @@ def command(video: Path, out_path: Path, png_path: Path | None, method: str, min
               f"after {cal.confidence.get('seconds', 0):.1f} s of video ({result.frames_read} frames, "
               f"{fps:.0f} fps analysis)  confidence vp1 {cal.confidence.get('vp1', 0):.2f} "
               f"vp2 {cal.confidence.get('vp2', 0):.2f} -> {out_path}, {png}", markup=False)
-    cond = cal.conditioning()
-    out.print(("[yellow]warning[/]: " if cond.poor else "View: ") + cond.describe(), highlight=False)
+    print_conditioning(out, cal)
     if "vp1_along_px" in cal.confidence:
         out.print(f"VP1 moved {cal.confidence['vp1_along_px']:+.1f} px along the lanes (away from the traffic: +) by "
                   f"the constant-speed motion of {cal.confidence.get('speed_tracks', 0):.0f} tracks"
@@ -127,6 +126,14 @@ def command(video: Path, out_path: Path, png_path: Path | None, method: str, min
         out.print(f"VP1 left where the tracks' lines meet: their speeds would move it "
                   f"{cal.confidence['vp1_along_refused_px']:+.1f} px along the lanes, too far for traffic at constant "
                   f"speed (braking or pulling away, e.g. before a junction?)", markup=False)
+
+
+def print_conditioning(console, cal, warned: bool = False) -> None:
+    """One line on how firmly ``cal``'s view pins the speeds down: a warning with what to do for a poorly
+    conditioned view, unless ``warned`` (vpdetect's own warning says it), then a plain line without the advice."""
+    cond = cal.conditioning()
+    console.print(("[yellow]warning[/]: " if cond.poor and not warned else "View: ") + cond.describe(not warned),
+                  highlight=False)
 
 
 def _add_scale(video: Path, cal, models, iou_threshold: float, min_vehicles: int, regression, out, model: str = ""):

@@ -108,17 +108,16 @@ def _picture(frame: np.ndarray, cal, markings) -> np.ndarray:
     orange across) labelled with its measured and calibrated length."""
     import cv2
 
-    from ..drawing import draw_calibration, draw_segments
-    from ..road_measurements import line_in_image
+    from ..drawing import draw_calibration, draw_segments, line_segment
 
     img = frame.copy()
     h, w = img.shape[:2]
     thick = 1 if w < 1280 else 2
     draw_calibration(img, cal.camera, thickness=thick)
     for line in markings.lane_lines:
-        ends = line_in_image(line, (w, h))
+        ends = line_segment(line, (w, h))
         if ends is not None:
-            draw_segments(img, ends.reshape(1, 2, 2), (255, 0, 255), thick)
+            draw_segments(img, ends[None], (255, 0, 255), thick)
     got = cal.camera.distance(markings.p1, markings.p2)
     font = 0.4 * thick + 0.1
     for a, b, d, g, along in zip(markings.p1, markings.p2, markings.metres, got, markings.to_vp1):

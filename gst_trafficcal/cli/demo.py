@@ -85,8 +85,9 @@ def command(out_dir: Path, preset: str, duration: float, seed: int, detector: st
         console.print(f"[bold]Automatic VPs[/] (vpdetect): f = {auto.camera.focal:.0f} px (true {true_cam.focal:.0f}),"
                       f" distance-ratio error {ratio.mean:.3f} mean / {ratio.median:.3f} median "
                       f"-> calibration_auto.json")
-        cond = auto.conditioning()
-        console.print(("[yellow]warning[/]: " if cond.poor else "View: ") + cond.describe(), highlight=False)
+        from .calibrate import print_conditioning
+
+        print_conditioning(console, auto)
     else:
         console.print(f"[bold]Automatic VPs[/] (vpdetect): not converged: {auto.reason}")
     manual = calibrate_manual(gt, image_size=(W, H))

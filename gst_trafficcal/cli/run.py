@@ -762,10 +762,9 @@ def run_one(console, video: Path | str, out_dir: Path, calibration_path: Path | 
         scale = f"scale {c.scale:.3f} m" if c.scale is not None else "no scale"
         console.print(f"[bold]Calibration[/] ({cal.source}, {cal.state}): VP1 ({c.vp1[0]:.1f}, {c.vp1[1]:.1f}), "
                       f"VP2 ({c.vp2[0]:.1f}, {c.vp2[1]:.1f}), f = {c.focal:.0f} px, {scale}", highlight=False)
-        cond = cal.conditioning()
-        said = any("image widths away" in w for w in summary.warnings)  # vpdetect's warning, printed below
-        console.print(("[yellow]warning[/]: " if cond.poor and not said else "View: ") + cond.describe(not said),
-                      highlight=False)
+        from .calibrate import print_conditioning
+
+        print_conditioning(console, cal, warned=any("image widths away" in w for w in summary.warnings))
     print_moves(console, summary)
     if summary.remeasured:
         console.print(f"{summary.remeasured} vehicles that left while the calibration was still settling were measured "
