@@ -801,22 +801,28 @@ def test_remeasure_measures_the_early_vehicles_again_with_the_final_calibration(
     """remeasure=true (trafficcal run on a file): a calibration with a 10 % larger scale arrives from upstream
     mid-clip; at the end the vehicles that left before it are measured again with it — their lines replaced in the
     events and CSV files, every vehicle then under the final calibration's id, their speeds 10 % above the same
-    vehicles' with the file's calibration alone — and a trafficcal-remeasured message says how many."""
+    vehicles' with the file's calibration alone —, each one sent again with revised=true (a
+    trafficcal-speed-revised message and an events-url POST, after its first one), and a trafficcal-remeasured
+    message says how many."""
     import gi
 
     gi.require_version("Gst", "1.0")
     from gi.repository import Gst
 
     from gst_trafficcal.gst.calibration_event import calibration_event
+    from gst_trafficcal.gst.meta import structure_to_dict
+
+    from .conftest import Receiver
 
     _, _, reference, _ = implicit
     first = load_calibration(clip / "calibration.json")
     final = first.with_scale(first.camera.scale * 1.1, source="bbscale")
     Gst.init(None)
+    webhook = Receiver()
     pipe = Gst.parse_launch(f"{source(clip)} ! {detector(clip)} ! identity name=inject ! speedometer "
                             f"calibration-file={clip / 'calibration.json'} remeasure=true "
                             f"events-file={tmp_path / 'events.jsonl'} csv-file={tmp_path / 'events.csv'} "
-                            f"results-file={tmp_path / 'results.json'} ! fakesink")
+                            f"results-file={tmp_path / 'results.json'} events-url={webhook.url} ! fakesink")
     src = pipe.get_by_name("inject").get_static_pad("src")
     sent = []
 
@@ -828,18 +834,23 @@ def test_remeasure_measures_the_early_vehicles_again_with_the_final_calibration(
         return Gst.PadProbeReturn.OK
 
     src.add_probe(Gst.PadProbeType.BUFFER, probe)
-    pipe.set_state(Gst.State.PLAYING)
-    bus, remeasured = pipe.get_bus(), []
-    while True:
-        msg = bus.timed_pop_filtered(120 * Gst.SECOND, Gst.MessageType.EOS | Gst.MessageType.ERROR
-                                     | Gst.MessageType.ELEMENT)
-        assert msg is not None and msg.type != Gst.MessageType.ERROR, msg and msg.parse_error()
-        if msg.type == Gst.MessageType.EOS:
-            break
-        s = msg.get_structure()
-        if s.get_name() == "trafficcal-remeasured":
-            remeasured.append(s.get_value("vehicles"))
-    pipe.set_state(Gst.State.NULL)
+    try:
+        pipe.set_state(Gst.State.PLAYING)
+        bus, remeasured, revised = pipe.get_bus(), [], []
+        while True:
+            msg = bus.timed_pop_filtered(120 * Gst.SECOND, Gst.MessageType.EOS | Gst.MessageType.ERROR
+                                         | Gst.MessageType.ELEMENT)
+            assert msg is not None and msg.type != Gst.MessageType.ERROR, msg and msg.parse_error()
+            if msg.type == Gst.MessageType.EOS:
+                break
+            s = msg.get_structure()
+            if s.get_name() == "trafficcal-remeasured":
+                remeasured.append(s.get_value("vehicles"))
+            if s.get_name() == "trafficcal-speed-revised":
+                revised.append(structure_to_dict(s))
+        pipe.set_state(Gst.State.NULL)
+    finally:
+        webhook.close()
     assert sent
     events = read_events(tmp_path / "events.jsonl").events
     assert read_events_csv(tmp_path / "events.csv") == events
@@ -850,3 +861,14 @@ def test_remeasure_measures_the_early_vehicles_again_with_the_final_calibration(
     by_id = {e.id: e for e in events}
     for e in early:
         assert by_id[e.id].speed_kmh == pytest.approx(1.1 * e.speed_kmh, rel=0.02), (e, by_id[e.id])
+    # sent again: the receiver got every vehicle once as it left, then each remeasured one with its new fields —
+    # exactly the files' lines —, the same as the trafficcal-speed-revised messages
+    first = [b for b in webhook.bodies if "revised" not in b]
+    again = [b for b in webhook.bodies if "revised" in b]
+    assert sorted(b["id"] for b in first) == sorted(e.id for e in events)
+    assert webhook.bodies == first + again and len(again) == remeasured[0]
+    assert all(b["revised"] is True for b in again)
+    assert [{k: v for k, v in b.items() if v is not None} for b in again] == revised
+    for b in again:
+        assert {k: v for k, v in b.items() if k != "revised"} == by_id[b["id"]].to_dict(), b
+    assert {e.id for e in early} <= {b["id"] for b in again}

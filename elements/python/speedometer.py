@@ -29,7 +29,9 @@ a line in ``events-file`` (JSON lines) / ``csv-file``; per frame with tracked ve
 minutes, lane and direction (:class:`gst_trafficcal.traffic_stats.IntervalTable`: rewritten as each interval
 closes, so a live stream's counts are on disk as they come, and at the end; every watched interval has a row,
 zero when no vehicle passed, and says how many seconds of it were watched).  A failed write (full disk) stops
-the pipeline with an error naming the file; every vehicle written before stays in the files.
+the pipeline with an error naming the file; every vehicle written before stays in the files.  With ``remeasure``,
+each vehicle measured again at the end is sent once more — a ``trafficcal-speed-revised`` message and an
+``events-url`` POST, its new fields with ``revised: true`` — so a receiver replaces what it got for that run and id.
 """
 
 from gst_trafficcal.gst._gi import GObject, Gst
@@ -66,9 +68,10 @@ class Speedometer(TrafficcalTransform):
         "remeasure": (bool, "Measure again at the end", "At end of stream, measure the vehicles measured under an "
                       "earlier calibration again with the final one (a file: its later calibration saw more) and "
                       "rewrite their lines in events-file, csv-file and results-file and their counts in "
-                      "intervals-file; a trafficcal-remeasured message says how many (trafficcal-speed messages and "
-                      "events-url POSTs already sent stay). Keeps every measured vehicle's reference points (about "
-                      "4 kB each) until the end: for files, not for endless live streams", False, _RW),
+                      "intervals-file; each is posted again as a trafficcal-speed-revised message and to events-url, "
+                      "with revised=true (same run and id), and a trafficcal-remeasured message says how many. "
+                      "Keeps every measured vehicle's reference points (about 4 kB each) until the end: for files, "
+                      "not for endless live streams", False, _RW),
         "interval": (float, "Interval", "Minutes per row of intervals-file (aligned to the clock with "
                      "start-datetime)", 0.01, 10080.0, 15.0, _RW),
         "calibration-file": (str, "Calibration file", "Calibration JSON used when no calibration with scale "
@@ -423,11 +426,18 @@ class Speedometer(TrafficcalTransform):
 
         return replace(measured.event.with_clock(self._start), run=self._run)
 
+    def _fields(self, event):
+        """A vehicle's event as messages and events-url carry it: its fields and, with a limit, ``over_limit``."""
+        from gst_trafficcal.traffic_stats import is_over_limit
+
+        fields = event.to_dict()
+        if self._limit:
+            fields["over_limit"] = is_over_limit(event.speed_kmh, self._limit, event.label)
+        return fields
+
     def _emit(self, finished):
         """Post and write each finished vehicle; False (after posting an error) when a file could not be written."""
         from gst_trafficcal.errors import InputError
-
-        from gst_trafficcal.traffic_stats import is_over_limit
 
         if self._meter is not None and self._meter.discarded != self._discarded:
             self._discarded = self._meter.discarded
@@ -436,9 +446,7 @@ class Speedometer(TrafficcalTransform):
         ok = True
         for m in finished:
             event = self._stamped(m)
-            fields = event.to_dict()
-            if self._limit:
-                fields["over_limit"] = is_over_limit(event.speed_kmh, self._limit, event.label)
+            fields = self._fields(event)
             self.post_element_message("trafficcal-speed", fields)
             self._deliver(event, fields)
             if self._outputs is None:
@@ -520,6 +528,11 @@ class Speedometer(TrafficcalTransform):
             for event in events:
                 self._intervals.revise(event)
         cal = self._meter.calibration
+        for event in events:  # what was sent when they left is corrected the same way: by (run, id)
+            fields = self._fields(event)
+            fields["revised"] = True
+            self.post_element_message("trafficcal-speed-revised", fields)
+            self._post(fields)
         self.post_element_message("trafficcal-remeasured", {
             "vehicles": len(events), "measured": sum(e.measured for e in events), "calibration_id": cal.id})
         if self._outputs is None:
@@ -535,6 +548,10 @@ class Speedometer(TrafficcalTransform):
         poster (a warning, once per new problem, when posting fails)."""
         if self._intervals is not None:
             self._intervals.vehicle(event)
+        self._post(fields)
+
+    def _post(self, fields):
+        """One event to events-url's poster, if any (a warning, once per new problem, when posting fails)."""
         if self._poster is None:
             return
         self._poster.post(fields)

@@ -762,13 +762,15 @@ def run_one(console, video: Path | str, out_dir: Path, calibration_path: Path | 
         scale = f"scale {c.scale:.3f} m" if c.scale is not None else "no scale"
         console.print(f"[bold]Calibration[/] ({cal.source}, {cal.state}): VP1 ({c.vp1[0]:.1f}, {c.vp1[1]:.1f}), "
                       f"VP2 ({c.vp2[0]:.1f}, {c.vp2[1]:.1f}), f = {c.focal:.0f} px, {scale}", highlight=False)
+        from ..vanishing.conditioning import ADVICE
         from .calibrate import print_conditioning
 
-        print_conditioning(console, cal, warned=any("image widths away" in w for w in summary.warnings))
+        print_conditioning(console, cal, warned=any(ADVICE in w for w in summary.warnings))
     print_moves(console, summary)
     if summary.remeasured:
+        sent = f" (and sent again to {redacted(events_url)}, with revised: true)" if events_url else ""
         console.print(f"{summary.remeasured} vehicles that left while the calibration was still settling were measured "
-                      "again with the final one", highlight=False)
+                      f"again with the final one{sent}", highlight=False)
     print_vehicles(console, summary.events, speed_limit)
     for w in summary.warnings:
         console.print(f"[yellow]warning[/]: {w}", highlight=False)
