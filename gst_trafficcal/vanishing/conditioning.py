@@ -61,10 +61,14 @@ class Conditioning:
         if self.poor and not advice:
             text += " (a poorly conditioned view)"
         elif self.poor:
-            text += (": the camera looks along the road, which pins the speed scale down poorly — expect automatic "
-                     "speeds a few per cent off; a view that sees the road more obliquely, or a calibration from "
-                     "road measurements (trafficcal calibrate-manual --measurements), measures better")
+            text += ADVICE
         return text
+
+
+ADVICE = (": the camera looks along the road, which pins the speed scale down poorly — expect automatic speeds a few "
+          "per cent off; a view that sees the road more obliquely, or a calibration from road measurements "
+          "(trafficcal calibrate-manual --measurements), measures better")
+"""What :meth:`Conditioning.describe` adds for a poor view (how a warning that gave the advice is recognised)."""
 
 
 def road_points(camera: Camera, image_size: tuple[int, int], max_heights: float = ROAD_HEIGHTS,
