@@ -152,6 +152,13 @@ def test_bad_invocations(tmp_path):
     cv2.imwrite(str(small), np.zeros((360, 640, 3), np.uint8))
     wrong = _run("calibrate-manual", "--measurements", path, "-o", out, "--image", small)
     assert wrong.returncode == 2 and "it is 640x360, the measurements are for 1280x720" in wrong.stderr
+    clip = tmp_path / "small.avi"  # a video: its first frame is the picture
+    writer = cv2.VideoWriter(str(clip), cv2.VideoWriter_fourcc(*"MJPG"), 25, (640, 360))
+    for _ in range(3):
+        writer.write(np.full((360, 640, 3), 90, np.uint8))
+    writer.release()
+    video = _run("calibrate-manual", "--measurements", path, "-o", out, "--image", clip)
+    assert video.returncode == 2 and "small.avi: it is 640x360, the measurements are for 1280x720" in video.stderr
     junk = tmp_path / "junk.png"
     junk.write_bytes(b"not a picture")
     unreadable = _run("calibrate-manual", "--measurements", path, "-o", out, "--image", junk)

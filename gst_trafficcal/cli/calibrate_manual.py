@@ -93,10 +93,10 @@ def _frame(path: Path, size: tuple[int, int]) -> np.ndarray:
         raise InputError(f"{path}: no such file")
     img = cv2.imread(str(path), cv2.IMREAD_COLOR)
     if img is None:
-        cap = cv2.VideoCapture(str(path))
-        ok, img = cap.read()
-        cap.release()
-        if not ok or img is None:
+        from .run import first_frame
+
+        img = first_frame(path)
+        if img is None:
             raise InputError(f"{path}: neither a picture nor a video OpenCV can read")
     if (img.shape[1], img.shape[0]) != size:
         raise InputError(f"{path}: it is {img.shape[1]}x{img.shape[0]}, the measurements are for {size[0]}x{size[1]}")
