@@ -228,7 +228,7 @@ class Style:
     text_bg_bgr: tuple[int, int, int] = (0, 0, 0)
     speeding_bgr: tuple[int, int, int] = (0, 0, 200)  # dark red (the reference point is bright red): box and label
     # background of a vehicle over the speed limit
-    panel_alpha: float = 0.55  # opacity of the counters panel's background
+    panel_alpha: float = 0.75  # opacity of the counters panel's background (the labels under it stay faint)
 
     def box_color(self, direction: str | None) -> tuple[int, int, int]:
         if direction == TOWARDS_VP1:
@@ -401,6 +401,28 @@ class GridCache:
         return self._grid, self._horizon
 
 
+def wrap_lines(lines: Sequence[str], max_width: float, scale: float, thickness: int = 1,
+               sep: str = "  ") -> list[str]:
+    """``lines`` with each one wider than ``max_width`` pixels (in OpenCV's simplex font) broken at ``sep`` into
+    as few lines as fit (a single item wider than that stays whole): the counters of many lanes on a small frame."""
+    def width(text: str) -> int:
+        return cv2.getTextSize(text, cv2.FONT_HERSHEY_SIMPLEX, scale, thickness)[0][0]
+
+    out: list[str] = []
+    for line in lines:
+        items = line.split(sep)
+        current = items[0]
+        for item in items[1:]:
+            joined = current + sep + item
+            if width(joined) <= max_width:
+                current = joined
+            else:
+                out.append(current)
+                current = item
+        out.append(current)
+    return out
+
+
 def draw_overlay(canvas: Canvas, marks: Sequence[VehicleMark], camera: Camera | None = None,
                  options: OverlayOptions = OverlayOptions(), counter_lines: Sequence[str] = (),
                  style: Style = Style(), grid_cache: GridCache | None = None) -> None:
@@ -446,9 +468,10 @@ def draw_overlay(canvas: Canvas, marks: Sequence[VehicleMark], camera: Camera | 
                 bg = style.speeding_bgr if is_over_limit(m.speed_kmh, options.speed_limit_kmh, m.label) \
                     else style.text_bg_bgr
                 canvas.label((left, top - 2), lines, fs, ft, style.text_bgr, bg)
-    if options.counters and counter_lines:  # last, to stay readable; translucent: the traffic under it shows
-        canvas.label((8, 8), list(counter_lines), fs, ft, style.text_bgr, style.text_bg_bgr,
-                     above=False, alpha=style.panel_alpha)
+    if options.counters and counter_lines:  # last, to stay readable; translucent: the traffic under it shows;
+        # at most half the frame wide, so a small frame's many lanes do not cover the road
+        lines = wrap_lines(counter_lines, 0.5 * canvas.size[0], fs, ft)
+        canvas.label((8, 8), lines, fs, ft, style.text_bgr, style.text_bg_bgr, above=False, alpha=style.panel_alpha)
 
 
 def marks_from_params(box: Sequence[float], label: str, object_id: int | None,

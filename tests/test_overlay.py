@@ -9,7 +9,7 @@ import pytest
 from gst_trafficcal.geometry import Camera, rotation_matrix
 from gst_trafficcal.overlay import (
     BOX_EDGES, OverlayOptions, Style, VehicleCounter, VehicleMark, bgr_to_yuv, canvas_for_bgr, canvas_for_planes,
-    draw_overlay, mark_label, marks_from_params,
+    draw_overlay, mark_label, marks_from_params, wrap_lines,
 )
 from gst_trafficcal.tracking.box3d import EDGES
 from gst_trafficcal.tracking.tracker import Observation, Track, TrackState
@@ -192,6 +192,23 @@ def test_labels_counters_and_toggles() -> None:
                  OverlayOptions(grid=False, horizon=False, boxes=False, labels=False, speeds=False, counters=False),
                  counter_lines=["x"])
     assert (img == GREY).all()
+
+
+def test_counters_of_many_lanes_wrap_within_half_the_frame() -> None:
+    """Eight lanes on a 320x240 frame: the lane line breaks between lanes (never inside one) and the panel stays in
+    the frame's left half; a line that fits is left alone."""
+    lanes = "  ".join(f"lane {k}: {k + 10}" for k in range(8))
+    fs = 0.35
+    wrapped = wrap_lines(["vehicles: 60", lanes], W / 2, fs)
+    assert wrapped[0] == "vehicles: 60" and len(wrapped) >= 3
+    assert "  ".join(wrapped[1:]) == lanes  # every lane, in order, each whole
+    assert all(cv2.getTextSize(t, cv2.FONT_HERSHEY_SIMPLEX, fs, 1)[0][0] <= W / 2 for t in wrapped)
+    assert wrap_lines(["a  b"], 1.0, fs) == ["a", "b"] and wrap_lines(["a  b"], 1000.0, fs) == ["a  b"]
+    img = np.full((H, W, 3), GREY, np.uint8)
+    before = img.copy()
+    draw_overlay(canvas_for_bgr(img), [], None, OverlayOptions(font_scale=fs), counter_lines=["vehicles: 60", lanes])
+    ys, xs = np.nonzero(np.any(img != before, axis=2))
+    assert xs.min() == 8 and xs.max() < 8 + W / 2 + 8 and ys.max() > 8 + 3 * 10  # several lines, left half
 
 
 def test_vehicle_counter_counts_each_track_once() -> None:
