@@ -358,8 +358,9 @@ class VehicleCounter:
         """Text lines for the counter panel."""
         out = [f"vehicles: {self.total}"]
         d = self.by_direction()
-        if d.get(TOWARDS_VP1) or d.get(AWAY_FROM_VP1):
-            out.append(f"towards VP1: {d.get(TOWARDS_VP1, 0)}  away: {d.get(AWAY_FROM_VP1, 0)}")
+        if d.get(TOWARDS_VP1) or d.get(AWAY_FROM_VP1):  # those tracked before the calibration have none
+            unknown = f"  unknown: {d[None]}" if d.get(None) else ""
+            out.append(f"towards VP1: {d.get(TOWARDS_VP1, 0)}  away: {d.get(AWAY_FROM_VP1, 0)}{unknown}")
         lanes = self.by_lane()
         if lanes:
             out.append("  ".join(f"lane {k}: {v}" for k, v in lanes.items()))

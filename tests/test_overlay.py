@@ -221,6 +221,8 @@ def test_vehicle_counter_counts_each_track_once() -> None:
     assert c.by_direction() == {"towards_vp1": 2, "away_from_vp1": 1}
     assert c.by_lane() == {0: 1, 1: 2}
     assert c.lines() == ["vehicles: 3", "towards VP1: 2  away: 1", "lane 0: 1  lane 1: 2"]
+    c.update([VehicleMark((0, 0, 1, 1), 4)])  # no direction (tracked before the calibration): the counts add up
+    assert c.lines()[:2] == ["vehicles: 4", "towards VP1: 2  away: 1  unknown: 1"]
 
 
 def test_vehicles_over_the_speed_limit_are_drawn_in_red_and_counted() -> None:
