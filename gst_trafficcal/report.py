@@ -221,6 +221,22 @@ def cumulative_error_uri(errors_kmh: np.ndarray, label: str = "this run") -> str
 # --------------------------------------------------------------------------- sections
 
 
+
+#: what a calibration's ``confidence`` entries mean, for people (vpdetect's evidence, bbscale's confidence; the
+#: calibration file keeps the keys): key -> (row label, format); other keys are shown as "confidence: key"
+CONFIDENCE_LABELS: dict[str, tuple[str, str]] = {
+    "vp1": ("VP1 support (share of the tracks' weight through it)", "{:.2f}"),
+    "vp2": ("VP2 support (share of the edgelets' weight through it)", "{:.2f}"),
+    "tracks": ("vehicle tracks voted for VP1", "{:.0f}"),
+    "edgelets": ("vehicle edgelets voted for VP2", "{:.0f}"),
+    "seconds": ("video watched until the vanishing points were found [s]", "{:.1f}"),
+    "speed_tracks": ("tracks whose constant-speed motion placed VP1 along the lanes", "{:.0f}"),
+    "vp1_along_px": ("VP1 moved along the lanes by the tracks' motion [px]", "{:+.1f}"),
+    "vp1_along_refused_px": ("VP1 move along the lanes asked for but refused (too far) [px]", "{:+.1f}"),
+    "vp1_across_px": ("VP1 moved across the lanes to where the tracks meet [px]", "{:+.1f}"),
+    "scale": ("scale confidence (bbscale: share of matched vehicles that agree)", "{:.2f}"),
+}
+
 def _calibration_section(cal: Calibration | None, frame: np.ndarray | None, spacing: float) -> str:
     out = ["<h2>Calibration</h2>"]
     if cal is None:
@@ -245,7 +261,8 @@ def _calibration_section(cal: Calibration | None, frame: np.ndarray | None, spac
             else:
                 rows.append(("scale", "unknown (no speeds in km/h)"))
         for k, v in cal.confidence.items():
-            rows.append((f"confidence: {k}", f"{v:.3g}"))
+            label, fmt = CONFIDENCE_LABELS.get(k, (f"confidence: {k}", "{:.3g}"))
+            rows.append((label, fmt.format(v)))
         out.append(_table(["", "value"], rows))
         if c is not None and cond.poor:
             out.append(f'<p class="warn">{_esc(cond.describe())}.</p>')

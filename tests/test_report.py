@@ -97,7 +97,7 @@ def _calibration() -> Calibration:
     K = np.array([[600.0, 0, W / 2], [0, 600.0, H / 2], [0, 0, 1]])
     R = rotation_matrix(20.0, 12.0, 0.0)
     return Calibration(Camera.from_KRt(K, R, -R @ np.array([0.0, 0.0, 7.0])), (W, H), source="vpdetect",
-                       confidence={"vp1": 0.93})
+                       confidence={"vp1": 0.93, "edgelets": 2163.0, "vp1_along_refused_px": -43.27, "new_key": 1.5})
 
 
 def _events() -> list[VehicleEvent]:
@@ -160,7 +160,11 @@ def test_report_without_ground_truth() -> None:
     assert listing[2][size] == "4.5 × 1.8 × 1.5" and listing[1][size] == "–"  # vehicle 2 has a size, 1 none
     calib = {r[0]: r[1] for r in _table_after(page, "")[1:]}
     assert calib["state"] == "calibrated" and calib["scale λ = camera height [m]"] == "7.000"
-    assert calib["confidence: vp1"] == "0.93"
+    # the calibration's evidence in words, its figures as the file has them; a key the report does not know as it is
+    assert calib["VP1 support (share of the tracks' weight through it)"] == "0.93"
+    assert calib["vehicle edgelets voted for VP2"] == "2163"
+    assert calib["VP1 move along the lanes asked for but refused (too far) [px]"] == "-43.3"
+    assert calib["confidence: new_key"] == "1.5"
     sensitivity = _calibration().conditioning().speed_pct
     assert calib["speeds change under a 0.1° error of VP2 [%]"] == f"{sensitivity:.2f}" and sensitivity < 2
     assert not [a for tag, a in page.attrs if a.get("class") == "warn"]
