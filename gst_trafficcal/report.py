@@ -221,7 +221,6 @@ def cumulative_error_uri(errors_kmh: np.ndarray, label: str = "this run") -> str
 # --------------------------------------------------------------------------- sections
 
 
-
 #: what a calibration's ``confidence`` entries mean, for people (vpdetect's evidence, bbscale's confidence; the
 #: calibration file keeps the keys): key -> (row label, format); other keys are shown as "confidence: key"
 CONFIDENCE_LABELS: dict[str, tuple[str, str]] = {
@@ -236,6 +235,7 @@ CONFIDENCE_LABELS: dict[str, tuple[str, str]] = {
     "vp1_across_px": ("VP1 moved across the lanes to where the tracks meet [px]", "{:+.1f}"),
     "scale": ("scale confidence (bbscale: share of matched vehicles that agree)", "{:.2f}"),
 }
+
 
 def _calibration_section(cal: Calibration | None, frame: np.ndarray | None, spacing: float) -> str:
     out = ["<h2>Calibration</h2>"]
@@ -253,7 +253,7 @@ def _calibration_section(cal: Calibration | None, frame: np.ndarray | None, spac
                      ("principal point [px]", f"{c.pp[0]:.1f}, {c.pp[1]:.1f}"),
                      ("focal length [px]", f"{c.focal:.1f}")]
             cond = cal.conditioning()
-            rows.append(("speeds change under a 0.1° error of VP2 [%]",
+            rows.append((f"speeds change under a {cond.turn_deg:g}° error of VP2 [%]",
                          f"{cond.speed_pct:.2f}" + (" (poorly conditioned view)" if cond.poor else "")))
             if c.scale is not None:
                 rows += [("scale λ = camera height [m]", f"{c.scale:.3f}"),

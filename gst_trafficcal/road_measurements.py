@@ -35,11 +35,13 @@ DIRECTIONS = {"along": True, "across": False}
 
 
 def fit_line(points: np.ndarray) -> np.ndarray:
-    """Homogeneous line (a, b, c), ‖(a, b)‖ = 1, through image points (N ≥ 2, 2) by total least squares."""
-    centre = points.mean(axis=0)
-    _, _, vt = np.linalg.svd(points - centre)
-    normal = vt[-1]
-    return np.array([normal[0], normal[1], -float(normal @ centre)])
+    """Homogeneous line (a, b, c), ‖(a, b)‖ = 1, through image points (N ≥ 2, 2) by total least squares (the
+    vehicle tracks' fit, :func:`gst_trafficcal.vanishing.tracks.fit_lines`, from the points' sums)."""
+    from .vanishing.tracks import fit_lines
+
+    x, y = points[:, 0], points[:, 1]
+    sums = np.array([[len(points), x.sum(), y.sum(), x @ x, x @ y, y @ y]], dtype=np.float64)
+    return fit_lines(sums)[0][0]
 
 
 def _point(value: Any, where: str) -> np.ndarray:

@@ -60,7 +60,7 @@ def command(out_dir: Path, preset: str, duration: float, seed: int, calibration_
     from ..synth.generate import generate
     from ..synth.truth_match import match_measured
     from ..vanishing.calibrator import CalibratorConfig, calibrate_video
-    from .run import RunPaths, measure_video, pipeline_description
+    from .run import RunPaths, measure_video, pipeline_description, print_remeasured
 
     console = Console()
     check_detector(detector)  # before the render
@@ -122,9 +122,7 @@ def command(out_dir: Path, preset: str, duration: float, seed: int, calibration_
                       f"distance-ratio error {evaluate_calibration(gt, m).ratio_abs.mean:.3f} mean "
                       "-> calibration_manual.json (trafficcal demo --calibration manual measures with it)",
                       highlight=False)
-        if measured.remeasured:
-            console.print(f"  {measured.remeasured} vehicles that left while the calibration was still settling were "
-                          "measured again with the final one", highlight=False)
+        print_remeasured(console, measured.remeasured, indent="  ")
 
     # 4. evaluation -------------------------------------------------------------------------------------------
     events = measured.events

@@ -462,6 +462,17 @@ def print_moves(console, summary: RunSummary) -> None:
                       highlight=False)
 
 
+def print_remeasured(console, n: int, events_url: str = "", indent: str = "") -> None:
+    """The line on the vehicles speedometer's ``remeasure`` measured again at the end (nothing when none)."""
+    if not n:
+        return
+    from ..publish import redacted
+
+    sent = f" (and sent again to {redacted(events_url)}, with revised: true)" if events_url else ""
+    console.print(f"{indent}{n} vehicles that left while the calibration was still settling were measured again with "
+                  f"the final one{sent}", highlight=False)
+
+
 def print_vehicles(console, events: list, speed_limit: "SpeedLimit | float | None" = None) -> None:
     """Counts and speeds (mean, V85, over the limit) per lane and direction, per class, and why vehicles were not
     measured (by kind of reason)."""
@@ -767,10 +778,7 @@ def run_one(console, video: Path | str, out_dir: Path, calibration_path: Path | 
 
         print_conditioning(console, cal, warned=any(ADVICE in w for w in summary.warnings))
     print_moves(console, summary)
-    if summary.remeasured:
-        sent = f" (and sent again to {redacted(events_url)}, with revised: true)" if events_url else ""
-        console.print(f"{summary.remeasured} vehicles that left while the calibration was still settling were measured "
-                      f"again with the final one{sent}", highlight=False)
+    print_remeasured(console, summary.remeasured, events_url)
     print_vehicles(console, summary.events, speed_limit)
     for w in summary.warnings:
         console.print(f"[yellow]warning[/]: {w}", highlight=False)
