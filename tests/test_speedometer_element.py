@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import os
 import subprocess
+import threading
 from pathlib import Path
 
 import numpy as np
@@ -875,3 +876,51 @@ def test_remeasure_measures_the_early_vehicles_again_with_the_final_calibration(
     for b in again:
         assert {k: v for k, v in b.items() if k != "revised"} == by_id[b["id"]].to_dict(), b
     assert {e.id for e in early} <= {b["id"] for b in again}
+
+
+def test_a_pipeline_stopped_without_eos_still_posts_the_vehicles_in_view(clip, limit):
+    """A pipeline set to NULL mid-stream (no end of stream: a service stopping it, an error elsewhere) with only
+    events-url — no file: the vehicles still in view are flushed to the webhook as well, each with over_limit like
+    every other POST (they get no trafficcal-speed message: the bus is going down)."""
+    import gi
+
+    gi.require_version("Gst", "1.0")
+    from gi.repository import Gst
+
+    from .conftest import Receiver
+
+    Gst.init(None)
+    webhook = Receiver()
+    pipe = Gst.parse_launch(f"{source(clip)} ! {detector(clip)} ! identity name=tap ! speedometer "
+                            f"calibration-file={clip / 'calibration.json'} speed-limit={limit} "
+                            f"events-url={webhook.url} ! fakesink")
+    messaged, reached = [], threading.Event()
+
+    def on_message(bus, msg):  # in the posting thread, so none is missed however the pipeline stops
+        s = msg.get_structure()
+        if s is not None and s.get_name() == "trafficcal-speed":
+            messaged.append(s.get_value("id"))
+
+    bus = pipe.get_bus()
+    bus.enable_sync_message_emission()
+    bus.connect("sync-message::element", on_message)
+
+    def probe(pad, info):
+        if info.get_buffer().pts >= 6 * Gst.SECOND:
+            reached.set()
+        return Gst.PadProbeReturn.OK
+
+    pipe.get_by_name("tap").get_static_pad("src").add_probe(Gst.PadProbeType.BUFFER, probe)
+    try:
+        pipe.set_state(Gst.State.PLAYING)
+        assert reached.wait(120)
+        pipe.set_state(Gst.State.NULL)
+    finally:
+        webhook.close()
+    posted = {b["id"]: b for b in webhook.bodies}
+    assert len(posted) == len(webhook.bodies)  # each vehicle once
+    assert set(messaged) <= set(posted)
+    flushed = [b for i, b in posted.items() if i not in set(messaged)]
+    assert flushed, (messaged, list(posted))
+    assert all("over_limit" in b for b in webhook.bodies), webhook.bodies
+    assert any(b["speed_kmh"] is not None for b in flushed), flushed

@@ -505,14 +505,15 @@ class Speedometer(TrafficcalTransform):
             self._emit(finished)
             if self.remeasure and not self._failed:
                 self._revise()
-        elif self._outputs is not None:  # stopping without EOS (or after an error): keep what can be kept, quietly
+        else:  # stopping without EOS (or after an error): keep what can be kept, quietly
             for m in finished:
                 event = self._stamped(m)
-                try:
-                    self._outputs.vehicle(event, m.times_s if len(m.points_px) else None, m.points_px)
-                except InputError:
-                    pass
-                self._deliver(event, event.to_dict())
+                if self._outputs is not None:
+                    try:
+                        self._outputs.vehicle(event, m.times_s if len(m.points_px) else None, m.points_px)
+                    except InputError:
+                        pass
+                self._deliver(event, self._fields(event))
         self._close(report=post)
 
     def _revise(self):
