@@ -177,12 +177,20 @@ def draw_segments(image: np.ndarray, segments: np.ndarray, color: tuple[int, ...
 
 
 def draw_calibration(image: np.ndarray, camera: Camera, spacing_m: float = 3.0, thickness: int = 1,
-                     horizon: bool = True) -> np.ndarray:
-    """Draw the road grid and the horizon of ``camera`` on a BGR image in place; returns the image."""
+                     horizon: bool = True, opacity: float = 1.0) -> np.ndarray:
+    """Draw the road grid and the horizon of ``camera`` on a BGR image in place; returns the image.
+
+    The grid stops where its cells along the road get shorter than a thirty-sixth of the picture's height (and
+    never below what its line width leaves readable), so a 1080p picture is no denser than a 540p one;
+    ``opacity`` < 1 blends it in, for pictures whose own marks must stand out above it.
+    """
     h, w = image.shape[:2]
-    grid = road_grid_segments(camera, (w, h), spacing_m, min_cell_px=8.0 + 6.0 * thickness)
-    draw_segments(image, grid.along, GRID_ALONG_BGR, thickness)
-    draw_segments(image, grid.across, GRID_ACROSS_BGR, thickness)
+    grid = road_grid_segments(camera, (w, h), spacing_m, min_cell_px=max(8.0 + 6.0 * thickness, h / 36.0))
+    layer = image.copy() if opacity < 1.0 else image
+    draw_segments(layer, grid.along, GRID_ALONG_BGR, thickness)
+    draw_segments(layer, grid.across, GRID_ACROSS_BGR, thickness)
+    if layer is not image:
+        cv2.addWeighted(layer, opacity, image, 1.0 - opacity, 0.0, dst=image)
     if horizon:
         seg = horizon_segment(camera, (w, h))
         if seg is not None:

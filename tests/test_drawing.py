@@ -85,3 +85,30 @@ def test_draw_calibration_paints_grid_and_horizon() -> None:
     mid = np.round(seg.mean(axis=0)).astype(int)
     patch = img[mid[1] - 2:mid[1] + 3, mid[0] - 2:mid[0] + 3].reshape(-1, 3)
     assert (patch[:, 2] > 150).any() and (patch[:, 2] > patch[:, 1] + 60).any()
+
+
+def test_a_1080p_picture_is_no_denser_than_a_540p_one() -> None:
+    """The same view at twice the resolution (and twice the line width) stops its grid where the 540p picture
+    does, not further towards the horizon with cells a 1080p screen shows at half the size."""
+    small = _camera()
+    K = np.array([[1800.0, 0, 960], [0, 1800.0, 540], [0, 0, 1]])
+    R = rotation_matrix(15.0, 20.0, 2.0)
+    big = Camera.from_KRt(K, R, -R @ np.array([0.0, 0.0, 7.5]))
+    tops = []
+    for cam, (w, h), thick in ((small, SIZE, 1), (big, (1920, 1080), 2)):
+        img = np.zeros((h, w, 3), np.uint8)
+        draw_calibration(img, cam, 3.0, thickness=thick, horizon=False)
+        tops.append(np.flatnonzero(img.any(axis=(1, 2)))[0] * SIZE[1] / h)
+    assert tops[1] >= tops[0] - 2, tops
+
+
+def test_draw_calibration_blends_the_grid_with_opacity() -> None:
+    cam = _camera(tilt=12)
+    grey = np.full((SIZE[1], SIZE[0], 3), 128, np.uint8)
+    full, half = grey.copy(), grey.copy()
+    draw_calibration(full, cam, 3.0, horizon=False)
+    draw_calibration(half, cam, 3.0, horizon=False, opacity=0.5)
+    d_full = np.abs(full.astype(int) - 128)
+    d_half = np.abs(half.astype(int) - 128)
+    assert d_full.max() > 100 and not (d_half > 0)[d_full == 0].any()
+    assert np.all(np.abs(d_half - 0.5 * d_full) <= 1.0)

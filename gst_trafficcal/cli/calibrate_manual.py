@@ -113,7 +113,7 @@ def _picture(frame: np.ndarray, cal, markings) -> np.ndarray:
     img = frame.copy()
     h, w = img.shape[:2]
     thick = 1 if w < 1280 else 2
-    draw_calibration(img, cal.camera, thickness=thick)
+    draw_calibration(img, cal.camera, thickness=thick, opacity=0.6)  # under the segments and their labels
     for line in markings.lane_lines:
         ends = line_segment(line, (w, h))
         if ends is not None:
