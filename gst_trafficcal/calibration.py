@@ -39,6 +39,7 @@ import numpy as np
 from .errors import GeometryError, InputError
 from .fileio import atomic_write_text, read_json
 from .geometry import Camera
+from .road_homography import road_homography
 
 if TYPE_CHECKING:
     from .vanishing.conditioning import Conditioning
@@ -112,6 +113,10 @@ class Calibration:
             if c.scale is not None:
                 K, R, t = c.to_KRt()
                 d["camera"] = {"K": K.tolist(), "R": R.tolist(), "t": t.tolist()}
+                try:  # for tools that take a homography or four points (derived, ignored when loading)
+                    d["road_homography"] = road_homography(c, self.image_size).to_dict()
+                except GeometryError:  # no road rows in the frame: the file stays valid without it
+                    pass
             d["camera_calibration"] = {"vp1": c.vp1.tolist(), "vp2": c.vp2.tolist(), "pp": c.pp.tolist(),
                                        "scale": None if c.scale is None else c.brno_scale()}
             d["conditioning"] = self.conditioning().to_dict()
