@@ -30,7 +30,9 @@ def parse_focal_range(text: str | None) -> tuple[float, float] | None:
                     "when it cannot converge (the JSON then has state 'failed' and the reason). With --scale, "
                     "BBScale (paper §4.3) then runs on the same video with these VPs and adds the scene scale λ "
                     "(state 'calibrated', confidence 'scale') or, when it cannot, keeps state 'vps' with the "
-                    "reason.")
+                    "reason. A calibration with a scale also holds the road-plane homography (image pixels to "
+                    "metres) and four road points with their metres, for OpenCV or supervision "
+                    "(docs/outputs.md).")
 @click.argument("video", type=click.Path(path_type=Path))
 @click.option("-o", "--output", "out_path", required=True, type=click.Path(path_type=Path),
               help="Calibration JSON to write.")

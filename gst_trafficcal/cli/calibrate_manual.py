@@ -16,7 +16,8 @@ import numpy as np
                     "as image points, segments with from/to pixels, metres and direction along|across; "
                     "docs/vpdetect.md \"Your own road measurements\"). For a camera the automatic calibration "
                     "calls poorly conditioned (looking along the road). Writes our calibration JSON (with the "
-                    "BrnoCompSpeed camera_calibration block); with --image, a picture of the grid and the "
+                    "BrnoCompSpeed camera_calibration block, and the road-plane homography for OpenCV or "
+                    "supervision: docs/outputs.md); with --image, a picture of the grid and the "
                     "segments beside it.")
 @click.option("--gt", "gt_path", type=click.Path(path_type=Path), default=None,
               help="Ground truth gt_data.pkl of a BrnoCompSpeed recording.")
