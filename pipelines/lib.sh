@@ -78,3 +78,18 @@ keep_earlier_live() {  # URI OUT_DIR: prints the folder a live stream's earlier 
     done
     echo "$kept"
 }
+
+launch() {  # ARGS...: gst-launch-1.0 -e ARGS, with SIGTERM handled as Ctrl-C; returns its exit code
+    # gst-launch-1.0 ends the stream on Ctrl-C (-e: every element finishes, a recording is completed) but dies at
+    # once on SIGTERM — what systemctl stop, docker stop and Kubernetes send —, and a script killed while it waits
+    # leaves it running. Here it runs in the background and both signals reach it as SIGINT; the script waits
+    # until it has finished. (A terminal's Ctrl-C reaches it twice, directly and passed on: -e still ends cleanly.)
+    gst-launch-1.0 -e "$@" &
+    launch_pid=$!
+    trap 'kill -INT "$launch_pid" 2>/dev/null || true' INT TERM
+    while kill -0 "$launch_pid" 2>/dev/null; do
+        wait "$launch_pid"  # returns early when a trapped signal arrives: wait again
+    done
+    trap - INT TERM
+    wait "$launch_pid"  # its exit code (bash keeps it)
+}

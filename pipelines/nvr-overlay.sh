@@ -17,7 +17,8 @@
 # The pipeline (printed before it runs):
 #   uridecodebin ! videoconvert ! I420 ! vpdetect ! vehicledetect ! tracker [! speedometer] ! trafficoverlay
 #     ! x264enc ! h264parse ! <muxer> ! filesink
-# Live sources (rtsp://...) run until Ctrl-C; the recording is then finalised (gst-launch-1.0 -e).
+# Live sources (rtsp://...) run until Ctrl-C or SIGTERM (a service stopped); the recording is then finalised
+# (gst-launch-1.0 -e).
 #
 # Environment (all optional):
 #   ANALYSIS       replaces the analysis chain "vpdetect ! vehicledetect ! tracker ! speedometer" (e.g. to
@@ -132,4 +133,4 @@ pipeline+=(! trafficoverlay "${overlay_cal[@]}" ${OVERLAY_OPTS:-} ! videoconvert
            ! $encoder ! h264parse ! $muxer ! "${sink[@]}")
 
 echo "nvr-overlay: gst-launch-1.0 -e ${pipeline[*]}" >&2
-exec gst-launch-1.0 -e "${pipeline[@]}"
+launch "${pipeline[@]}"  # SIGTERM handled as Ctrl-C: the recording is completed (lib.sh)

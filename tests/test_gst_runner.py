@@ -148,6 +148,7 @@ def test_ctrl_c_finishes_the_stream_and_a_second_one_stops_at_once(tmp_path, ctr
 
     out = run_pipeline_file(ENDLESS.format(tmp_path / "b.mp4"), progress=interrupt, poll_s=0.05)
     assert out.stopped == "interrupted" and _frames(tmp_path / "b.mp4") >= 10  # a playable file up to there
+    assert out.stopped_by == "SIGINT"
 
     calls = []
 
@@ -161,6 +162,23 @@ def test_ctrl_c_finishes_the_stream_and_a_second_one_stops_at_once(tmp_path, ctr
                           "identity sleep-time=300000 ! fakesink", progress=stubborn, poll_s=0.05)
     assert len(calls) == 2
     assert signal.getsignal(signal.SIGINT) is signal.default_int_handler  # the handler is put back
+
+
+def test_sigterm_finishes_the_stream_as_ctrl_c_does(tmp_path):
+    """SIGTERM — what systemctl stop, docker stop and Kubernetes send — ends the stream like Ctrl-C (a playable
+    file), says which signal it was, and the process's own SIGTERM handling is put back afterwards."""
+    import os
+    import signal
+
+    def terminate(pos, dur):
+        if pos >= 0.5:
+            os.kill(os.getpid(), signal.SIGTERM)  # while the bus loop runs
+
+    before = signal.getsignal(signal.SIGTERM)
+    out = run_pipeline_file(ENDLESS.format(tmp_path / "t.mp4"), progress=terminate, poll_s=0.05)
+    assert out.stopped == "interrupted" and out.stopped_by == "SIGTERM"
+    assert _frames(tmp_path / "t.mp4") >= 10  # completed by the end-of-stream: playable up to there
+    assert signal.getsignal(signal.SIGTERM) is before
 
 
 def test_a_live_stream_too_fast_for_the_machine_drops_its_oldest_frames_a_file_never_does(tmp_path):

@@ -211,3 +211,39 @@ def test_measure_on_a_source_that_sends_nothing_stops_after_stall_timeout(tmp_pa
     assert "! watchdog timeout=2000 ! video/x-raw,format=I420" in proc.stderr
     bad = script("measure.sh", uri, tmp_path / "bad", STALL_TIMEOUT="soon")
     assert bad.returncode == 2 and "STALL_TIMEOUT must be a number of seconds, got 'soon'" in bad.stderr
+
+
+@pytest.fixture
+def rtsp_clip(clip):
+    """The clip served live over RTSP by a server in this process (needs gir1.2-gst-rtsp-server-1.0)."""
+    from .conftest import serve_rtsp
+
+    yield from serve_rtsp(f"( filesrc location={clip / 'video.mp4'} ! qtdemux ! h264parse ! rtph264pay name=pay0 "
+                          "pt=96 )", "clip")
+
+
+def test_measure_stopped_by_sigterm_completes_its_files(clip, rtsp_clip, tmp_path):
+    """SIGTERM to the script alone (what docker stop sends to a container's first process, systemctl stop to a
+    service's): gst-launch-1.0 would die at once, or run on with the script gone; the script passes it on as Ctrl-C
+    and waits, so the stream is ended, every file completed and the summary printed."""
+    import signal
+    import time
+
+    out = tmp_path / "out"
+    env = dict(os.environ, GST_REGISTRY=str(REGISTRY))
+    proc = subprocess.Popen(["bash", str(PIPELINES / "measure.sh"), rtsp_clip, str(out),
+                             str(clip / "calibration.json")], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                            text=True, env=env)
+    events = out / "vehicles.jsonl"
+    deadline = time.monotonic() + 120
+    while time.monotonic() < deadline and proc.poll() is None and not (events.is_file() and events.read_text()):
+        time.sleep(0.2)
+    assert proc.poll() is None, proc.communicate()
+    proc.send_signal(signal.SIGTERM)
+    stdout, stderr = proc.communicate(timeout=120)
+    assert proc.returncode == 0, stderr[-2000:]
+    written = read_events(events).events
+    assert f"measure: {len(written)} vehicles" in stdout, stdout + stderr[-2000:]
+    assert len(written) >= 2 and max(e.last_timestamp_s for e in written) < 11.5  # stopped before the clip's end
+    assert load_results(out / "system.json").calibration is not None  # completed at the end of the stream
+    assert read_events_csv(out / "vehicles.csv") == written

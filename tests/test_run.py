@@ -589,9 +589,10 @@ def test_split_every_ends_each_connection_on_the_clock_and_connects_again_at_onc
     assert "--split-every: '1w' is not a period" in line
 
 
-def test_reconnecting_to_a_stream_that_is_not_there_goes_on_until_ctrl_c(clip, tmp_path):
-    """Nothing answers: each attempt fails, the wait doubles, Ctrl-C ends it (130) with the table; a file is read
-    once, so --reconnect with one is refused."""
+@pytest.mark.parametrize("stop", ["SIGINT", "SIGTERM"])
+def test_reconnecting_to_a_stream_that_is_not_there_goes_on_until_ctrl_c(clip, tmp_path, stop):
+    """Nothing answers: each attempt fails, the wait doubles, Ctrl-C — or SIGTERM, a service stopped — ends it
+    (130) with the table; a file is read once, so --reconnect with one is refused."""
     import signal
     import time
 
@@ -612,7 +613,7 @@ def test_reconnecting_to_a_stream_that_is_not_there_goes_on_until_ctrl_c(clip, t
                 and st.parts_done >= 2:
             waiting = st
     assert proc.poll() is None, proc.communicate()
-    proc.send_signal(signal.SIGINT)
+    proc.send_signal(getattr(signal, stop))
     stdout, stderr = proc.communicate(timeout=60)
     assert proc.returncode == 130, stdout[-2000:] + stderr[-2000:]
     assert "connecting again in 1 s" in stdout and "connecting again in 2 s" in stdout and "Traceback" not in stderr
@@ -623,8 +624,46 @@ def test_reconnecting_to_a_stream_that_is_not_there_goes_on_until_ctrl_c(clip, t
     assert read_status(out / "status.json").state == "interrupted"
     written = "".join(p.read_text(errors="replace") for p in out.rglob("*") if p.is_file())
     assert "s3cr3t" not in stdout + stderr + written and "admin:***@127.0.0.1" in stdout
-    line = one_line_error(trafficcal("run", clip / "video.mp4", "--out", tmp_path / "x", "--reconnect"))
-    assert line == "trafficcal: error: --reconnect is for a live stream (a URI): a file is read to its end once"
+    if stop == "SIGINT":
+        line = one_line_error(trafficcal("run", clip / "video.mp4", "--out", tmp_path / "x", "--reconnect"))
+        assert line == "trafficcal: error: --reconnect is for a live stream (a URI): a file is read to its end once"
+
+
+def test_a_live_stream_stopped_by_sigterm_completes_every_output(clip, rtsp_clip, tmp_path):
+    """`docker stop`, `systemctl stop` and Kubernetes send SIGTERM: the run ends as at Ctrl-C — the vehicles in view
+    written, a playable overlay, the report, status "interrupted" — and says it was stopped."""
+    import signal
+    import time
+
+    out = tmp_path / "live"
+    proc = subprocess.Popen([sys.executable, "-m", "gst_trafficcal", "run", rtsp_clip, "--out", str(out),
+                             "--calibration", str(clip / "calibration.json"), "--status-interval", "1"],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    deadline = time.monotonic() + 120
+    while time.monotonic() < deadline and proc.poll() is None:  # until the first vehicle has left
+        if (out / "vehicles.jsonl").is_file() and (out / "vehicles.jsonl").read_text().strip():
+            break
+        time.sleep(0.2)
+    assert proc.poll() is None, proc.communicate()
+    proc.send_signal(signal.SIGTERM)
+    stdout, stderr = proc.communicate(timeout=120)
+    assert proc.returncode == 130, stdout[-2000:] + stderr[-2000:]
+    assert "stopped (SIGTERM) at" in stdout and "Traceback" not in stderr
+    events = read_events(out / "vehicles.jsonl").events
+    status = read_status(out / "status.json")
+    assert status.state == "interrupted" and status.vehicles == len(events) >= 2
+    assert 12 < _overlay_frames(out / "overlay.mp4") < 150  # completed by the end-of-stream: playable
+    for name in ("calibration.json", "system.json", "vehicles.csv", "intervals.csv", "report.html"):
+        assert (out / name).is_file(), name
+
+
+def _overlay_frames(path: Path) -> int:
+    cap = cv2.VideoCapture(str(path))
+    n = 0
+    while cap.read()[0]:
+        n += 1
+    cap.release()
+    return n
 
 
 def test_a_camera_move_is_told_with_what_it_cost():

@@ -16,6 +16,7 @@ calibration the run ended with), ``system.json`` (BrnoCompSpeed results), ``vehi
 from __future__ import annotations
 
 from collections import Counter
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -185,7 +186,8 @@ class RunSummary:
     warnings: list[str] = field(default_factory=list)
     errors: list[str] = field(default_factory=list)  # output files that could not be written
     duration_s: float | None = None
-    stopped: str = ""  # "interrupted" (Ctrl-C) or "duration" (--duration): ended before the stream did
+    stopped: str = ""  # "interrupted" (Ctrl-C, SIGTERM) or "duration" (--duration): ended before the stream did
+    stopped_by: str = ""  # "interrupted": "SIGINT" or "SIGTERM"
     position_s: float | None = None  # how far into the stream the run got
     moves: list = field(default_factory=list)  # gst.runner.Move: when the camera moved, the calibrations around it
     discarded: int = 0  # tracks seen only between a camera move and its notice (not vehicles, not reported)
@@ -374,7 +376,8 @@ def measure_video(video: Path | str, out_dir: Path, description: str, console, l
             f"frames ({100 * share:.0f} %) were dropped to stay in real time; the vehicles are measured from the "
             "frames kept (--no-overlay, --detector background or a faster machine keep more)")
     summary = RunSummary(outcome.calibration, _read_vehicle_events(paths), outcome.warnings,
-                         duration_s=outcome.duration_s, stopped=outcome.stopped, position_s=outcome.position_s,
+                         duration_s=outcome.duration_s, stopped=outcome.stopped, stopped_by=outcome.stopped_by,
+                         position_s=outcome.position_s,
                          moves=outcome.moves,
                          discarded=max((m["tracks"] for m in outcome.named("trafficcal-discarded")), default=0),
                          remeasured=sum(m["vehicles"] for m in outcome.named("trafficcal-remeasured")),
@@ -573,8 +576,8 @@ def command(videos: tuple[str, ...], out_dir: Path, calibration_path: Path | Non
             start_time: str, interval_min: float, duration_s: float | None, events_url: str,
             reconnect: bool, no_overlay: bool, status_s: float = 5.0, split_every: str = "") -> None:
     """Calibrate and measure every vehicle of VIDEO (a file, or the URI of a stream: rtsp://, http://, file://)
-    in one pass through the GStreamer elements. Ctrl-C (or --duration) ends the run as the end of the stream
-    would, with every output complete; a second Ctrl-C stops at once.
+    in one pass through the GStreamer elements. Ctrl-C (or --duration, or SIGTERM: a service stopped) ends the
+    run as the end of the stream would, with every output complete; a second Ctrl-C stops at once.
 
     Writes to --out: calibration.json, system.json (BrnoCompSpeed results), vehicles.jsonl, vehicles.csv,
     intervals.csv (the traffic count per --interval, lane and direction), overlay.mp4 (unless --no-overlay),
@@ -658,22 +661,8 @@ def command(videos: tuple[str, ...], out_dir: Path, calibration_path: Path | Non
                         warn=lambda text: console.print(f"[yellow]warning[/]: {text}", highlight=False))
     options = RunOptions(detector, regression_path, body_shapes, limit, interval_min, duration_s, events_url,
                          no_overlay, gt_path, live_clock, start, status=status, split_every_s=split_s)
-    try:
-        if reconnect:
-            from .run_parts import run_stream
-
-            failed = run_stream(console, inputs[0], out_dir, calibration_path, options)
-        elif len(inputs) == 1:
-            summary = run_one(console, inputs[0], out_dir, calibration_path, options)
-            failed = "interrupted" if summary.stopped == "interrupted" else ""
-        else:
-            from .run_parts import run_files
-
-            failed = run_files(console, inputs, out_dir, calibration_path, options, starts)
-    except (InputError, KeyboardInterrupt) as exc:
-        status.update(state="failed" if isinstance(exc, InputError) else "interrupted",
-                      error=str(exc) if isinstance(exc, InputError) else status.status.error)
-        raise
+    with sigterm_as_ctrl_c():  # a service stopped (systemctl/docker stop, Kubernetes) loses nothing either
+        failed = _run_inputs(console, inputs, out_dir, calibration_path, options, starts, reconnect, status)
     status.update(state="interrupted" if failed == "interrupted" else "failed" if failed else "finished",
                   error=failed if failed and failed != "interrupted" else status.status.error,
                   next_attempt_at=None, force=True)
@@ -682,6 +671,47 @@ def command(videos: tuple[str, ...], out_dir: Path, calibration_path: Path | Non
         sys.exit(130)  # the shell's code for Ctrl-C; every output above is complete
     if failed:
         raise InputError(failed)
+
+
+def _run_inputs(console: Any, inputs: list[str], out_dir: Path, calibration_path: Path | None, options: RunOptions,
+                starts: list, reconnect: bool, status: Any) -> str:
+    """The run itself: a live stream with reconnection, one file or URI, or several files; "" when it ended by
+    itself, "interrupted", or what failed.  status.json says "failed" or "interrupted" before an error or a second
+    Ctrl-C leaves."""
+    try:
+        if reconnect:
+            from .run_parts import run_stream
+
+            return run_stream(console, inputs[0], out_dir, calibration_path, options)
+        if len(inputs) == 1:
+            summary = run_one(console, inputs[0], out_dir, calibration_path, options)
+            return "interrupted" if summary.stopped == "interrupted" else ""
+        from .run_parts import run_files
+
+        return run_files(console, inputs, out_dir, calibration_path, options, starts)
+    except (InputError, KeyboardInterrupt) as exc:
+        status.update(state="failed" if isinstance(exc, InputError) else "interrupted",
+                      error=str(exc) if isinstance(exc, InputError) else status.status.error)
+        raise
+
+
+@contextmanager
+def sigterm_as_ctrl_c():
+    """SIGTERM — what systemctl stop, docker stop and Kubernetes send — handled as Ctrl-C while the run lasts:
+    inside a pipeline the stream is ended and every output completed (gst.runner), between pipelines (a
+    reconnection's wait) KeyboardInterrupt.  Left alone where a program ignores SIGTERM or outside the main thread."""
+    import signal
+    import threading
+
+    if threading.current_thread() is not threading.main_thread() or \
+            signal.getsignal(signal.SIGTERM) is not signal.SIG_DFL:
+        yield
+        return
+    signal.signal(signal.SIGTERM, signal.default_int_handler)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, signal.SIG_DFL)
 
 
 def names_start(video: Path | str) -> Any:
@@ -761,7 +791,8 @@ def run_one(console, video: Path | str, out_dir: Path, calibration_path: Path | 
         start = stream_start(summary.events)
     if summary.stopped:
         at = f"{summary.position_s:.1f} s" if summary.position_s is not None else "the start"
-        why = "interrupted (Ctrl-C)" if summary.stopped == "interrupted" else "--duration reached"
+        why = "--duration reached" if summary.stopped != "interrupted" else \
+            "stopped (SIGTERM)" if summary.stopped_by == "SIGTERM" else "interrupted (Ctrl-C)"
         console.print(f"[yellow]{why}[/] at {at}: the outputs cover the video up to there", highlight=False)
 
     cal = summary.calibration

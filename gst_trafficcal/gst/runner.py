@@ -52,6 +52,7 @@ class RunOutcome:
     position_s: float | None = None  # last position seen
     duration_s: float | None = None
     stopped: str = ""  # why the run ended before the stream did ("interrupted", "duration"); "" at the stream's end
+    stopped_by: str = ""  # "interrupted": the signal that did it, "SIGINT" (Ctrl-C) or "SIGTERM" (a service stopped)
     live: bool = False  # the source was live (a camera): it does not wait for us
     frames_in: int = 0  # frames that reached the live queue (see run_pipeline_file's ``live_queue``), live or not
     frames_dropped: int = 0  # of those, dropped to keep up with a live source (never from a file)
@@ -229,7 +230,8 @@ def run_pipeline_file(description: str, progress: Progress | None = None,
     element finishes as at the stream's end (speedometer writes the vehicles still in view, mp4mux completes a
     playable file): after ``stop_after_s`` seconds of video (``outcome.stopped`` "duration"; exactly, at the first
     frame that late, when the description has an element named ``stop_element`` on the decoded video, else when
-    the pipeline's position gets there), or on Ctrl-C ("interrupted"; a second Ctrl-C, or no end-of-stream within
+    the pipeline's position gets there), or on Ctrl-C or SIGTERM — what ``systemctl stop``, ``docker stop`` and
+    Kubernetes send — ("interrupted", ``outcome.stopped_by`` the signal; a second one, or no end-of-stream within
     ``drain_timeout_s``, stops it at once).
     Raises :class:`PipelineError` when the description does not parse, :class:`RunFailed` (with the outcome so
     far) when an element posts an ERROR; the pipeline is stopped first, so elements write what they have.
@@ -301,15 +303,16 @@ def run_pipeline_file(description: str, progress: Progress | None = None,
 
     interrupts = []
 
-    def on_sigint(signum, frame) -> None:  # Ctrl-C: finish the stream; a second one: stop at once
+    def on_signal(signum, frame) -> None:  # Ctrl-C or SIGTERM: finish the stream; a second one: stop at once
         interrupts.append(signum)
         if len(interrupts) > 1:
             raise KeyboardInterrupt
 
-    # only where Ctrl-C reaches us: the main thread, and not a process told to ignore it (a background job)
-    main = threading.current_thread() is threading.main_thread() and \
-        signal.getsignal(signal.SIGINT) is not signal.SIG_IGN
-    previous = signal.signal(signal.SIGINT, on_sigint) if main else None
+    # only where the signals reach us (the main thread), and not one a process was told to ignore (Ctrl-C in a
+    # background job)
+    main = threading.current_thread() is threading.main_thread()
+    previous = {sig: signal.signal(sig, on_signal) for sig in (signal.SIGINT, signal.SIGTERM)
+                if main and signal.getsignal(sig) is not signal.SIG_IGN}
     queue = pipeline.get_by_name(live_queue) if live_queue else None
     counted = _count_through(queue) if queue is not None else None  # () -> (frames in, dropped), from the start
 
@@ -339,13 +342,15 @@ def run_pipeline_file(description: str, progress: Progress | None = None,
                     on_frames(dropped, frames_in)
                 out.frames_in, out.frames_dropped = frames_in, dropped
             if interrupts:
+                if not out.stopped_by:
+                    out.stopped_by = signal.Signals(interrupts[0]).name
                 finish_early("interrupted")
             if result is not None:
                 error = None if result == "eos" else result
                 break
     finally:
-        if main:
-            signal.signal(signal.SIGINT, previous)
+        for sig, handler in previous.items():  # (None: one not set from Python, e.g. in an embedding program)
+            signal.signal(sig, handler if handler is not None else signal.SIG_DFL)
         pipeline.set_state(Gst.State.NULL)  # elements close their files (speedometer keeps every vehicle)
     if error is not None:
         raise RunFailed(error, out)
