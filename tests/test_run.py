@@ -710,3 +710,33 @@ def test_a_source_that_sends_nothing_ends_the_run_with_an_error(tmp_path):
     proc = subprocess.run([sys.executable, "-m", "gst_trafficcal", "run", uri, "--out", str(tmp_path / "out2"),
                            "--no-overlay"], capture_output=True, text=True, timeout=120, env=env)
     assert "STALL_TIMEOUT must be a number of seconds, got 'soon'" in one_line_error(proc)
+
+
+def test_a_truncated_file_is_measured_up_to_where_it_ends_and_says_so(clip, tmp_path):
+    """A recording cut off (a copy interrupted, a disk that filled up) plays to where its data ends and then ends
+    like any file; the run measures what it holds and says the file is shorter than its header states, and the
+    report does not claim the missing part was watched."""
+    whole = tmp_path / "whole.mp4"  # the clip with its index first (as cameras and NVRs write them), then cut
+    subprocess.run(["gst-launch-1.0", "-q", "filesrc", f"location={clip / 'video.mp4'}", "!", "qtdemux", "!",
+                    "h264parse", "!", "mp4mux", "faststart=true", "!", "filesink", f"location={whole}"], check=True,
+                   capture_output=True, timeout=120)
+    data = whole.read_bytes()
+    cut = tmp_path / "cut.mp4"
+    cut.write_bytes(data[:len(data) // 2])
+    out = tmp_path / "out"
+    run = trafficcal("run", cut, "--out", out, "--calibration", clip / "calibration.json", "--no-overlay")
+    assert run.returncode == 0, run.stderr[-2000:]
+    text = " ".join((run.stdout + run.stderr).split())
+    found = re.search(r"the video ends at ([\d.]+) s of the ([\d.]+) s its header states: the file is truncated", text)
+    assert found, text[-3000:]
+    end, length = map(float, found.groups())
+    assert 3.0 < end < 0.8 * length and length == pytest.approx(12.0, abs=0.2)
+    events = read_events(out / "vehicles.jsonl").events
+    assert events and max(e.last_timestamp_s for e in events) <= end + 0.1
+    assert any("truncated" in w for w in read_status(out / "status.json").warnings)
+    report = (out / "report.html").read_text()
+    assert f"({end:.0f} s watched)" in report, re.findall(r"\([^()]*watched\)", report)
+    # the whole file: no such warning
+    run = trafficcal("run", whole, "--out", tmp_path / "whole", "--calibration", clip / "calibration.json",
+                     "--no-overlay")
+    assert run.returncode == 0 and "its header states" not in run.stdout + run.stderr

@@ -196,8 +196,8 @@ class RunSummary:
 
     @property
     def watched_s(self) -> float | None:
-        """Seconds of video the run went through (the stream's duration when it ended by itself)."""
-        return self.position_s if self.stopped else self.duration_s or self.position_s
+        """Seconds of video the run went through (the stream's duration when it ended by itself at its end)."""
+        return self.position_s if self.stopped or ended_short(self) else self.duration_s or self.position_s
 
     @property
     def has_scale(self) -> bool:
@@ -369,6 +369,9 @@ def measure_video(video: Path | str, out_dir: Path, description: str, console, l
             outcome, failure = exc.outcome, str(exc)
         except PipelineError as exc:
             raise InputError(hidden(f"{video}: {exc}")) from None
+    short = ended_short(outcome)
+    if short is not None:
+        outcome.warnings.append(f"{shown_source(video)}: {short}")
     if outcome.frames_dropped:  # a live camera faster than this machine: frames dropped to stay in real time
         share = outcome.frames_dropped / max(outcome.frames_in, 1)
         outcome.warnings.append(
@@ -693,6 +696,17 @@ def _run_inputs(console: Any, inputs: list[str], out_dir: Path, calibration_path
         status.update(state="failed" if isinstance(exc, InputError) else "interrupted",
                       error=str(exc) if isinstance(exc, InputError) else status.status.error)
         raise
+
+
+def ended_short(outcome: Any) -> str | None:
+    """Why a file's stream ended well before the duration its header states (a truncated copy, a recording cut
+    off by a full disk or a crash), or None: the end of the stream looks like the end of any file, so without this
+    a run over half a file reads as a run over all of it.  ``outcome``: a gst.runner.RunOutcome or a RunSummary."""
+    end, length = outcome.position_s, outcome.duration_s
+    if outcome.stopped or end is None or not length or end >= length - max(1.0, 0.02 * length):
+        return None
+    return (f"the video ends at {end:.1f} s of the {length:.1f} s its header states: the file is truncated or "
+            "damaged; the vehicles up to there are measured")
 
 
 @contextmanager

@@ -282,6 +282,7 @@ def run_pipeline_file(description: str, progress: Progress | None = None,
         if msg.type == Gst.MessageType.ERROR:
             return _error_text(msg)
         if msg.type == Gst.MessageType.EOS:
+            out.position_s = _query_time(pipeline, "position") or out.position_s  # where the stream really ended
             return "eos"
         if msg.type == Gst.MessageType.WARNING:
             w, _ = msg.parse_warning()
