@@ -727,7 +727,8 @@ def test_a_truncated_file_is_measured_up_to_where_it_ends_and_says_so(clip, tmp_
     run = trafficcal("run", cut, "--out", out, "--calibration", clip / "calibration.json", "--no-overlay")
     assert run.returncode == 0, run.stderr[-2000:]
     text = " ".join((run.stdout + run.stderr).split())
-    found = re.search(r"the video ends at ([\d.]+) s of the ([\d.]+) s its header states: the file is truncated", text)
+    found = re.search(r"the video ends at ([\d.]+) s of the ([\d.]+) s its header states: the file is probably "
+                      r"truncated", text)
     assert found, text[-3000:]
     end, length = map(float, found.groups())
     assert 3.0 < end < 0.8 * length and length == pytest.approx(12.0, abs=0.2)
