@@ -43,9 +43,9 @@ def image_to_road(camera: Camera) -> np.ndarray:
 
 def road_points(camera: Camera, image_size: tuple[int, int], margin: float = 0.1,
                 below_horizon: float = 1 / 3) -> np.ndarray:
-    """Four image points on the road, (4, 2) whole pixels: ``margin`` of the frame in from its sides and bottom, and a
-    row ``below_horizon`` of the way from the horizon (or the frame's top, if the horizon is above it) down to
-    the bottom row — far enough below the horizon that a pixel there is not metres of road."""
+    """Four image points on the road, (4, 2) whole pixels: ``margin`` of the frame in from its sides and bottom,
+    and a row ``below_horizon`` of the way from the horizon (or the frame's top, if the horizon is above it) down
+    to the bottom row — far enough below the horizon that a pixel there is not metres of road."""
     w, h = image_size
     x0, x1 = margin * (w - 1), (1 - margin) * (w - 1)
     bottom = (1 - margin) * (h - 1)

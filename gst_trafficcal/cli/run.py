@@ -705,8 +705,8 @@ def ended_short(outcome: Any) -> str | None:
     end, length = outcome.position_s, outcome.duration_s
     if outcome.stopped or end is None or not length or end >= length - max(1.0, 0.02 * length):
         return None
-    return (f"the video ends at {end:.1f} s of the {length:.1f} s its header states: the file is probably truncated or "
-            "damaged; the vehicles up to there are measured")
+    return (f"the video ends at {end:.1f} s of the {length:.1f} s its header states: the file is probably "
+            "truncated or damaged; the vehicles up to there are measured")
 
 
 @contextmanager
