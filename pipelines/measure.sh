@@ -20,7 +20,8 @@
 # stopped); the files are then completed (gst-launch-1.0 -e). Every vehicle is written the moment it leaves,
 # so nothing already measured is lost if the run is interrupted. For any input that is not a file,
 # speedometer gets start-datetime=now: every vehicle carries the date and time it passed (first_time,
-# last_time) by this machine's clock; for a recording, give its start yourself: SPEEDOMETER_OPTS="start-datetime=2026-12-05T08:00:00+01:00".
+# last_time) by this machine's clock; for a recording, give its start yourself:
+# SPEEDOMETER_OPTS="start-datetime=2026-12-05T08:00:00+01:00".
 #
 # Environment (optional):
 #   VPDETECT_OPTS       extra vpdetect properties (e.g. "min-duration=60")
