@@ -126,6 +126,7 @@ class Receiver:
 
     def __init__(self, statuses=(), delay=0.0):
         self.bodies: list[dict] = []
+        self.raw: list[bytes] = []  # each accepted body as sent (signatures are over these bytes)
         self.headers: list[dict] = []
         self.statuses = list(statuses)
         self.delay = delay
@@ -138,6 +139,7 @@ class Receiver:
                 status = receiver.statuses.pop(0) if receiver.statuses else 200
                 if status == 200:
                     receiver.bodies.append(json.loads(body))
+                    receiver.raw.append(body)
                     receiver.headers.append(dict(self.headers))
                 self.send_response(status)
                 self.end_headers()

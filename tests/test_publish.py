@@ -98,3 +98,33 @@ def test_credentials_in_the_url_are_basic_auth_and_never_shown(receiver):
 def test_anything_but_an_http_url_is_an_error_naming_it(url):
     with pytest.raises(InputError, match="is not an http:// or https:// URL"):
         check_url(url)
+
+
+def _header(headers: dict, name: str) -> str | None:
+    """A header by name, whatever case the client sent it in."""
+    return next((v for k, v in headers.items() if k.lower() == name.lower()), None)
+
+
+def test_a_shared_secret_signs_every_post_and_the_receiver_can_check_it(receiver, monkeypatch):
+    """TRAFFICCAL_EVENTS_SECRET set: each POST carries the HMAC-SHA256 of its exact body, which a receiver
+    recomputes with the standard library; none without it."""
+    import hashlib
+    import hmac
+
+    from gst_trafficcal.publish import SECRET_ENV, SIGNATURE_HEADER, signature
+
+    monkeypatch.setenv(SECRET_ENV, "correct horse")
+    poster = EventPoster(receiver.url)
+    for i in range(3):
+        poster.post({"id": i, "speed_kmh": 80.0 + i})
+    assert poster.close().sent == 3
+    for body, headers in zip(receiver.raw, receiver.headers):
+        expected = "sha256=" + hmac.new(b"correct horse", body, hashlib.sha256).hexdigest()
+        assert hmac.compare_digest(_header(headers, SIGNATURE_HEADER), expected)
+        assert signature("correct horse", body) == expected
+        assert signature("wrong", body) != expected and signature("correct horse", body + b" ") != expected
+    monkeypatch.delenv(SECRET_ENV)
+    poster = EventPoster(receiver.url)
+    poster.post({"id": 9})
+    poster.close()
+    assert _header(receiver.headers[-1], SIGNATURE_HEADER) is None

@@ -878,11 +878,14 @@ def test_remeasure_measures_the_early_vehicles_again_with_the_final_calibration(
     assert {e.id for e in early} <= {b["id"] for b in again}
 
 
-def test_a_pipeline_stopped_without_eos_still_posts_the_vehicles_in_view(clip, limit):
+def test_a_pipeline_stopped_without_eos_still_posts_the_vehicles_in_view(clip, limit, monkeypatch):
     """A pipeline set to NULL mid-stream (no end of stream: a service stopping it, an error elsewhere) with only
     events-url — no file: the vehicles still in view are flushed to the webhook as well, each with over_limit like
-    every other POST (they get no trafficcal-speed message: the bus is going down)."""
+    every other POST (they get no trafficcal-speed message: the bus is going down); with a shared secret in the
+    environment, every POST is signed."""
     import gi
+
+    from gst_trafficcal.publish import SECRET_ENV, SIGNATURE_HEADER, signature
 
     gi.require_version("Gst", "1.0")
     from gi.repository import Gst
@@ -890,6 +893,7 @@ def test_a_pipeline_stopped_without_eos_still_posts_the_vehicles_in_view(clip, l
     from .conftest import Receiver
 
     Gst.init(None)
+    monkeypatch.setenv(SECRET_ENV, "s3cret")
     webhook = Receiver()
     pipe = Gst.parse_launch(f"{source(clip)} ! {detector(clip)} ! identity name=tap ! speedometer "
                             f"calibration-file={clip / 'calibration.json'} speed-limit={limit} "
@@ -924,3 +928,5 @@ def test_a_pipeline_stopped_without_eos_still_posts_the_vehicles_in_view(clip, l
     assert flushed, (messaged, list(posted))
     assert all("over_limit" in b for b in webhook.bodies), webhook.bodies
     assert any(b["speed_kmh"] is not None for b in flushed), flushed
+    signed = [{k.lower(): v for k, v in h.items()}.get(SIGNATURE_HEADER.lower()) for h in webhook.headers]
+    assert signed == [signature("s3cret", raw) for raw in webhook.raw]

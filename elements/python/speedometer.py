@@ -92,7 +92,8 @@ class Speedometer(TrafficcalTransform):
                            "first_time and last_time; 'now': the clock at the first frame less its timestamp (live "
                            "sources); empty: none", "", _RW),
         "events-url": (str, "Events URL", "http(s):// URL that receives each vehicle event as it leaves, one JSON "
-                       "POST per vehicle (a webhook; http://user:password@host/... for basic authentication); sent "
+                       "POST per vehicle (a webhook; http://user:password@host/... for basic authentication; signed "
+                       "with the environment's TRAFFICCAL_EVENTS_SECRET when set: X-Trafficcal-Signature-256); sent "
                        "from a background thread, retried, never holding the video up; empty: none", "", _RW),
         "speed-limit": (float, "Speed limit", "km/h: each trafficcal-speed message also says whether the vehicle "
                         "was faster (over_limit; 0: no limit, no field)", 0.0, 1000.0, 0.0, _RW),

@@ -554,7 +554,8 @@ def print_vehicles(console, events: list, speed_limit: "SpeedLimit | float | Non
                    "completed.")
 @click.option("--events-url", default="", metavar="URL",
               help="Also POST each vehicle's event as JSON to this http(s):// URL as it leaves (a webhook of your "
-                   "traffic or video-management system; http://user:password@host/... for basic authentication). "
+                   "traffic or video-management system; http://user:password@host/... for basic authentication; "
+                   "with TRAFFICCAL_EVENTS_SECRET set, each POST is signed: X-Trafficcal-Signature-256). "
                    "Sent in the background and retried: a receiver that is down never stops the run, and every "
                    "vehicle is still in the files.")
 @click.option("--reconnect", is_flag=True,
