@@ -111,6 +111,18 @@ def cuboid_clip_dense(tmp_path_factory) -> Path:
     return _render_cuboid_clip(tmp_path_factory, 1500)
 
 
+def count_frames(path: Path) -> int:
+    """How many frames OpenCV decodes from a video file (0 for one it cannot read, e.g. an MP4 without its index)."""
+    import cv2
+
+    cap = cv2.VideoCapture(str(path))
+    n = 0
+    while cap.read()[0]:
+        n += 1
+    cap.release()
+    return n
+
+
 def closed_port() -> int:
     """A local TCP port nobody listens on (bound for a moment, then released): connections to it are refused."""
     import socket

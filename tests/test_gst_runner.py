@@ -96,14 +96,9 @@ def test_in_process_python_elements_log_no_floating_reference_critical():
 
 
 def _frames(path) -> int:
-    import cv2
+    from .conftest import count_frames
 
-    cap = cv2.VideoCapture(str(path))
-    n = 0
-    while cap.read()[0]:
-        n += 1
-    cap.release()
-    return n
+    return count_frames(path)
 
 
 ENDLESS = ("videotestsrc is-live=true ! video/x-raw,width=64,height=48,framerate=25/1 ! "

@@ -18,7 +18,7 @@ from gst_trafficcal.calibration import load_calibration
 from gst_trafficcal.outputs import read_events, read_events_csv
 from gst_trafficcal.run_status import read_status
 
-from .conftest import serve_rtsp
+from .conftest import count_frames, serve_rtsp
 
 pytestmark = pytest.mark.gst
 
@@ -358,11 +358,7 @@ def test_a_live_stream_runs_until_ctrl_c_and_every_output_is_complete(clip, rtsp
     first = datetime.fromisoformat((out / "intervals.csv").read_text().splitlines()[1].split(",")[0])
     assert first.minute % 15 == 0 and first.second == 0 and start - timedelta(minutes=15) < first <= start + \
         timedelta(seconds=20)
-    frames = 0
-    cap = cv2.VideoCapture(str(out / "overlay.mp4"))  # finished by the end-of-stream: playable
-    while cap.read()[0]:
-        frames += 1
-    cap.release()
+    frames = count_frames(out / "overlay.mp4")  # finished by the end-of-stream: playable
     assert 12 < frames < 150  # some of the 12 s (150 frames) clip, not all of it
     status = read_status(out / "status.json")
     assert status.state == "interrupted" and status.vehicles == len(events)
@@ -652,18 +648,9 @@ def test_a_live_stream_stopped_by_sigterm_completes_every_output(clip, rtsp_clip
     events = read_events(out / "vehicles.jsonl").events
     status = read_status(out / "status.json")
     assert status.state == "interrupted" and status.vehicles == len(events) >= 2
-    assert 12 < _overlay_frames(out / "overlay.mp4") < 150  # completed by the end-of-stream: playable
+    assert 12 < count_frames(out / "overlay.mp4") < 150  # completed by the end-of-stream: playable
     for name in ("calibration.json", "system.json", "vehicles.csv", "intervals.csv", "report.html"):
         assert (out / name).is_file(), name
-
-
-def _overlay_frames(path: Path) -> int:
-    cap = cv2.VideoCapture(str(path))
-    n = 0
-    while cap.read()[0]:
-        n += 1
-    cap.release()
-    return n
 
 
 def test_a_camera_move_is_told_with_what_it_cost():
