@@ -724,6 +724,13 @@ def test_a_truncated_file_is_measured_up_to_where_it_ends_and_says_so(clip, tmp_
     assert any("truncated" in w for w in read_status(out / "status.json").warnings)
     report = (out / "report.html").read_text()
     assert f"({end:.0f} s watched)" in report, re.findall(r"\([^()]*watched\)", report)
+    # its picture is the video's first frame (through GStreamer where OpenCV's FFmpeg refuses the cut file), not
+    # the grey canvas of a report without a frame
+    import base64
+
+    png = base64.b64decode(re.search(r"data:image/png;base64,([A-Za-z0-9+/=]+)", report).group(1))
+    picture = cv2.imdecode(np.frombuffer(png, np.uint8), cv2.IMREAD_COLOR)
+    assert (picture == 90).all(axis=2).mean() < 0.2
     # the whole file: no such warning
     run = trafficcal("run", whole, "--out", tmp_path / "whole", "--calibration", clip / "calibration.json",
                      "--no-overlay")

@@ -416,9 +416,11 @@ def _same(a: Path, b: Path) -> bool:
 
 def first_frame(video: Path | str):
     """A BGR frame from the video or stream (for the calibration picture), or None (a stream that is gone gives
-    up within seconds)."""
+    up within seconds).  A file OpenCV's FFmpeg refuses (a truncated MP4 that GStreamer still plays) is read
+    through GStreamer; FFmpeg's own complaints stay off the console (OPENCV_FFMPEG_LOGLEVEL, unless set)."""
     import cv2
 
+    os.environ.setdefault("OPENCV_FFMPEG_LOGLEVEL", "-8")  # quiet: a refusal is handled here
     if is_uri(video):
         cap = cv2.VideoCapture(str(video), cv2.CAP_FFMPEG, [cv2.CAP_PROP_OPEN_TIMEOUT_MSEC, 5000,
                                                             cv2.CAP_PROP_READ_TIMEOUT_MSEC, 5000])
@@ -428,7 +430,13 @@ def first_frame(video: Path | str):
         ok, frame = cap.read()
     finally:
         cap.release()
-    return frame if ok else None
+    if ok:
+        return frame
+    if is_uri(video) or not Path(video).is_file():
+        return None
+    from ..gst.snapshot import first_frame_bgr
+
+    return first_frame_bgr(video)
 
 
 def evaluate_run(gt_path: Path, summary: RunSummary, paths: RunPaths):
