@@ -24,10 +24,18 @@ def _frame(image: Path | None, video: Path | None, at_s: float):
         return frame
     if video is None:
         return None
+    if at_s <= 0:  # the first frame, as trafficcal run's report shows it (GStreamer where OpenCV refuses the file)
+        from .run import first_frame
+
+        if not video.is_file():
+            raise InputError(f"{video}: no such file")
+        frame = first_frame(video)
+        if frame is None:
+            raise InputError(f"{video}: cannot open video (not a video file, or no decoder for it)")
+        return frame
     cap = open_video(video)
     try:
-        if at_s > 0:
-            cap.set(cv2.CAP_PROP_POS_MSEC, at_s * 1000.0)
+        cap.set(cv2.CAP_PROP_POS_MSEC, at_s * 1000.0)
         ok, frame = cap.read()
     finally:
         cap.release()
