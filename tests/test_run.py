@@ -735,3 +735,20 @@ def test_a_truncated_file_is_measured_up_to_where_it_ends_and_says_so(clip, tmp_
     run = trafficcal("run", whole, "--out", tmp_path / "whole", "--calibration", clip / "calibration.json",
                      "--no-overlay")
     assert run.returncode == 0 and "its header states" not in run.stdout + run.stderr
+
+
+def test_a_file_whose_audio_runs_on_past_its_video_is_not_called_truncated(tmp_path):
+    """A file's header states its longest stream's duration: a recording with 4 s of video and 9 s of audio plays
+    its video to 4 s. The run says the audio may run on, not that the file is truncated."""
+    av = tmp_path / "av.mkv"
+    subprocess.run(["gst-launch-1.0", "-q", "videotestsrc", "num-buffers=100", "!",
+                    "video/x-raw,framerate=25/1,width=320,height=240", "!", "x264enc", "!", "h264parse", "!",
+                    "matroskamux", "name=m", "!", "filesink", f"location={av}", "audiotestsrc", "num-buffers=400",
+                    "samplesperbuffer=1024", "!", "audio/x-raw,rate=44100,channels=1", "!", "m."],
+                   check=True, capture_output=True, timeout=120)
+    run = trafficcal("run", av, "--out", tmp_path / "out", "--no-overlay", "--detector", "background")
+    assert run.returncode == 0, run.stderr[-2000:]
+    text = " ".join((run.stdout + run.stderr).split())
+    assert re.search(r"the video ends at 4\.0 s of the 9\.\d s its file states: its audio may run on longer", text), \
+        text[-3000:]
+    assert "probably truncated" not in text

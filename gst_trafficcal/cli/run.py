@@ -369,9 +369,8 @@ def measure_video(video: Path | str, out_dir: Path, description: str, console, l
             outcome, failure = exc.outcome, str(exc)
         except PipelineError as exc:
             raise InputError(hidden(f"{video}: {exc}")) from None
-    short = ended_short(outcome)
-    if short is not None:
-        outcome.warnings.append(f"{shown_source(video)}: {short}")
+    if ended_short(outcome) is not None:  # (the file is probed for audio only then)
+        outcome.warnings.append(f"{shown_source(video)}: {ended_short(outcome, audio=_has_audio(video))}")
     if outcome.frames_dropped:  # a live camera faster than this machine: frames dropped to stay in real time
         share = outcome.frames_dropped / max(outcome.frames_in, 1)
         outcome.warnings.append(
@@ -712,15 +711,29 @@ def _run_inputs(console: Any, inputs: list[str], out_dir: Path, calibration_path
         raise
 
 
-def ended_short(outcome: Any) -> str | None:
+def ended_short(outcome: Any, audio: bool | None = False) -> str | None:
     """Why a file's stream ended well before the duration its header states (a truncated copy, a recording cut
     off by a full disk or a crash), or None: the end of the stream looks like the end of any file, so without this
-    a run over half a file reads as a run over all of it.  ``outcome``: a gst.runner.RunOutcome or a RunSummary."""
+    a run over half a file reads as a run over all of it.  ``outcome``: a gst.runner.RunOutcome or a RunSummary;
+    ``audio``: the file also holds audio (or None: unknown), which may simply run on past the video's end — the
+    header states the longest stream's duration."""
     end, length = outcome.position_s, outcome.duration_s
     if outcome.stopped or end is None or not length or end >= length - max(1.0, 0.02 * length):
         return None
+    if audio is not False:
+        return (f"the video ends at {end:.1f} s of the {length:.1f} s its file states: its audio may run on "
+                "longer, or the file is truncated or damaged; the vehicles up to there are measured")
     return (f"the video ends at {end:.1f} s of the {length:.1f} s its header states: the file is probably "
             "truncated or damaged; the vehicles up to there are measured")
+
+
+def _has_audio(video: Path | str) -> bool | None:
+    """Whether a local file holds audio (gst.discover), None for a stream or when it cannot tell."""
+    if is_uri(video) or not Path(video).is_file():
+        return None
+    from ..gst.discover import has_audio
+
+    return has_audio(video)
 
 
 @contextmanager
