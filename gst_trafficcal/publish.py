@@ -174,12 +174,12 @@ class EventPoster:
 
     def _send(self, body: bytes) -> tuple[bool, str]:
         error = ""
+        headers = dict(self._headers, **{SIGNATURE_HEADER: signature(self._secret, body)}) if self._secret \
+            else self._headers
         # while the receiver is down each event gets one attempt, so the queue does not wait on back-offs
         for attempt in range(1 if self._down else self.retries):
             if attempt:
                 time.sleep(self.backoff * 2 ** (attempt - 1))
-            headers = dict(self._headers, **{SIGNATURE_HEADER: signature(self._secret, body)}) if self._secret \
-                else self._headers
             request = urllib.request.Request(self.url, data=body, headers=headers, method="POST")
             try:
                 with urllib.request.urlopen(request, timeout=self.timeout) as response:

@@ -18,7 +18,6 @@ from .buffers import frame_bgr, video_info_from_caps
 def first_frame_bgr(path: str | Path, timeout_s: float = 10.0) -> np.ndarray | None:
     """The first decodable frame of a local video file as an HxWx3 BGR copy, or None (not a video, no frame
     within ``timeout_s``)."""
-    Gst.init(None)
     pipeline = Gst.parse_launch("filesrc name=src ! decodebin ! videoconvert ! video/x-raw,format=BGR ! "
                                 "appsink name=sink max-buffers=1 sync=false")
     pipeline.get_by_name("src").set_property("location", str(path))
