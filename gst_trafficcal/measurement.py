@@ -474,7 +474,10 @@ class SpeedMeter:
         and then the ones its speed came from."""
         cam = cal.camera if cal is not None else None
         direction = lane = None
-        if cam is not None and len(px) >= 2:
+        if cam is not None and len(px) < 2 and len(rec.observations) >= 2:
+            # not measured (no reference points): the direction its boxes moved in, for the counts per direction
+            direction = _direction(cam, _box_centres(rec.observations), np.array([o.t for o in rec.observations]))
+        elif cam is not None:
             direction = _direction(cam, px, times)
             if cam.scale is not None:
                 offset = lateral_offset(cam.to_world(px)[:, 1])
@@ -513,6 +516,13 @@ def _observation(s: Sighting, camera: Camera | None) -> Observation:
             obs.corners_px = np.asarray(s.corners_px, np.float64)
             obs.ref_px = s.ref_px
     return obs
+
+
+def _box_centres(observations: list[Observation]) -> np.ndarray:
+    """Centres of the observations' 2D boxes (N x 2 pixels): they move with the vehicle along the road even where
+    the box is cut by the frame's edge (growing as it enters, shrinking as it leaves)."""
+    boxes = np.array([o.box for o in observations], np.float64).reshape(-1, 4)
+    return (boxes[:, :2] + boxes[:, 2:]) / 2.0
 
 
 def _direction(camera: Camera, px: np.ndarray, times: np.ndarray) -> str | None:

@@ -372,6 +372,23 @@ def test_degenerate_3d_boxes_are_ignored(scene, truth):
         assert np.all(m.points_px[:, 1] < SIZE[1])
 
 
+def test_vehicles_never_seen_whole_keep_their_direction(scene, truth):
+    """A vehicle without a single 3D box (always truncated) is not measured, but its event still says which way it
+    went (from its 2D boxes), so the counts per direction hold it; one seen in a single frame has none."""
+    meter = SpeedMeter(calibration=cal_of(scene.camera))
+    events = []
+    for f in scene.frames:
+        events += meter.update(f.t, [Sighting(s.id, s.label, s.t, s.box, s.confidence, truncated=True)
+                                     for s in sightings(f, with_3d=False)]).finished
+    events += meter.flush()
+    assert sorted(m.event.id for m in events) == sorted(truth)
+    assert all(m.event.speed_kmh is None and m.event.lane is None for m in events)
+    assert all(m.event.reason.startswith("no reference point") for m in events if truth[m.event.id][3] >= 10)
+    for m in events:
+        direction, frames = truth[m.event.id][1], truth[m.event.id][3]
+        assert m.event.direction == (None if frames < 2 else TOWARDS_VP1 if direction > 0 else AWAY_FROM_VP1), m
+
+
 def test_wandering_reference_points_are_reported_unmeasured(scene, truth):
     """A vehicle whose reference point wanders along it (blobs merging and splitting) gives τ-pair speeds that
     disagree: it is reported with the reason and no points (so the results file does not carry it), and it has
