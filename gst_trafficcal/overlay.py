@@ -12,6 +12,7 @@ All drawing is cv2 calls over whole arrays of points (one ``polylines`` call per
 
 from __future__ import annotations
 
+from collections import OrderedDict
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
 
@@ -244,9 +245,13 @@ class VehicleCounter:
 
     A vehicle's lane is the one its metadata gives; without one, and with a calibration with scale, the lane
     comes from the lateral road-plane offsets of the reference points of the vehicles seen
-    (:func:`gst_trafficcal.lanes.lane_centres`, same numbering as the event files). Vehicles not seen for
-    ``FORGET_AFTER`` updates are folded into fixed totals, so memory and time per frame stay bounded on
-    streams that run for days.
+    (:func:`gst_trafficcal.lanes.lane_centres`) — until speedometer's lanes arrive through :meth:`left`.
+    Vehicles not seen for ``FORGET_AFTER`` updates are folded into fixed totals, so memory and time per frame stay
+    bounded on streams that run for days.
+
+    A vehicle that left before it had a direction, lane or speed (the calibration came later) is counted as
+    "unknown" until :meth:`left` gives its final values (speedometer measures it then, and says so downstream);
+    :meth:`left` moves it to its direction, lane and, over the limit, the speeding count.
     """
 
     seen: dict[int, tuple[str | None, int | None]] = field(default_factory=dict)  # vehicles still around
@@ -266,11 +271,16 @@ class VehicleCounter:
     _speed: dict[int, tuple[float, str]] = field(default_factory=dict, repr=False)  # latest known speed and class of
     # those still around
     _done_speeding: int = field(default=0, repr=False)
+    _event_lanes: bool = field(default=False, repr=False)  # left() has given lanes: count only those
+    # departed vehicles' counted values (direction, lane, over the limit), newest last, for left()
+    _done_ids: OrderedDict[int, tuple[str | None, int | None, bool]] = field(default_factory=OrderedDict,
+                                                                             repr=False)
 
     MAX_OFFSETS = 64  # per vehicle (its median is all that is used)
     LANE_REFRESH = 25  # per-lane counts are recounted at most every this many updates (or on a new vehicle)
     FORGET_AFTER = 250  # updates (10 s at 25 fps) without a sighting: the vehicle has left
     MAX_LANE_SAMPLES = 2000  # departed vehicles' offsets kept for the lane model
+    MAX_DONE_IDS = 20000  # departed vehicles left() can still correct (hours of traffic waiting for a calibration)
 
     def update(self, marks: Iterable[VehicleMark], camera: Camera | None = None) -> None:
         metric = camera is not None and camera.scale is not None
@@ -296,19 +306,51 @@ class VehicleCounter:
         gone = [i for i, t in self._last_seen.items() if t < before]
         for i in gone:
             direction, lane = self.seen[i]
-            if lane is None:
+            if lane is None and not self._event_lanes:
                 lane = self._derived_lane(i)
             self._done_total += 1
             self._done_dir[direction] = self._done_dir.get(direction, 0) + 1
             if lane is not None:
                 self._done_lane[lane] = self._done_lane.get(lane, 0) + 1
             speed, label = self._speed.pop(i, (None, ""))
-            self._done_speeding += is_over_limit(speed, self.speed_limit_kmh, label)
+            fast = is_over_limit(speed, self.speed_limit_kmh, label)
+            self._done_speeding += fast
+            self._done_ids[i] = (direction, lane, fast)
             ys = self.offsets.pop(i, None)
             if ys:
                 self._done_offsets.append(float(np.median(ys)))
             del self.seen[i], self._last_seen[i]
         del self._done_offsets[:-self.MAX_LANE_SAMPLES]
+        while len(self._done_ids) > self.MAX_DONE_IDS:
+            self._done_ids.popitem(last=False)
+
+    def left(self, track_id: int, direction: str | None = None, lane: int | None = None,
+             speed_kmh: float | None = None, label: str = "") -> bool:
+        """A vehicle's final values as speedometer gives them when it leaves (or measures it after it left, or again
+        with a later calibration): they replace the direction, lane and speed it was counted with, so that the
+        counts are the event files' (None: the files have none). False when the id was never counted here (or
+        too long ago). Once lanes come this way, the per-lane counts hold only the vehicles that left with a lane
+        (the files' lane numbers), not lanes derived here for the ones still in view."""
+        self._event_lanes |= lane is not None
+        self._lanes_key = (-1, -1, -1)  # recount the lanes
+        if track_id in self.seen:
+            self.seen[track_id] = (direction, lane)
+            self.offsets.pop(track_id, None)
+            if speed_kmh is None:
+                self._speed.pop(track_id, None)
+            else:
+                self._speed[track_id] = (speed_kmh, label)
+            return True
+        done = self._done_ids.get(track_id)
+        if done is None:
+            return False
+        old_dir, old_lane, old_fast = done
+        fast = is_over_limit(speed_kmh, self.speed_limit_kmh, label)
+        _move(self._done_dir, old_dir, direction, count_none=True)
+        _move(self._done_lane, old_lane, lane, count_none=False)
+        self._done_speeding += int(fast) - int(old_fast)
+        self._done_ids[track_id] = (direction, lane, fast)
+        return True
 
     def _derived_lane(self, track_id: int) -> int | None:
         ys = self.offsets.get(track_id)
@@ -347,12 +389,23 @@ class VehicleCounter:
             return dict(self._lanes)
         out = dict(self._done_lane)
         for track_id, (_, lane) in self.seen.items():
-            if lane is None:
+            if lane is None and not self._event_lanes:
                 lane = self._derived_lane(track_id)
             if lane is not None:
                 out[lane] = out.get(lane, 0) + 1
         self._lanes, self._lanes_key = dict(sorted(out.items())), key
         return dict(self._lanes)
+
+    def summary(self) -> dict[str, int]:
+        """The counts as flat fields (trafficoverlay's end-of-stream message): total, towards_vp1, away_from_vp1,
+        unknown_direction, lane_<k>, and with a limit over_limit."""
+        d = self.by_direction()
+        out = {"total": self.total, "towards_vp1": d.get(TOWARDS_VP1, 0), "away_from_vp1": d.get(AWAY_FROM_VP1, 0),
+               "unknown_direction": d.get(None, 0)}
+        out.update({f"lane_{k}": v for k, v in self.by_lane().items()})
+        if as_limit(self.speed_limit_kmh or None):
+            out["over_limit"] = self.speeding
+        return out
 
     def lines(self) -> list[str]:
         """Text lines for the counter panel."""
@@ -368,6 +421,19 @@ class VehicleCounter:
         if limit:
             out.append(f"over {limit.describe()}: {self.speeding}")
         return out
+
+
+def _move(counts: dict, old, new, count_none: bool) -> None:
+    """One count moved from key ``old`` to ``new`` in ``counts``; with ``count_none`` False a key None is no count
+    (a vehicle without a lane is in no lane). Keys whose count falls to 0 are dropped."""
+    if old == new:
+        return
+    if old is not None or count_none:
+        counts[old] = counts.get(old, 0) - 1
+        if counts[old] <= 0:
+            del counts[old]
+    if new is not None or count_none:
+        counts[new] = counts.get(new, 0) + 1
 
 
 def mark_label(mark: VehicleMark, options: OverlayOptions) -> list[str]:

@@ -348,3 +348,35 @@ def test_vehicle_counter_forgets_departed_vehicles_but_keeps_their_counts() -> N
     assert c.total == n and len(c.seen) < 40 and len(c.offsets) < 40  # old vehicles forgotten
     assert c.by_direction() == {"towards_vp1": n - n // 4, "away_from_vp1": n // 4}
     assert c.by_lane() == {0: n // 3, 1: n // 3, 2: n // 3}
+
+
+def test_vehicles_measured_after_they_left_are_counted_by_their_final_values() -> None:
+    """Vehicles tracked before the calibration leave "unknown"; speedometer's event for each (left()) moves them to
+    their direction, lane and speeding count, whether they are still remembered or already folded into the totals."""
+    c = VehicleCounter(speed_limit_kmh=80.0)
+    c.update([VehicleMark((0, 0, 1, 1), 1), VehicleMark((0, 0, 1, 1), 2)])  # no calibration yet
+    for _ in range(2 * VehicleCounter.FORGET_AFTER):  # both left long ago: folded into the totals
+        c.update([])
+    c.update([VehicleMark((0, 0, 1, 1), 3), VehicleMark((0, 0, 1, 1), 4, direction="towards_vp1")])
+    assert c.by_direction() == {None: 3, "towards_vp1": 1} and c.by_lane() == {} and c.speeding == 0
+    assert c.lines()[1] == "towards VP1: 1  away: 0  unknown: 3"
+    # the calibration converges: speedometer measures all four
+    assert c.left(1, "away_from_vp1", 0, 95.0, "car") and c.left(2, "towards_vp1", 1, 60.0, "car")
+    assert c.left(3, "towards_vp1", 1, 85.0, "car") and c.left(4, "towards_vp1", 2, None, "car")
+    assert c.by_direction() == {"towards_vp1": 3, "away_from_vp1": 1}
+    assert c.by_lane() == {0: 1, 1: 2, 2: 1} and c.speeding == 2 and c.total == 4
+    assert c.summary() == {"total": 4, "towards_vp1": 3, "away_from_vp1": 1, "unknown_direction": 0,
+                           "lane_0": 1, "lane_1": 2, "lane_2": 1, "over_limit": 2}
+    # measured again with the final calibration (remeasure): moved, never counted twice; the files' values win,
+    # none included (vehicle 3's direction was the tracker's, the files have none)
+    assert c.left(1, "away_from_vp1", 1, 70.0, "car") and c.left(3, None, None, None, "car")
+    assert c.by_lane() == {1: 2, 2: 1} and c.speeding == 0 and c.total == 4
+    assert c.by_direction() == {"towards_vp1": 2, "away_from_vp1": 1, None: 1}
+    assert not c.left(99, "towards_vp1", 0, 50.0, "car") and c.total == 4  # never seen here: ignored
+    # once lanes come from speedometer, a vehicle still in view is in no lane until it leaves
+    cam = _camera()
+    ref = tuple(cam.world_to_image(np.array([14.0, 0.0, 0.0])))
+    c.update([VehicleMark((0, 0, 1, 1), 5, ref_point=ref, direction="towards_vp1")], cam)
+    assert c.by_lane() == {1: 2, 2: 1} and c.total == 5
+    c.left(5, "towards_vp1", 0, 50.0, "car")
+    assert c.by_lane() == {0: 1, 1: 2, 2: 1}

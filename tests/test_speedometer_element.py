@@ -246,6 +246,32 @@ def test_calibration_arriving_late_still_measures_every_vehicle(clip, implicit, 
     assert np.median(np.abs(errors)) < 0.1 and np.mean(np.abs(errors)) < 1.0, errors
 
 
+@pytest.mark.parametrize("when", ["start", "eos"])
+def test_the_overlay_counts_every_vehicle_as_the_files_do(clip, limit, tmp_path, when):
+    """trafficoverlay after speedometer: its final counts per direction, lane and over the limit are the event
+    file's — also when the calibration comes only at the end, after every vehicle left "unknown" (speedometer's
+    custom event per vehicle tells the overlay what it measured)."""
+    register_plugin_file(ELEMENTS / "trafficoverlay.py")
+    marker = (f"tcmarker threshold=255 calibration-at-eos=true calibration-file={clip / 'calibration.json'} ! "
+              if when == "eos" else "")
+    cal = "" if when == "eos" else f"calibration-file={clip / 'calibration.json'}"
+    events_file = tmp_path / "events.jsonl"
+    run = run_pipeline(f"{source(clip)} ! {marker}{detector(clip)} ! speedometer events-file={events_file} {cal} "
+                       f"! trafficoverlay speed-limit={limit} ! appsink name=sink")
+    events = read_events(events_file).events
+    counts = [m.fields for m in run.messages if m.name == "trafficcal-overlay-counts"]
+    assert len(counts) == 1 and len(events) >= 15
+    from collections import Counter
+
+    directions = Counter(e.direction for e in events)
+    lanes = Counter(e.lane for e in events if e.lane is not None)
+    assert directions[None] <= 2 and len(lanes) >= 2  # what the overlay must now count (13 of 15 have a direction)
+    assert counts[0] == {"total": len(events), "towards_vp1": directions["towards_vp1"],
+                         "away_from_vp1": directions["away_from_vp1"], "unknown_direction": directions[None],
+                         **{f"lane_{k}": v for k, v in sorted(lanes.items())},
+                         "over_limit": sum(e.speed_kmh is not None and e.speed_kmh > limit for e in events)}
+
+
 def test_no_calibration_reports_every_vehicle_unmeasured(clip, tmp_path):
     run, events, results = measure(clip, tmp_path, detector(clip))
     assert len(events) >= 15

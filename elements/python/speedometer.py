@@ -22,7 +22,9 @@ Output per frame: a ``"speed"`` {speed_kmh, label, model_name, confidence} struc
 with a current estimate.  Per vehicle that leaves: a ``trafficcal-speed`` element message (the event's fields, and
 with ``speed-limit`` or ``class-limits`` a boolean ``over_limit``: faster than its class's limit), the same as a JSON POST to ``events-url`` (a webhook;
 ``gst_trafficcal.publish``: background thread, retries, a warning when it fails — never an error), and
-a line in ``events-file`` (JSON lines) / ``csv-file``; per frame with tracked vehicles, a line in ``frames-file``
+the same structure pushed downstream as a custom event (``gst_trafficcal.gst.vehicle_event``: trafficoverlay
+counts a vehicle measured after it left by its final direction, lane and speed), a line in ``events-file`` (JSON
+lines) / ``csv-file``; per frame with tracked vehicles, a line in ``frames-file``
 (gvametaconvert's shape: box, track id, ``"trafficcal-vehicle"`` with the reference point and 3D box, ``"speed"``);
 ``results-file`` gets the BrnoCompSpeed results JSON
 (rewritten atomically now and then and at end of stream); ``intervals-file`` the traffic count per ``interval``
@@ -449,12 +451,10 @@ class Speedometer(TrafficcalTransform):
             event = self._stamped(m)
             fields = self._fields(event)
             self.post_element_message("trafficcal-speed", fields)
+            self._tell_downstream(fields)
             self._deliver(event, fields)
-            if self._outputs is None:
-                continue
-            self._fix_fps()
             try:
-                self._outputs.vehicle(event, m.times_s if len(m.points_px) else None, m.points_px)
+                self._write_vehicle(event, m)
             except InputError as exc:  # every other output got the vehicle; the files keep what they have
                 if ok and not self._failed:
                     self.post_error(f"speedometer: {exc}")
@@ -462,6 +462,21 @@ class Speedometer(TrafficcalTransform):
         if not ok:
             self._failed = True
         return ok
+
+    def _write_vehicle(self, event, m):
+        """One finished vehicle's line in the events, CSV and results files (InputError when one cannot be
+        written)."""
+        if self._outputs is None:
+            return
+        self._fix_fps()
+        self._outputs.vehicle(event, m.times_s if len(m.points_px) else None, m.points_px)
+
+    def _tell_downstream(self, fields):
+        """The vehicle's fields as a custom downstream event (gst.vehicle_event), so that trafficoverlay counts a
+        vehicle measured after it left (the calibration came later) by its direction, lane and speed."""
+        from gst_trafficcal.gst.vehicle_event import vehicle_left_event
+
+        self.srcpad.push_event(vehicle_left_event(fields))
 
     def _fix_fps(self):
         """Variable-rate caps: BrnoCompSpeed frame numbers from the median frame interval seen so far."""
@@ -509,11 +524,10 @@ class Speedometer(TrafficcalTransform):
         else:  # stopping without EOS (or after an error): keep what can be kept, quietly
             for m in finished:
                 event = self._stamped(m)
-                if self._outputs is not None:
-                    try:
-                        self._outputs.vehicle(event, m.times_s if len(m.points_px) else None, m.points_px)
-                    except InputError:
-                        pass
+                try:
+                    self._write_vehicle(event, m)
+                except InputError:
+                    pass
                 self._deliver(event, self._fields(event))
         self._close(report=post)
 
@@ -534,6 +548,7 @@ class Speedometer(TrafficcalTransform):
             fields = self._fields(event)
             fields["revised"] = True
             self.post_element_message("trafficcal-speed-revised", fields)
+            self._tell_downstream(fields)
             self._post(fields)
         self.post_element_message("trafficcal-remeasured", {
             "vehicles": len(events), "measured": sum(e.measured for e in events), "calibration_id": cal.id})

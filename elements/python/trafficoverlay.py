@@ -5,7 +5,11 @@ conversion of the whole frame): the road-plane grid towards VP1/VP2 and the hori
 sticky "trafficcal-calibration" event from upstream, or ``calibration-file``), each vehicle's 3D box (from
 the tracker's "trafficcal-vehicle" structure) or its 2D box (plain "detection" ROIs), its track id, label
 and speed (the "speed" structure), and counters of distinct vehicles per direction and lane; with
-``speed-limit``, vehicles over it in red and their count.
+``speed-limit``, vehicles over it in red and their count. A vehicle that left before the calibration (so without
+direction or lane while in view) is counted by the values speedometer gives it when it measures it later (its
+``trafficcal-speed`` custom event, ``gst_trafficcal.gst.vehicle_event``). At end of stream a
+``trafficcal-overlay-counts`` message gives the final counts (total, towards_vp1, away_from_vp1,
+unknown_direction, lane_<k>, over_limit).
 
 The element is never in passthrough, so GstBaseTransform hands it a writable buffer: a buffer shared
 with another branch (e.g. after a ``tee``) is copied first and the other branch never sees the drawing.
@@ -73,6 +77,24 @@ class TrafficOverlay(TrafficcalTransform):
                 self.post_error(f"trafficoverlay: {exc}")
                 return False
         return True
+
+    def on_custom_event(self, event):
+        """speedometer's finished vehicles: one measured after it left (the calibration came later) is counted by
+        its final direction, lane and speed, not as "unknown"."""
+        from gst_trafficcal.gst.vehicle_event import parse_vehicle_left_event
+        from gst_trafficcal.outputs import DIRECTIONS
+
+        fields = parse_vehicle_left_event(event)
+        if fields is not None and self._counter is not None and isinstance(fields.get("id"), int):
+            direction, lane, speed = fields.get("direction"), fields.get("lane"), fields.get("speed_kmh")
+            self._counter.left(fields["id"], direction if direction in DIRECTIONS else None,
+                               lane if isinstance(lane, int) and lane >= 0 else None,
+                               float(speed) if isinstance(speed, (int, float)) else None, str(fields.get("label", "")))
+        return True
+
+    def on_eos(self):
+        if self._counter is not None and self.draw_counters:
+            self.post_element_message("trafficcal-overlay-counts", self._counter.summary())
 
     def on_caps(self, info):
         from gst_trafficcal.gst._gi import GstVideo

@@ -29,7 +29,8 @@ What the base does:
   (:class:`~gst_trafficcal.gst.buffers.StreamClock`: parts joined by ``concat``, a seek back), the same in every
   element; None when the buffer has no timestamp;
 - keeps the latest calibration received from upstream in ``self.calibration`` (hook
-  :meth:`on_calibration`) and forwards the sticky event downstream;
+  :meth:`on_calibration`) and forwards the sticky event downstream; other custom downstream events (speedometer's
+  finished vehicles) go to hook :meth:`on_custom_event`;
 - :meth:`publish_calibration` sends a new calibration downstream (sticky event, before the next
   buffer or before EOS) and posts it on the bus; :meth:`post_element_message`, :meth:`post_warning`,
   :meth:`post_error` for the bus; hook :meth:`on_eos` runs before EOS goes downstream.
@@ -110,6 +111,11 @@ class TrafficcalTransform(GstBase.BaseTransform):
 
     def on_eos(self) -> None:
         """Called at end of stream before EOS goes downstream (post final messages, save files, publish)."""
+
+    def on_custom_event(self, event: Gst.Event) -> bool:
+        """Called for each non-sticky custom downstream event from upstream (e.g. speedometer's finished vehicles,
+        :mod:`.vehicle_event`); return False to not forward it."""
+        return True
 
     def transform_frame(self, buffer: Gst.Buffer) -> Gst.FlowReturn:
         """Process one frame in place (override this, not ``do_transform_ip``)."""
@@ -227,6 +233,12 @@ class TrafficcalTransform(GstBase.BaseTransform):
             self.calibration = cal
             if not self.on_calibration(cal):
                 return True  # consumed: not forwarded
+        elif event.type == Gst.EventType.CUSTOM_DOWNSTREAM:
+            try:
+                if not self.on_custom_event(event):
+                    return True
+            except Exception as exc:  # a bad event from upstream: say so, forward it, go on
+                self.post_warning(f"ignoring invalid {event.get_structure().get_name()} event: {exc}")
         elif event.type == Gst.EventType.EOS:
             try:
                 self.on_eos()

@@ -1,0 +1,38 @@
+"""A finished vehicle as a GStreamer event: what ``speedometer`` tells the elements downstream of it.
+
+When a vehicle leaves, ``speedometer`` posts a ``trafficcal-speed`` bus message and also pushes the same structure
+downstream as a *serialized custom downstream event* (before the buffer it left in, or before EOS)::
+
+    trafficcal-speed, id=(int)17, label=(string)car, speed_kmh=(double)83.4, lane=(int)1,
+        direction=(string)towards_vp1, calibration_id=(string)3f1a2b4c5d6e, ...
+
+(every field of the vehicle's event, ``outputs.VehicleEvent``; absent where it is null). A vehicle measured again
+with a later calibration (the ``remeasure`` property) comes again with ``revised=(boolean)true``.
+
+Why an event: a vehicle that left before the calibration converged had no direction, lane or speed while it was in
+view; it gets them only when speedometer measures it later. ``trafficoverlay`` counts such vehicles by their final
+values instead of as "unknown" (:meth:`gst_trafficcal.overlay.VehicleCounter.left`). Not sticky: each event is one
+vehicle, and an element linked later has not seen it go by.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from typing import Any
+
+from ._gi import Gst
+from .meta import make_structure, structure_to_dict
+
+STRUCTURE_NAME = "trafficcal-speed"
+
+
+def vehicle_left_event(fields: Mapping[str, Any]) -> Gst.Event:
+    """A serialized custom downstream event carrying one finished vehicle's fields (its event as a dict)."""
+    return Gst.Event.new_custom(Gst.EventType.CUSTOM_DOWNSTREAM, make_structure(STRUCTURE_NAME, fields))
+
+
+def parse_vehicle_left_event(event: Gst.Event) -> dict[str, Any] | None:
+    """The fields of a finished vehicle's event, or None for any other event."""
+    if event.type != Gst.EventType.CUSTOM_DOWNSTREAM or not event.has_name(STRUCTURE_NAME):
+        return None
+    return structure_to_dict(event.get_structure())
