@@ -122,6 +122,7 @@ class MeasuredVehicle:
     event: VehicleEvent
     times_s: np.ndarray  # (M,) timestamps of the reference points its speed was measured from (none: unmeasured)
     points_px: np.ndarray  # (M, 2) those reference points, pixels
+    merged_ids: tuple[int, ...] = ()  # earlier tracks of the same vehicle, measured with it (SpeedMeter._stitch)
 
 
 @dataclass
@@ -147,6 +148,7 @@ class _Record:
     live_label_at: int = -1  # how many observations it had then
     live: LiveSpeed | None = None  # the current estimate of the vehicle in view (refreshed every LIVE_EVERY)
     live_at: int = -1  # how many observations it had then
+    merged: list[int] = field(default_factory=list)  # ids of the earlier tracks stitched in front of this one
 
     def track(self) -> Track:
         return Track(id=self.id, state=TrackState.FINISHED, observations=self.observations)
@@ -347,6 +349,7 @@ class SpeedMeter:
             return False
         best.unboxed = rec.unboxed + [k + len(rec.observations) for k in best.unboxed]
         best.observations[:0] = rec.observations
+        best.merged[:0] = rec.merged + [rec.id]
         return True
 
     def _no_calibration_reason(self) -> str:
@@ -489,10 +492,10 @@ class SpeedMeter:
                              **({} if dims is None else dict(zip(("length_m", "width_m", "height_m"),
                                                                  np.round(dims, 2).tolist()))))
         if speed is None:
-            return MeasuredVehicle(event, np.zeros(0), np.zeros((0, 2)))
+            return MeasuredVehicle(event, np.zeros(0), np.zeros((0, 2)), tuple(rec.merged))
         if kept is not None:
             times, px = times[kept], px[kept]
-        return MeasuredVehicle(event, times, px)
+        return MeasuredVehicle(event, times, px, tuple(rec.merged))
 
     def _unmeasured(self, rec: _Record, reason: str, cal: Calibration | None = None) -> MeasuredVehicle:
         return self._finish(rec, rec.track().label, None, reason, np.zeros(0), np.zeros((0, 2)), cal, 0)

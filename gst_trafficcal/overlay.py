@@ -325,14 +325,18 @@ class VehicleCounter:
             self._done_ids.popitem(last=False)
 
     def left(self, track_id: int, direction: str | None = None, lane: int | None = None,
-             speed_kmh: float | None = None, label: str = "") -> bool:
+             speed_kmh: float | None = None, label: str = "", merged: Sequence[int] = ()) -> bool:
         """A vehicle's final values as speedometer gives them when it leaves (or measures it after it left, or again
         with a later calibration): they replace the direction, lane and speed it was counted with, so that the
-        counts are the event files' (None: the files have none). False when the id was never counted here (or
-        too long ago). Once lanes come this way, the per-lane counts hold only the vehicles that left with a lane
-        (the files' lane numbers), not lanes derived here for the ones still in view."""
+        counts are the event files' (None: the files have none); ``merged``: earlier tracks of the same vehicle,
+        measured with it, no longer counted as vehicles. False when the id was never counted here (or too long
+        ago). Once lanes come this way, the per-lane counts hold only the vehicles that left with a lane (the
+        files' lane numbers), not lanes derived here for the ones still in view."""
         self._event_lanes |= lane is not None
         self._lanes_key = (-1, -1, -1)  # recount the lanes
+        for i in merged:
+            if i != track_id:
+                self._uncount(i)
         if track_id in self.seen:
             self.seen[track_id] = (direction, lane)
             self.offsets.pop(track_id, None)
@@ -351,6 +355,22 @@ class VehicleCounter:
         self._done_speeding += int(fast) - int(old_fast)
         self._done_ids[track_id] = (direction, lane, fast)
         return True
+
+    def _uncount(self, track_id: int) -> None:
+        """Take a track out of the counts (it was part of another vehicle)."""
+        if track_id in self.seen:
+            del self.seen[track_id], self._last_seen[track_id]
+            self._speed.pop(track_id, None)
+            self.offsets.pop(track_id, None)
+            return
+        done = self._done_ids.pop(track_id, None)
+        if done is None:
+            return
+        direction, lane, fast = done
+        self._done_total -= 1
+        _count(self._done_dir, direction, -1, count_none=True)
+        _count(self._done_lane, lane, -1, count_none=False)
+        self._done_speeding -= int(fast)
 
     def _derived_lane(self, track_id: int) -> int | None:
         ys = self.offsets.get(track_id)
@@ -423,17 +443,21 @@ class VehicleCounter:
         return out
 
 
-def _move(counts: dict, old, new, count_none: bool) -> None:
-    """One count moved from key ``old`` to ``new`` in ``counts``; with ``count_none`` False a key None is no count
-    (a vehicle without a lane is in no lane). Keys whose count falls to 0 are dropped."""
-    if old == new:
+def _count(counts: dict, key, delta: int, count_none: bool) -> None:
+    """Add ``delta`` to ``counts[key]``; with ``count_none`` False a key None is no count (a vehicle without a lane
+    is in no lane). Keys whose count falls to 0 are dropped."""
+    if key is None and not count_none:
         return
-    if old is not None or count_none:
-        counts[old] = counts.get(old, 0) - 1
-        if counts[old] <= 0:
-            del counts[old]
-    if new is not None or count_none:
-        counts[new] = counts.get(new, 0) + 1
+    counts[key] = counts.get(key, 0) + delta
+    if counts[key] <= 0:
+        del counts[key]
+
+
+def _move(counts: dict, old, new, count_none: bool) -> None:
+    """One count moved from key ``old`` to ``new`` (see :func:`_count`)."""
+    if old != new:
+        _count(counts, old, -1, count_none)
+        _count(counts, new, 1, count_none)
 
 
 def mark_label(mark: VehicleMark, options: OverlayOptions) -> list[str]:

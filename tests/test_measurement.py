@@ -443,6 +443,7 @@ def test_a_vehicle_lost_for_a_moment_is_measured_as_one(scene, truth):
     assert m.event.first_timestamp_s == pytest.approx(times[0]) and m.event.last_timestamp_s == pytest.approx(times[-1])
     assert m.event.speed_kmh == pytest.approx(truth[vid][0], abs=0.05)
     assert len(m.times_s) == len(times) - round(0.4 * 25)
+    assert m.merged_ids == (vid,) and all(e.merged_ids == () for e in events if e is not m)  # for the counters
     others = [e for e in events if e.event.id != new_id]
     check_against_truth(others, {v: t for v, t in truth.items() if v != vid})
     # without stitching: two vehicles

@@ -380,3 +380,11 @@ def test_vehicles_measured_after_they_left_are_counted_by_their_final_values() -
     assert c.by_lane() == {1: 2, 2: 1} and c.total == 5
     c.left(5, "towards_vp1", 0, 50.0, "car")
     assert c.by_lane() == {0: 1, 1: 2, 2: 1}
+    # a vehicle seen as two tracks (lost for a moment, a new id): speedometer measured them as one, so is it counted
+    c.update([VehicleMark((0, 0, 1, 1), 6, direction="towards_vp1", speed_kmh=90.0)])
+    for _ in range(2 * VehicleCounter.FORGET_AFTER):  # track 6 long gone; track 8 still in view
+        c.update([VehicleMark((0, 0, 1, 1), 8, direction="towards_vp1")])
+    assert c.total == 7 and c.speeding == 1
+    assert c.left(8, "towards_vp1", 1, 88.0, "car", merged=[6, 99])  # 99: never counted here, nothing to undo
+    assert c.total == 6 and c.speeding == 1 and c.by_direction() == {"towards_vp1": 4, "away_from_vp1": 1, None: 1}
+    assert c.by_lane() == {0: 1, 1: 3, 2: 1} and 6 not in c._done_ids

@@ -451,7 +451,7 @@ class Speedometer(TrafficcalTransform):
             event = self._stamped(m)
             fields = self._fields(event)
             self.post_element_message("trafficcal-speed", fields)
-            self._tell_downstream(fields)
+            self._tell_downstream(fields, m.merged_ids)
             self._deliver(event, fields)
             try:
                 self._write_vehicle(event, m)
@@ -471,12 +471,14 @@ class Speedometer(TrafficcalTransform):
         self._fix_fps()
         self._outputs.vehicle(event, m.times_s if len(m.points_px) else None, m.points_px)
 
-    def _tell_downstream(self, fields):
+    def _tell_downstream(self, fields, merged_ids=()):
         """The vehicle's fields as a custom downstream event (gst.vehicle_event), so that trafficoverlay counts a
-        vehicle measured after it left (the calibration came later) by its direction, lane and speed."""
+        vehicle measured after it left (the calibration came later) by its direction, lane and speed, and the
+        earlier tracks measured with it (``merged_ids``) not as vehicles of their own."""
         from gst_trafficcal.gst.vehicle_event import vehicle_left_event
 
-        self.srcpad.push_event(vehicle_left_event(fields))
+        self.srcpad.push_event(vehicle_left_event({**fields, "merged_ids": list(merged_ids)} if merged_ids
+                                                  else fields))
 
     def _fix_fps(self):
         """Variable-rate caps: BrnoCompSpeed frame numbers from the median frame interval seen so far."""

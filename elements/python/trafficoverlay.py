@@ -80,16 +80,18 @@ class TrafficOverlay(TrafficcalTransform):
 
     def on_custom_event(self, event):
         """speedometer's finished vehicles: one measured after it left (the calibration came later) is counted by
-        its final direction, lane and speed, not as "unknown"."""
+        its final direction, lane and speed, not as "unknown"; earlier tracks measured with it are not counted."""
         from gst_trafficcal.gst.vehicle_event import parse_vehicle_left_event
         from gst_trafficcal.outputs import DIRECTIONS
 
         fields = parse_vehicle_left_event(event)
         if fields is not None and self._counter is not None and isinstance(fields.get("id"), int):
             direction, lane, speed = fields.get("direction"), fields.get("lane"), fields.get("speed_kmh")
+            merged = fields.get("merged_ids") or []
             self._counter.left(fields["id"], direction if direction in DIRECTIONS else None,
                                lane if isinstance(lane, int) and lane >= 0 else None,
-                               float(speed) if isinstance(speed, (int, float)) else None, str(fields.get("label", "")))
+                               float(speed) if isinstance(speed, (int, float)) else None, str(fields.get("label", "")),
+                               merged=[i for i in merged if isinstance(i, int)])
         return True
 
     def on_eos(self):

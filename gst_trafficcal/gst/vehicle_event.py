@@ -6,12 +6,15 @@ downstream as a *serialized custom downstream event* (before the buffer it left 
     trafficcal-speed, id=(int)17, label=(string)car, speed_kmh=(double)83.4, lane=(int)1,
         direction=(string)towards_vp1, calibration_id=(string)3f1a2b4c5d6e, ...
 
-(every field of the vehicle's event, ``outputs.VehicleEvent``; absent where it is null). A vehicle measured again
-with a later calibration (the ``remeasure`` property) comes again with ``revised=(boolean)true``.
+(every field of the vehicle's event, ``outputs.VehicleEvent``; absent where it is null), and
+``merged_ids=(int)< 92 >`` when earlier tracks of the same vehicle (lost by the detector for a moment, given a new id
+by the tracker) were measured with it: they are not vehicles of their own. A vehicle measured again with a later
+calibration (the ``remeasure`` property) comes again with ``revised=(boolean)true``.
 
 Why an event: a vehicle that left before the calibration converged had no direction, lane or speed while it was in
 view; it gets them only when speedometer measures it later. ``trafficoverlay`` counts such vehicles by their final
-values instead of as "unknown" (:meth:`gst_trafficcal.overlay.VehicleCounter.left`). Not sticky: each event is one
+values instead of as "unknown", and a vehicle seen as two tracks once
+(:meth:`gst_trafficcal.overlay.VehicleCounter.left`). Not sticky: each event is one
 vehicle, and an element linked later has not seen it go by.
 """
 
