@@ -95,7 +95,7 @@ class TrafficOverlay(TrafficcalTransform):
         return True
 
     def on_eos(self):
-        if self._counter is not None and self.draw_counters:
+        if self._counter is not None:  # counted whether or not the panel is drawn
             self.post_element_message("trafficcal-overlay-counts", self._counter.summary())
 
     def on_caps(self, info):
