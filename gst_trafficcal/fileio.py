@@ -57,6 +57,26 @@ def atomic_write_text(path: str | Path, text: str, what: str) -> Path:
     return atomic_write(path, lambda tmp: tmp.write_text(text, encoding="utf-8"), what)
 
 
+def writable_dir(path: str | Path, what: str) -> Path:
+    """The folder ``path``, created if missing and checked writable before any work is done; InputError
+    "<path>: cannot create <what> (...)" / "cannot write in <what> (...)" otherwise."""
+    import tempfile
+
+    path = Path(path)
+    if path.exists() and not path.is_dir():
+        raise InputError(f"{path}: not a folder, so it cannot be the {what}")
+    try:
+        path.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise InputError(f"{path}: cannot create the {what} ({exc.strerror or exc})") from None
+    try:
+        with tempfile.NamedTemporaryFile(dir=path, prefix=".write-check-"):
+            pass
+    except OSError as exc:
+        raise InputError(f"{path}: cannot write in the {what} ({exc.strerror or exc})") from None
+    return path
+
+
 def free_path(path: str | Path) -> Path:
     """``path`` if nothing is there, else the first of ``name-2.ext``, ``name-3.ext``, ... that is free (a folder's
     ``name-2``): where something is set aside or started without replacing what is already there."""

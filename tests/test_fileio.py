@@ -8,7 +8,7 @@ from pathlib import Path
 import pytest
 
 from gst_trafficcal.errors import InputError
-from gst_trafficcal.fileio import free_path, keep_aside
+from gst_trafficcal.fileio import free_path, keep_aside, writable_dir
 
 
 def test_free_path_numbers_files_and_folders(tmp_path: Path) -> None:
@@ -48,3 +48,16 @@ def test_keep_aside_that_cannot_rename_is_a_clear_error(tmp_path: Path) -> None:
     with pytest.raises(InputError, match=r"r\.json: cannot keep the earlier file as .*File name too long"):
         keep_aside(long)
     assert long.read_text() == "{}"
+
+
+def test_writable_dir_creates_the_folder_or_says_why_it_cannot(tmp_path: Path) -> None:
+    """An output folder is checked before any work: created when missing, refused with the reason otherwise."""
+    assert writable_dir(tmp_path / "a" / "b", "output folder").is_dir()
+    assert not [p for p in (tmp_path / "a" / "b").iterdir()]  # the write check leaves nothing behind
+    (tmp_path / "f").write_text("x")
+    with pytest.raises(InputError, match=r"/f: not a folder, so it cannot be the output folder"):
+        writable_dir(tmp_path / "f", "output folder")
+    with pytest.raises(InputError, match=r"/f/x: cannot create the output folder \(Not a directory\)"):
+        writable_dir(tmp_path / "f" / "x", "output folder")
+    with pytest.raises(InputError, match=r"^/proc: cannot write in the output folder"):  # exists, not writable
+        writable_dir("/proc", "output folder")

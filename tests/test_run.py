@@ -194,6 +194,15 @@ def test_a_bad_detector_is_refused_before_any_work(clip, tmp_path, command):
     assert not out.exists()
 
 
+@pytest.mark.parametrize("command", ["run", "calibrate"])
+def test_an_output_folder_that_cannot_be_made_is_refused_before_the_run(clip, tmp_path, command):
+    """Not a traceback, and not an error once the whole video was read: one line naming the folder."""
+    args = {"run": ["--out", "/proc/trafficcal-out"], "calibrate": ["-o", "/proc/trafficcal-out/cal.json"]}[command]
+    line = one_line_error(trafficcal(command, clip / "video.mp4", *args))
+    assert line == "trafficcal: error: /proc/trafficcal-out: cannot create the output folder" + (
+        " (--out)" if command == "run" else "") + " (No such file or directory)"
+
+
 def test_bad_speed_limit_is_refused_before_the_run(clip, tmp_path):
     line = one_line_error(trafficcal("run", clip / "video.mp4", "--out", tmp_path, "--speed-limit", "80,trucks"))
     assert line == ("trafficcal: error: --speed-limit: '80,trucks' is not KMH or KMH,CLASS=KMH,... "

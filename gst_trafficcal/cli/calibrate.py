@@ -75,6 +75,10 @@ def command(video: Path, out_path: Path, png_path: Path | None, method: str, min
 
     if min_duration < 0 or max_duration <= 0:
         raise InputError("durations must be positive")
+    from ..fileio import writable_dir
+
+    for folder in dict.fromkeys(p.parent for p in (out_path, png_path or out_path.with_suffix(".png"))):
+        writable_dir(folder, "output folder")  # now, not after the whole video
     if with_scale:  # bad scale inputs are one-line errors now, not after the vanishing points were found
         from ..scale.regression import load_regression
         from ..scale.streaming import load_align_models

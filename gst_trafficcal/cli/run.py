@@ -664,8 +664,10 @@ def command(videos: tuple[str, ...], out_dir: Path, calibration_path: Path | Non
         if not reconnect:
             raise InputError("--split-every is for a live stream with --reconnect (each period a connection of its "
                              "own)")
+    from ..fileio import writable_dir
     from ..run_status import StatusFile
 
+    writable_dir(out_dir, "output folder (--out)")  # one line now, not a traceback or an error after the video
     earlier = earlier_status(out_dir)
     refuse_a_busy_out(out_dir, earlier)
     kept = set_aside_earlier_live_run(out_dir, is_uri(inputs[0]), earlier, (calibration_path, gt_path, regression_path))
