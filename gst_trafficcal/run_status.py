@@ -77,6 +77,7 @@ class RunStatus:
 
 
 STATUS_FIELDS = tuple(RunStatus.__dataclass_fields__)
+REQUIRED_FIELDS = ("state", "updated_at")  # every status.json has had these
 
 
 def calibration_fields(cal) -> dict[str, Any]:
@@ -161,6 +162,10 @@ def read_status(path: str | Path) -> RunStatus:
     data = read_json(path, "run's status")
     if not isinstance(data, dict):
         raise InputError(f"{path}: not a run's status (a JSON object expected)")
+    missing = [name for name in REQUIRED_FIELDS if name not in data]
+    if missing:  # another JSON file (a calibration.json given by mistake): no status, not a hung run
+        raise InputError(f"{path}: not a run's status (no {' or '.join(missing)}; trafficcal run writes status.json "
+                         "in its --out)")
     data.setdefault("state_since", data.get("updated_at", ""))  # files of an earlier version: no such fields
     data.setdefault("host", "")
     fields = {k: v for k, v in data.items() if k in STATUS_FIELDS}

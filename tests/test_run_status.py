@@ -94,8 +94,14 @@ def test_read_status_names_a_broken_file(tmp_path):
     bad.write_text("[1, 2]")
     with pytest.raises(InputError, match="not a run's status"):
         read_status(bad)
-    bad.write_text('{"state": "running", "from_a_newer_version": 1}')
+    bad.write_text('{"state": "running", "updated_at": "2026-12-06T10:00:00+00:00", "from_a_newer_version": 1}')
     assert read_status(bad).state == "running"
+    # another JSON file given by mistake (a calibration.json has a "state" too): no status, not a hung run
+    for text in ('{"format": "gst-trafficcal-calibration", "state": "calibrated"}', '{"foo": 1}'):
+        bad.write_text(text)
+        with pytest.raises(InputError, match=r"status.json: not a run's status \(no (state or )?updated_at; "
+                                             r"trafficcal run writes status.json in its --out\)"):
+            read_status(bad)
 
 
 def test_health_as_a_health_check_judges_it(tmp_path):
@@ -147,6 +153,10 @@ def test_trafficcal_status_exit_codes(tmp_path):
     missing = subprocess.run([sys.executable, "-m", "gst_trafficcal", "status", str(tmp_path / "nothing")],
                              capture_output=True, text=True, timeout=60)
     assert missing.returncode == 2 and "no such file (give the --out folder" in missing.stderr
+    (tmp_path / "calibration.json").write_text('{"format": "gst-trafficcal-calibration", "state": "calibrated"}')
+    wrong = subprocess.run([sys.executable, "-m", "gst_trafficcal", "status", str(tmp_path / "calibration.json")],
+                           capture_output=True, text=True, timeout=60)
+    assert wrong.returncode == 2 and "calibration.json: not a run's status" in wrong.stderr, wrong.stdout
 
 
 def test_a_corrupt_status_file_is_one_line_naming_it(tmp_path):
