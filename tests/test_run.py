@@ -730,7 +730,9 @@ def test_a_truncated_file_is_measured_up_to_where_it_ends_and_says_so(clip, tmp_
     assert 3.0 < end < 0.8 * length and length == pytest.approx(12.0, abs=0.2)
     events = read_events(out / "vehicles.jsonl").events
     assert events and max(e.last_timestamp_s for e in events) <= end + 0.1
-    assert any("truncated" in w for w in read_status(out / "status.json").warnings)
+    status = read_status(out / "status.json")
+    assert any("truncated" in w for w in status.warnings)
+    assert status.position_s == pytest.approx(end, abs=0.06) and status.duration_s == pytest.approx(length, abs=0.06)
     report = (out / "report.html").read_text()
     assert f"({end:.0f} s watched)" in report, re.findall(r"\([^()]*watched\)", report)
     # its picture is the video's first frame (through GStreamer where OpenCV's FFmpeg refuses the cut file), not

@@ -369,6 +369,10 @@ def measure_video(video: Path | str, out_dir: Path, description: str, console, l
             outcome, failure = exc.outcome, str(exc)
         except PipelineError as exc:
             raise InputError(hidden(f"{video}: {exc}")) from None
+        if outcome.position_s is not None:  # where the stream really ended: a truncated file's last poll may have
+            # said its header's end
+            progress(outcome.position_s, outcome.duration_s if stop_after_s is None else
+                     min(stop_after_s, outcome.duration_s or stop_after_s))
     if ended_short(outcome) is not None:  # (the file is probed for audio only then)
         outcome.warnings.append(f"{shown_source(video)}: {ended_short(outcome, audio=_has_audio(video))}")
     if outcome.frames_dropped:  # a live camera faster than this machine: frames dropped to stay in real time
