@@ -76,6 +76,10 @@ class SpeedLimit:
         return " ".join(out)
 
 
+#: the classes vehicles are reported as (vehicles.classify.LABEL_OF_STYLE's labels), which may have limits of their own
+VEHICLE_CLASSES = ("car", "van", "bus", "truck", "motorcycle")
+
+
 def parse_speed_limit(text: str | float | None, what: str = "speed limit") -> SpeedLimit:
     """``80``, ``80,truck=60,bus=60`` or ``truck=60`` (km/h; 0 or empty: none) as a :class:`SpeedLimit`;
     InputError naming ``what`` for anything else."""
@@ -92,8 +96,10 @@ def parse_speed_limit(text: str | float | None, what: str = "speed limit") -> Sp
             raise InputError(f"{what}: {text!r} is not KMH or KMH,CLASS=KMH,... (e.g. 80,truck=60,bus=60)") from None
         if not sep:
             kmh = v
-        elif v is not None and name.strip():
+        elif v is not None and name.strip().lower() in VEHICLE_CLASSES:
             by_class.append((name.strip().lower(), v))
+        elif v is not None and name.strip():  # a typo ("lorry", "trucks") would leave that class unchecked
+            raise InputError(f"{what}: {name.strip()!r} is no vehicle class (classes: {', '.join(VEHICLE_CLASSES)})")
         else:
             raise InputError(f"{what}: {part!r} needs a class name and a positive limit (e.g. truck=60)")
     return SpeedLimit(kmh, tuple(by_class))

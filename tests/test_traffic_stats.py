@@ -42,7 +42,7 @@ def test_limits() -> None:
 
 
 def test_a_limit_with_classes_of_their_own() -> None:
-    from gst_trafficcal.traffic_stats import SpeedLimit, parse_speed_limit
+    from gst_trafficcal.traffic_stats import VEHICLE_CLASSES, SpeedLimit, parse_speed_limit
 
     lim = parse_speed_limit("80, Truck=60,bus=70")
     assert lim == SpeedLimit(80.0, (("truck", 60.0), ("bus", 70.0))) and lim.describe() == "80 km/h (truck 60, bus 70)"
@@ -51,9 +51,16 @@ def test_a_limit_with_classes_of_their_own() -> None:
     assert parse_speed_limit("truck=60").describe() == "truck 60 km/h" and parse_speed_limit("truck=60").kmh is None
     assert not parse_speed_limit("") and not parse_speed_limit("0") and not parse_speed_limit(None)
     assert parse_speed_limit(90) == SpeedLimit(90.0)
-    for bad in ("fast", "80,truck", "80,truck=-5", "=60", "80,truck=x"):
+    for bad in ("fast", "80,truck", "80,truck=-5", "=60", "80,truck=x", "80,lorry=60"):
         with pytest.raises(InputError, match="--speed-limit"):
             parse_speed_limit(bad, "--speed-limit")
+    # a class name that is no class (a typo would leave the trucks unchecked): said, with the classes
+    with pytest.raises(InputError, match=r"--speed-limit: 'lorry' is no vehicle class \(classes: car, van, bus, "
+                                         r"truck, motorcycle\)"):
+        parse_speed_limit("80,lorry=60", "--speed-limit")
+    from gst_trafficcal.vehicles.classify import LABEL_OF_STYLE
+
+    assert set(VEHICLE_CLASSES) == set(LABEL_OF_STYLE.values())  # every class the vehicles are reported as
     # each vehicle held to its class's limit: the truck at 65 is over, the car at 75 is not
     speeds, labels = [75.0, 65.0, 85.0, 55.0, None], ["car", "truck", "car", "truck", "bus"]
     assert speed_stats(speeds, lim, labels).over_limit == 2 and speed_stats(speeds, 80).over_limit == 1
