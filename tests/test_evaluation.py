@@ -272,6 +272,9 @@ def _bad_inputs(tmp_path: Path) -> list[tuple[list[str], str]]:
     doc["cars"] = []
     doc["camera_calibration"]["vp2"] = [-500.0, -300.0]  # same side of pp as VP1: imaginary focal
     wrong_side.write_text(json.dumps(doc))
+    small = tmp_path / "small.json"  # our calibration of a 640x360 camera against 1920x1080 ground truth
+    small.write_text(json.dumps({"format": "gst-trafficcal-calibration", "version": 1, "image_size": [640, 360],
+                                 "state": "vps", "vp1": [300.0, -60.0], "vp2": [8700.0, 360.0], "pp": [320.0, 180.0]}))
     return [
         (["--gt", str(tmp_path / "missing.pkl"), "--results", res], "missing.pkl: no such file"),
         (["--gt", str(corrupt_pkl), "--results", res], "corrupt.pkl: not a readable gt_data pickle"),
@@ -280,6 +283,8 @@ def _bad_inputs(tmp_path: Path) -> list[tuple[list[str], str]]:
         (["--gt", gt, "--results", str(wrong_side)], "wrong_side.json: camera_calibration: vanishing points give "
                                                      "an imaginary focal length"),
         (["--gt", gt, "--calibration", str(wrong_side)], "wrong_side.json: vanishing points give an imaginary"),
+        (["--gt", gt, "--calibration", str(small)], "small.json: calibration is for 640x360 frames, the ground "
+                                                    "truth's are 1920x1080 (--image-size)"),
     ]
 
 

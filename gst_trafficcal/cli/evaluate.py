@@ -21,8 +21,9 @@ def parse_image_size(value: str) -> tuple[int, int]:
     return w, h
 
 
-def _camera(results, results_path: Path | None, calibration_path: Path | None):
-    """The camera to evaluate: --calibration if given, else the results file's camera_calibration."""
+def _camera(results, results_path: Path | None, calibration_path: Path | None, size: tuple[int, int]):
+    """The camera to evaluate: --calibration if given (for frames of ``size``), else the results file's
+    camera_calibration."""
     from ..calibration import load_calibration
     from ..geometry import Camera
 
@@ -30,6 +31,9 @@ def _camera(results, results_path: Path | None, calibration_path: Path | None):
         cal = load_calibration(calibration_path)
         if cal.camera is None:
             raise InputError(f"{calibration_path}: calibration has no vanishing points yet (state {cal.state!r})")
+        if tuple(cal.image_size) != tuple(size):  # another camera's, or a scaled-down copy: meaningless errors
+            raise InputError(f"{calibration_path}: calibration is for {cal.image_size[0]}x{cal.image_size[1]} frames, "
+                             f"the ground truth's are {size[0]}x{size[1]} (--image-size)")
         return cal.camera
     if results is None or results.calibration is None:
         raise InputError(f"{results_path}: has no camera_calibration block; pass --calibration")
@@ -104,7 +108,7 @@ def command(gt_path: Path, results_path: Path | None, calibration_path: Path | N
     size = parse_image_size(image_size)
     gt = load_gt_data(gt_path)
     results = load_results(results_path) if results_path is not None else None
-    camera = _camera(results, results_path, calibration_path)
+    camera = _camera(results, results_path, calibration_path, size)
     prepared = None
     if results is not None:
         if camera.scale is None:
