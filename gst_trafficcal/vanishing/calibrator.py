@@ -354,6 +354,15 @@ class VPCalibrator:
         return True
 
     def _why(self) -> str:
+        """Why no calibration was declared; a video shorter than ``min_duration`` says so first (its lack of tracks
+        or edges is then no sign of a bad view)."""
+        why = self._lacking()
+        if self.frames >= 2 and self.t < self.cfg.min_duration and not why.startswith(("too short", "no traffic: "
+                                                                                       "nothing moved")):
+            return f"too short: {self.t:.1f} s of video, need at least {self.cfg.min_duration:g} s; {why}"
+        return why
+
+    def _lacking(self) -> str:
         cfg = self.cfg
         t = f"{self.t:.1f} s"
         if self.frames < 2:
