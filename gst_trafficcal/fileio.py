@@ -120,6 +120,8 @@ def open_video(path: str | Path):
     import cv2
 
     path = Path(path)
+    if path.is_dir():
+        raise InputError(f"{path}: a folder, not a video file")
     if not path.is_file():
         raise InputError(f"{path}: no such file")
     cap = cv2.VideoCapture(str(path))

@@ -151,6 +151,14 @@ def test_fit_scale_bad_input(tmp_path):
     bad = subprocess.run([str(ROOT / ".venv/bin/trafficcal"), "fit-scale", "--train", str(tmp_path / "empty"), "-o",
                           str(tmp_path / "r.json")], capture_output=True, text=True, timeout=60)
     assert bad.returncode == 2 and "no calibration.json" in bad.stderr
+    (tmp_path / "video.mp4").write_bytes(b"x")  # a file where a folder belongs, and a bad option: said as such
+    bad = subprocess.run([str(ROOT / ".venv/bin/trafficcal"), "fit-scale", "--train", str(tmp_path / "video.mp4"),
+                          "-o", str(tmp_path / "r.json")], capture_output=True, text=True, timeout=60)
+    assert bad.returncode == 2 and "video.mp4: a file, not a training folder" in bad.stderr
+    bad = subprocess.run([str(ROOT / ".venv/bin/trafficcal"), "fit-scale", "--train", str(tmp_path / "empty"),
+                          "-o", str(tmp_path / "r.json"), "--max-duration", "-5"], capture_output=True, text=True,
+                         timeout=60)
+    assert bad.returncode == 2 and "--max-duration" in bad.stderr and "x>0" in bad.stderr
 
 
 def test_classifier_property_restricts_the_types(clip, tmp_path):

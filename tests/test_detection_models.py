@@ -54,6 +54,9 @@ def test_install_rejects_bad_files(cache, model_file, tmp_path):
     junk.write_bytes(b"not onnx at all")
     with pytest.raises(InputError, match="not a usable ONNX model"):
         models.install(junk, digest(junk))
+    for name in ("sub/x.onnx", "../../evil.onnx", ".."):  # a name is a file in the cache, nowhere else
+        with pytest.raises(InputError, match=r"--name .*: a file name in the model cache, without folders"):
+            models.install(model_file, digest(model_file), name)
     assert models.list_models() == []  # nothing half-installed
     assert not cache.exists() or not any(cache.iterdir())
 

@@ -8,7 +8,7 @@ from pathlib import Path
 import pytest
 
 from gst_trafficcal.errors import InputError
-from gst_trafficcal.fileio import free_path, keep_aside, writable_dir
+from gst_trafficcal.fileio import free_path, keep_aside, open_video, writable_dir
 
 
 def test_free_path_numbers_files_and_folders(tmp_path: Path) -> None:
@@ -61,3 +61,13 @@ def test_writable_dir_creates_the_folder_or_says_why_it_cannot(tmp_path: Path) -
         writable_dir(tmp_path / "f" / "x", "output folder")
     with pytest.raises(InputError, match=r"^/proc: cannot write in the output folder"):  # exists, not writable
         writable_dir("/proc", "output folder")
+
+
+def test_open_video_names_what_is_wrong(tmp_path: Path) -> None:
+    with pytest.raises(InputError, match=r": a folder, not a video file$"):
+        open_video(tmp_path)
+    with pytest.raises(InputError, match=r"none.mp4: no such file$"):
+        open_video(tmp_path / "none.mp4")
+    (tmp_path / "text.mp4").write_text("not a video")
+    with pytest.raises(InputError, match=r"text.mp4: cannot open video"):
+        open_video(tmp_path / "text.mp4")

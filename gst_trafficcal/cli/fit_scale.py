@@ -53,7 +53,8 @@ def true_scale(folder: Path, calibration) -> tuple[float, str]:
 @click.option("--models", default="", help="Vehicle types (as bbscale's models property).")
 @click.option("--iou-threshold", default=0.85, show_default=True, help="Minimum IoU of a match.")
 @click.option("--min-vehicles", default=3, show_default=True, help="Agreeing vehicles needed per scene.")
-@click.option("--max-duration", default=None, type=float, help="Seconds of each video to use [default: all].")
+@click.option("--max-duration", default=None, type=click.FloatRange(min=0, min_open=True),
+              help="Seconds of each video to use [default: all].")
 @detector_option(" for the scale chain (fit with the detector `trafficcal run` will use)")
 @click.option("--form", type=click.Choice(["ratio", "affine"]), default="ratio", show_default=True,
               help="ratio: λ_reg = α·λ* (β = 0; predicted held-out scenes better on every set measured); "
@@ -71,6 +72,9 @@ def command(train: tuple[Path, ...], out_path: Path, models: str, iou_threshold:
 
     folders: list[Path] = []
     for d in train:
+        if d.exists() and not d.is_dir():
+            raise InputError(f"{d}: a file, not a training folder (a folder with video.mp4 and calibration.json, "
+                             "or a folder of such folders)")
         if not d.is_dir():
             raise InputError(f"training folder {d} not found")
         if (d / "calibration.json").is_file():

@@ -74,6 +74,8 @@ def install(source: str | Path, sha256: str, name: str | None = None) -> Path:
     source = str(source)
     is_url = _is_url(source)
     filename = name or Path(urllib.parse.urlparse(source).path if is_url else source).name
+    if name is not None and (not name or name in (".", "..") or "/" in name or "\\" in name):
+        raise InputError(f"--name {name!r}: a file name in the model cache, without folders (e.g. mymodel.onnx)")
     if not filename or filename in (".", "..") or "/" in filename:
         raise InputError(f"cannot derive a model file name from {source!r}; pass a name")
     if not is_url and not Path(source).is_file():
