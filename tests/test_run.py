@@ -220,6 +220,26 @@ def test_missing_video(tmp_path):
     assert proc.returncode == 2 and "does not exist" in proc.stderr and "Traceback" not in proc.stderr
 
 
+def test_a_stream_whose_server_cannot_be_reached_says_why(tmp_path):
+    """GStreamer's sources say only "Internal data stream error": the run adds what a connection attempt found."""
+    from gst_trafficcal.cli.run import unreachable
+
+    from .conftest import closed_port
+
+    port = closed_port()
+    uri = f"http://user:secret@127.0.0.1:{port}/cam.mp4"
+    line = one_line_error(trafficcal("run", uri, "--out", tmp_path / "out", "--no-overlay"))
+    assert line.endswith(f"(127.0.0.1:{port}: Connection refused)") and "secret" not in line, line
+    assert unreachable("rtsp://nosuchhost.invalid/stream") == "nosuchhost.invalid: no such host"
+    assert unreachable("file:///tmp/v.mp4") is None and unreachable("udp://127.0.0.1:5000") is None
+    import socket
+
+    with socket.socket() as server:  # a server that is up: reachable, whatever it then says
+        server.bind(("127.0.0.1", 0))
+        server.listen()
+        assert unreachable(f"rtsp://127.0.0.1:{server.getsockname()[1]}/x") is None
+
+
 @pytest.mark.parametrize("content, words", [
     ("{not json", "calibration"),
     (json.dumps({"format": "gst-trafficcal-calibration", "version": 1, "state": "failed", "image_size": [480, 270],

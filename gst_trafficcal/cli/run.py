@@ -37,6 +37,33 @@ def is_uri(text: str | Path) -> bool:
     return isinstance(text, str) and re.match(r"^[A-Za-z][A-Za-z0-9+.-]*://", text) is not None
 
 
+TCP_PORTS = {"http": 80, "https": 443, "rtsp": 554, "rtsps": 322, "rtmp": 1935}  # schemes over TCP: default ports
+
+
+def unreachable(uri: str, timeout_s: float = 3.0) -> str | None:
+    """Why a network URI's server cannot be reached ("cam7:554: Connection refused", "no such host"), or None when
+    a TCP connection opens (or the URI is not one over TCP): GStreamer's sources fail with "Internal data stream
+    error" alone."""
+    import socket
+    from urllib.parse import urlsplit
+
+    parts = urlsplit(uri)
+    scheme = parts.scheme.lower()
+    if scheme not in TCP_PORTS or not parts.hostname:
+        return None
+    try:
+        port = parts.port or TCP_PORTS[scheme]
+    except ValueError:  # a port that is not a number
+        return f"{parts.hostname}: not a valid port"
+    try:
+        socket.create_connection((parts.hostname, port), timeout=timeout_s).close()
+    except socket.gaierror:
+        return f"{parts.hostname}: no such host"
+    except OSError as exc:
+        return f"{parts.hostname}:{port}: {exc.strerror or exc or 'no answer'}"
+    return None
+
+
 STALL_TIMEOUT_S = 30.0  # a URI that sends no frame this long ends the run with an error instead of a hang
 
 
@@ -403,7 +430,8 @@ def measure_video(video: Path | str, out_dir: Path, description: str, console, l
             failure = (f"no frame for {stall_timeout_s():g} s: the source stopped sending or never connected "
                        "(STALL_TIMEOUT sets how long to wait)")
         if not outcome.position_s and not summary.events:  # nothing was decoded: the input is at fault
-            raise InputError(hidden(f"{video}: cannot be processed: {failure}"))
+            why = unreachable(video) if is_uri(video) else None
+            raise InputError(hidden(f"{video}: cannot be processed: {failure}" + (f" ({why})" if why else "")))
         kept = (f"the {len(summary.events)} vehicles that finished before it are written "
                 f"(in {paths.events.name} and {paths.csv.name}, where the disk allowed)")
         raise InputError(hidden(f"{video}: the run stopped: {failure}; {kept}"))
