@@ -31,6 +31,7 @@ import json
 import subprocess
 import sys
 import time
+import zlib
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
@@ -260,11 +261,14 @@ def make_detector(name: str, model: str | None = None):
 
 def evaluate_scene(preset: str, scene: Path, detector_name: str, background: dict | None = None,
                    colour: bool = False, peeled: bool = False, tracker: dict | None = None,
-                   model: str | None = None) -> SceneScore:
+                   model: str | None = None, cache: Path | None = None) -> SceneScore:
     """Score one rendered scene; ``background`` overrides BackgroundModel fields, ``colour`` passes the frames'
     U and V planes to it (as the element does with I420/NV12 input) instead of the grey frame alone; ``tracker``
-    overrides TrackerConfig fields; ``model``: vehicleseg's ONNX file (default: the shipped one)."""
+    overrides TrackerConfig fields; ``model``: vehicleseg's ONNX file (default: the shipped one); ``cache``: a
+    folder keeping the detector's output per scene, so variants of the tracker are compared on the same
+    detections without running the detector again."""
     import motmetrics as mm
+    import pickle
 
     cal = load_calibration(scene / "calibration.json")
     cam = cal.camera
@@ -280,7 +284,16 @@ def evaluate_scene(preset: str, scene: Path, detector_name: str, background: dic
             raise SystemExit(f"{scene}: no silhouettes.pkl (render it with render_silhouettes)")
         with open(scene / "silhouettes.pkl", "rb") as fh:
             silhouettes = pickle.load(fh)
-    detector = make_detector(detector_name, model)
+    cached: dict[int, Detections] | None = None
+    cache_file = None
+    if cache is not None and detector_name not in ("oracle", "oracle-hull", "oracle-silhouette", "blobs"):
+        key = f"{scene.resolve()}|{detector_name}|{model or ''}|{(scene / 'video.mp4').stat().st_mtime_ns}"
+        cache_file = cache / f"{scene.name}-{detector_name}-{zlib.crc32(key.encode()):08x}.pkl"
+        if cache_file.is_file():
+            with open(cache_file, "rb") as fh:
+                cached = pickle.load(fh)
+    fresh: dict[int, Detections] = {}
+    detector = make_detector(detector_name, model) if cached is None else None
     config = TrackerConfig(**(tracker or {}))
     if peeled:  # tracker peel=true: hulls from the background detector's peeled foreground
         from gst_trafficcal.tracking.peeled import PeeledBackground
@@ -332,7 +345,8 @@ def evaluate_scene(preset: str, scene: Path, detector_name: str, background: dic
         elif detector_name == "blobs":
             det = None
         else:
-            det = detect(detector, bgr, t)
+            det = cached[frames] if cached is not None else detect(detector, bgr, t)
+            fresh[frames] = det
             if detector_name == "vehicleseg-boxes":  # its boxes only: hulls from the tracker's background model
                 det = Detections(det.boxes, det.scores, det.class_ids, det.labels)
         gray = cv2.cvtColor(bgr, cv2.COLOR_BGR2GRAY)
@@ -381,6 +395,10 @@ def evaluate_scene(preset: str, scene: Path, detector_name: str, background: dic
                 faces.append(face_error(cam, tr.last.ref_px, gref, tr.direction))
         gt_boxes_by_frame.append(len(recs))
     cap.release()
+    if cache_file is not None and cached is None:
+        cache.mkdir(parents=True, exist_ok=True)
+        with open(cache_file, "wb") as fh:
+            pickle.dump(fresh, fh)
     tracks = pipe.flush()
     # BrnoCompSpeed counting rule through the project's evaluator
     from gst_trafficcal.evaluation import evaluate_speeds, prepare_tracks
@@ -569,6 +587,9 @@ def main() -> None:
                     help="hulls from the background detector's peeled foreground (tracker peel=true) instead of the "
                          "tracker's own background model")
     ap.add_argument("--no-fps", action="store_true", help="skip the throughput measurements")
+    ap.add_argument("--cache", type=Path, default=None,
+                    help="keep each scene's detections in this folder and use them in later runs (tracker variants "
+                         "compared on the same detections, without running the detector again)")
     args = ap.parse_args()
     if args.model and args.detector not in ("vehicleseg", "vehicleseg-boxes"):
         ap.error(f"--model is for --detector vehicleseg or vehicleseg-boxes, not {args.detector}")
@@ -594,7 +615,7 @@ def main() -> None:
         else:
             scene = given or render(preset, args.duration, args.seed, args.work, args.vehicles)
         s = evaluate_scene(preset, scene, args.detector, bg_opts, colour=args.colour, peeled=args.peeled,
-                           tracker=tr_opts, model=args.model or None)
+                           tracker=tr_opts, model=args.model or None, cache=args.cache)
         scores.append(s)
         print(json.dumps(asdict(s)), flush=True)
     cols = ["preset", "ap50", "ap50_zone", "mota", "idf1", "id_switches", "mostly_tracked", "recall", "fp_per_min", "speed_mae_kmh", "ref_err_px_median",

@@ -31,3 +31,25 @@ def test_make_detector_takes_the_given_file(load_benchmark):
     shipped = ROOT / "gst_trafficcal" / "detection" / "weights" / "vehicleseg.onnx"
     det = tr.make_detector("vehicleseg", str(shipped))
     assert Path(det.path).resolve() == shipped.resolve()
+
+
+def test_a_detections_cache_gives_the_same_scores_without_the_detector(load_benchmark, cuboid_clip, tmp_path,
+                                                                        monkeypatch):
+    """--cache: the second run of a scene reads the first one's detections (tracker variants compared on the same
+    detections, in a fraction of the time) and scores exactly as the first did."""
+    from dataclasses import asdict
+
+    tr = load_benchmark("tracking")
+    first = asdict(tr.evaluate_scene("cuboid", cuboid_clip, "vehicleseg", cache=tmp_path))
+    assert len(list(tmp_path.glob("*-vehicleseg-*.pkl"))) == 1
+
+    def no_detector(*args, **kwargs):
+        raise AssertionError("the detector ran although its detections were cached")
+
+    monkeypatch.setattr(tr, "make_detector", no_detector)
+    again = asdict(tr.evaluate_scene("cuboid", cuboid_clip, "vehicleseg", cache=tmp_path))
+    assert {k: v for k, v in again.items() if k != "tracker_fps"} == \
+        {k: v for k, v in first.items() if k != "tracker_fps"} and first["ref_points"] > 0
+    variant = asdict(tr.evaluate_scene("cuboid", cuboid_clip, "vehicleseg", cache=tmp_path,
+                                       tracker={"body_shapes": "box"}))  # a tracker variant on the same detections
+    assert variant["frames"] == first["frames"] and variant["ap50"] == first["ap50"]
