@@ -783,3 +783,19 @@ def test_a_file_whose_audio_runs_on_past_its_video_is_not_called_truncated(tmp_p
     assert re.search(r"the video ends at 4\.0 s of the 9\.\d s its file states: its audio may run on longer", text), \
         text[-3000:]
     assert "probably truncated" not in text
+
+
+def test_the_remeasured_line_says_how_many_got_a_speed():
+    """58 vehicles measured again of which 47 got a speed must not read as 58 speeds."""
+    from rich.console import Console
+
+    from gst_trafficcal.cli.run import print_remeasured
+
+    console = Console(record=True, width=400)
+    print_remeasured(console, 58, speeds=47)
+    print_remeasured(console, 3, speeds=3)
+    print_remeasured(console, 0, speeds=0)
+    assert console.export_text().splitlines() == [
+        "58 vehicles that left while the calibration was still settling were measured again with the final one (47 of "
+        "them with a speed)",
+        "3 vehicles that left while the calibration was still settling were measured again with the final one"]

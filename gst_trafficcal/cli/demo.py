@@ -122,7 +122,7 @@ def command(out_dir: Path, preset: str, duration: float, seed: int, calibration_
                       f"distance-ratio error {evaluate_calibration(gt, m).ratio_abs.mean:.3f} mean "
                       "-> calibration_manual.json (trafficcal demo --calibration manual measures with it)",
                       highlight=False)
-        print_remeasured(console, measured.remeasured, indent="  ")
+        print_remeasured(console, measured.remeasured, indent="  ", speeds=measured.remeasured_speeds)
 
     # 4. evaluation -------------------------------------------------------------------------------------------
     events = measured.events

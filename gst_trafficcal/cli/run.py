@@ -219,6 +219,7 @@ class RunSummary:
     moves: list = field(default_factory=list)  # gst.runner.Move: when the camera moved, the calibrations around it
     discarded: int = 0  # tracks seen only between a camera move and its notice (not vehicles, not reported)
     remeasured: int = 0  # vehicles measured under an earlier calibration, measured again with the final one at the end
+    remeasured_speeds: int = 0  # of those, how many got a speed
     scaled: list = field(default_factory=list)  # every calibration with a scale and a view posted (one per view)
 
     @property
@@ -414,6 +415,7 @@ def measure_video(video: Path | str, out_dir: Path, description: str, console, l
                          moves=outcome.moves,
                          discarded=max((m["tracks"] for m in outcome.named("trafficcal-discarded")), default=0),
                          remeasured=sum(m["vehicles"] for m in outcome.named("trafficcal-remeasured")),
+                         remeasured_speeds=sum(m["measured"] for m in outcome.named("trafficcal-remeasured")),
                          scaled=_scaled_views(outcome))
     if status is not None:
         for w in outcome.warnings:
@@ -512,15 +514,17 @@ def print_moves(console, summary: RunSummary) -> None:
                       highlight=False)
 
 
-def print_remeasured(console, n: int, events_url: str = "", indent: str = "") -> None:
-    """The line on the vehicles speedometer's ``remeasure`` measured again at the end (nothing when none)."""
+def print_remeasured(console, n: int, events_url: str = "", indent: str = "", speeds: int | None = None) -> None:
+    """The line on the vehicles speedometer's ``remeasure`` measured again at the end (nothing when none);
+    ``speeds``: how many of them got a speed."""
     if not n:
         return
     from ..publish import redacted
 
+    got = f" ({speeds} of them with a speed)" if speeds is not None and speeds < n else ""
     sent = f" (and sent again to {redacted(events_url)}, with revised: true)" if events_url else ""
     console.print(f"{indent}{n} vehicles that left while the calibration was still settling were measured again with "
-                  f"the final one{sent}", highlight=False)
+                  f"the final one{got}{sent}", highlight=False)
 
 
 def print_vehicles(console, events: list, speed_limit: "SpeedLimit | float | None" = None) -> None:
@@ -884,7 +888,7 @@ def run_one(console, video: Path | str, out_dir: Path, calibration_path: Path | 
 
         print_conditioning(console, cal, warned=any(ADVICE in w for w in summary.warnings))
     print_moves(console, summary)
-    print_remeasured(console, summary.remeasured, events_url)
+    print_remeasured(console, summary.remeasured, events_url, speeds=summary.remeasured_speeds)
     print_vehicles(console, summary.events, speed_limit)
     for w in summary.warnings:
         console.print(f"[yellow]warning[/]: {w}", highlight=False)
