@@ -115,6 +115,19 @@ def keep_aside(path: str | Path) -> Path | None:
     return kept
 
 
+@contextlib.contextmanager
+def quiet_ffmpeg():
+    """OpenCV's FFmpeg keeps its complaints ("moov atom not found") off the console meanwhile, unless the user set
+    OPENCV_FFMPEG_LOGLEVEL: where a refusal is handled with an error of our own, they are noise before it."""
+    user_level = os.environ.get("OPENCV_FFMPEG_LOGLEVEL")
+    os.environ["OPENCV_FFMPEG_LOGLEVEL"] = user_level or "-8"
+    try:
+        yield
+    finally:
+        if user_level is None:
+            os.environ.pop("OPENCV_FFMPEG_LOGLEVEL", None)
+
+
 def open_video(path: str | Path):
     """An opened ``cv2.VideoCapture``; InputError "<path>: no such file" / "cannot open video" otherwise."""
     import cv2
@@ -124,7 +137,8 @@ def open_video(path: str | Path):
         raise InputError(f"{path}: a folder, not a video file")
     if not path.is_file():
         raise InputError(f"{path}: no such file")
-    cap = cv2.VideoCapture(str(path))
+    with quiet_ffmpeg():  # a file it cannot open is said in one line below
+        cap = cv2.VideoCapture(str(path))
     if not cap.isOpened():
         raise InputError(f"{path}: cannot open video (not a video file, or no decoder for it)")
     return cap

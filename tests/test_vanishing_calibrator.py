@@ -226,3 +226,12 @@ def test_cli_constant_speed_switch(tmp_path):
     assert "vp1_along_px" in on.confidence and "vp1_along_px" not in off.confidence
     moved = np.hypot(on.confidence["vp1_along_px"], on.confidence["vp1_across_px"])  # along, then across the lanes
     assert np.linalg.norm(on.camera.vp1 - off.camera.vp1) == pytest.approx(moved, abs=0.05)
+
+
+def test_a_file_that_is_no_video_is_one_line_without_ffmpegs_complaints(tmp_path):
+    """OpenCV's FFmpeg prints its own lines ("moov atom not found") before our error; only ours is left."""
+    text = tmp_path / "notes.mp4"
+    text.write_text("not a video")
+    r = _cli("calibrate", str(text), "-o", str(tmp_path / "c.json"), "--no-progress")
+    assert r.returncode == 2 and r.stderr.strip().splitlines() == [
+        f"trafficcal: error: {text}: cannot open video (not a video file, or no decoder for it)"], r.stderr

@@ -453,9 +453,9 @@ def first_frame(video: Path | str):
     through GStreamer; FFmpeg's own complaints stay off the console (OPENCV_FFMPEG_LOGLEVEL, unless set)."""
     import cv2
 
-    user_level = os.environ.get("OPENCV_FFMPEG_LOGLEVEL")
-    os.environ["OPENCV_FFMPEG_LOGLEVEL"] = user_level or "-8"  # quiet (unless asked): a refusal is handled here
-    try:
+    from ..fileio import quiet_ffmpeg
+
+    with quiet_ffmpeg():  # a refusal is handled here
         if is_uri(video):
             cap = cv2.VideoCapture(str(video), cv2.CAP_FFMPEG, [cv2.CAP_PROP_OPEN_TIMEOUT_MSEC, 5000,
                                                                 cv2.CAP_PROP_READ_TIMEOUT_MSEC, 5000])
@@ -465,9 +465,6 @@ def first_frame(video: Path | str):
             ok, frame = cap.read()
         finally:
             cap.release()
-    finally:
-        if user_level is None:
-            del os.environ["OPENCV_FFMPEG_LOGLEVEL"]
     if ok:
         return frame
     if is_uri(video) or not Path(video).is_file():
