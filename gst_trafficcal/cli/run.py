@@ -631,8 +631,8 @@ def command(videos: tuple[str, ...], out_dir: Path, calibration_path: Path | Non
     Writes to --out: calibration.json, system.json (BrnoCompSpeed results), vehicles.jsonl, vehicles.csv,
     intervals.csv (the traffic count per --interval, lane and direction), overlay.mp4 (unless --no-overlay),
     report.html, and with --gt evaluation.json; status.json says all along what the run is doing.
-    Speeds need a scale: from bbscale when installed, else from a
-    --calibration file with a scale; without one, vehicles are written with speed null and the reason.
+    Speeds need a scale: bbscale finds it in the same pass (or a --calibration file with a scale gives it); until
+    it is known the vehicles wait, and without one they are written with speed null and the reason.
 
     Several files of one camera (recordings split into parts): each is measured into --out/NAME/ in turn, and the
     calibration the first ones found (with its scale) carries over to the next — checked against each file's view,

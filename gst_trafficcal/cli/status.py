@@ -50,7 +50,7 @@ def status_files(paths: tuple[Path, ...]) -> list[Path]:
                                                       "for several runs, a list of them (plus 'path').")
 @click.option("--prometheus", is_flag=True,
               help="Print the runs as Prometheus metrics (text format), e.g. for node_exporter's textfile collector: "
-                   "trafficcal status /srv/cameras --prometheus > /var/lib/node_exporter/trafficcal.prom")
+                   "trafficcal status /srv/cameras --prometheus > /var/lib/node_exporter/textfile/trafficcal.prom")
 def command(paths: tuple[Path, ...], max_age_s: float, as_json: bool, prometheus: bool) -> None:
     """Print what the `trafficcal run` writing into OUT_DIR is doing (its status.json): state, stream position and
     speed against real time, calibration, vehicles, the last vehicle, dropped frames, warnings.
