@@ -91,9 +91,13 @@ def parse_speed_limit(text: str | float | None, what: str = "speed limit") -> Sp
             continue
         name, sep, value = part.partition("=")
         try:
-            v = check_limit(float(value if sep else name))
-        except (ValueError, InputError):
+            number = float(value if sep else name)
+        except ValueError:
             raise InputError(f"{what}: {text!r} is not KMH or KMH,CLASS=KMH,... (e.g. 80,truck=60,bus=60)") from None
+        try:
+            v = check_limit(number)
+        except InputError:
+            raise InputError(f"{what}: {part!r}: a limit is a positive number of km/h (0: none)") from None
         if not sep:
             kmh = v
         elif v is not None and name.strip().lower() in VEHICLE_CLASSES:

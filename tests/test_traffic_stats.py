@@ -58,6 +58,8 @@ def test_a_limit_with_classes_of_their_own() -> None:
     with pytest.raises(InputError, match=r"--speed-limit: 'lorry' is no vehicle class \(classes: car, van, bus, "
                                          r"truck, motorcycle\)"):
         parse_speed_limit("80,lorry=60", "--speed-limit")
+    with pytest.raises(InputError, match=r"--speed-limit: '-50': a limit is a positive number of km/h \(0: none\)"):
+        parse_speed_limit("-50", "--speed-limit")
     from gst_trafficcal.vehicles.classify import LABEL_OF_STYLE
 
     assert set(VEHICLE_CLASSES) == set(LABEL_OF_STYLE.values())  # every class the vehicles are reported as
