@@ -799,3 +799,20 @@ def test_the_remeasured_line_says_how_many_got_a_speed():
         "58 vehicles that left while the calibration was still settling were measured again with the final one (47 of "
         "them with a speed)",
         "3 vehicles that left while the calibration was still settling were measured again with the final one"]
+
+
+def test_the_vehicle_table_fits_a_terminal_of_80_columns():
+    """With a speed limit the table has seven columns: in 80 columns none is cut ("away_fr…")."""
+    from rich.console import Console
+
+    from gst_trafficcal.cli.run import print_vehicles
+    from gst_trafficcal.outputs import VehicleEvent
+
+    events = [VehicleEvent(i, "car", 1.0 * i, 1.0 * i + 2, 50.0 + i, lane=i % 3,
+                           direction=("towards_vp1", "away_from_vp1")[i % 2]) for i in range(12)]
+    events.append(VehicleEvent(99, "car", 20.0, 20.5, None, reason="track too short (3 reference points, needs 10)"))
+    console = Console(record=True, width=80)
+    print_vehicles(console, events, 55.0)
+    text = console.export_text()
+    assert "away_from_vp1" in text and "towards_vp1" in text and "…" not in text, text
+    assert "13 vehicles, 12 measured (speeds in km/h)" in text and "over limit" in text

@@ -534,10 +534,10 @@ def print_vehicles(console, events: list, speed_limit: "SpeedLimit | float | Non
 
     speed_limit = as_limit(speed_limit)
     measured = [e for e in events if e.measured]
-    table = Table(title=f"{len(events)} vehicles, {len(measured)} measured")
-    cols = ("lane", "direction", "vehicles", "measured", "mean km/h", "V85 km/h")
-    for col in cols + (("over limit",) if speed_limit else ()):
-        table.add_column(col, justify="right")
+    table = Table(title=f"{len(events)} vehicles, {len(measured)} measured (speeds in km/h)")
+    cols = ("lane", "direction", "vehicles", "measured", "mean", "V85")
+    for col in cols + (("over limit",) if speed_limit else ()):  # fits 80 columns: no direction cut to "away_fr…"
+        table.add_column(col, justify="right", no_wrap=col == "direction", min_width=13 if col == "direction" else None)
     groups = Counter((e.lane, e.direction) for e in events)
     for (lane, direction), n in sorted(groups.items(), key=lambda kv: (kv[0][0] is None, kv[0][0] or 0,
                                                                         str(kv[0][1]))):
