@@ -368,7 +368,9 @@ class SpeedMeter:
             if camera is not self._late_camera:
                 self._late_heights.clear()
                 self._late_camera = camera
-            rebuild_boxes(camera, late, TrackerConfig.shape_fits, self._late_heights.value)
+            width = self.calibration.image_size[0] if self.calibration is not None else 0
+            rebuild_boxes(camera, late, TrackerConfig.shape_fits, self._late_heights.value,
+                          TrackerConfig.shape_min_length * width)
             self._late_heights.add(late.height)
         if last is not None:
             obs = obs[-last:]

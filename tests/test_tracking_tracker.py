@@ -3,6 +3,7 @@ positives, dropped frames, both directions, the switch from 2D to 3D)."""
 
 from __future__ import annotations
 
+import cv2
 import motmetrics as mm
 import numpy as np
 import pytest
@@ -11,7 +12,7 @@ from gst_trafficcal.detection.records import Detections, box_iou
 from gst_trafficcal.errors import InputError
 from gst_trafficcal.tracking.kalman import BoxKF, ConstantVelocityKF
 from gst_trafficcal.tracking.simulate import default_camera, detect, simulate, vehicle_passing
-from gst_trafficcal.tracking.tracker import MIN_WHOLE_BOXES, Tracker, TrackerConfig, TrackState
+from gst_trafficcal.tracking.tracker import MIN_WHOLE_BOXES, Tracker, TrackerConfig, TrackState, _first_fits
 
 
 def mot_summary(scene, tracker, seed=0, miss=0.0, fp_rate=0.0, noise=0.0, camera_at=None, coast=0.0):
@@ -328,7 +329,7 @@ def test_body_shape_is_kept_after_the_first_fits(scene):
             det, hulls, _ = detect(f, rng, scene.image_size)
             hulls = [h + rng.uniform(-2.0, 2.0, h.shape) for h in hulls]
             for tr in tracker.update(f.t, det, hulls).tracks:
-                fits = sum(o.shape_fit is not None for o in tr.observations)
+                fits = len(_first_fits(tr, None, tracker.shape_min_px))  # the fits that have a say
                 if tr.id in history and history[tr.id] != tr.shape and fits > 10:
                     late += 1
                 history[tr.id] = tr.shape
@@ -402,3 +403,73 @@ def test_a_vehicle_cut_by_the_top_edge_is_measured_only_when_never_seen_whole():
     assert not measured[[o.cut_top for o in car.observations]].any()
     assert measured[[o.box3d is not None and not o.cut_top for o in car.observations]].all()
     assert not live[live[:, 0], 2].any()
+
+
+def _rasterised_hull(px: np.ndarray, faces: np.ndarray, size: tuple[int, int]) -> np.ndarray | None:
+    """The convex hull of the pixels a projected mesh covers (pixel centres): a rendered silhouette's outline."""
+    mask = np.zeros((size[1], size[0]), np.uint8)
+    cv2.fillPoly(mask, [np.round(px[f] * 16).astype(np.int32) for f in faces], 1, shift=4)
+    ys, xs = np.nonzero(mask)
+    if len(xs) < 3:
+        return None
+    return cv2.convexHull(np.column_stack([xs, ys]).astype(np.float32)).reshape(-1, 2).astype(np.float64)
+
+
+@pytest.mark.parametrize("extent", [0.0, TrackerConfig.shape_min_length])
+def test_an_oncoming_car_first_seen_far_away_gets_a_cars_body(extent):
+    """An oncoming car is first seen far down the road, where its length spans a few pixels and the plain box fits
+    its blob as well as any body does.  Chosen then and kept for the track, the box put its near face on the front
+    tyres: the fronts lay 0.5-0.8 m behind the bumper where speeds are measured.  Only fits where a car's length
+    spans ``shape_min_length`` of the frame width have a say (0: all, as before): then the car holds a car's body
+    and its front is the bumper's."""
+    from gst_trafficcal.geometry import Camera, rotation_matrix
+    from gst_trafficcal.vehicles.catalogue import load_catalogue
+    from gst_trafficcal.vehicles.mesh import mesh_for
+
+    size = (960, 540)
+    K = np.array([[800.0, 0, 480], [0, 800.0, 270], [0, 0, 1]])
+    R = rotation_matrix(4.0, 11.0, 0.0)
+    t = -R @ np.array([0.0, 0.0, 7.0])
+    cam = Camera.from_KRt(K, R, t)
+    car = load_catalogue()["skoda_octavia_mk1_combi"]
+    mesh = mesh_for(car, np.random.default_rng(0))
+    V = np.asarray(mesh.vertices, np.float64)
+    V = (V - [(V[:, 0].min() + V[:, 0].max()) / 2, (V[:, 1].min() + V[:, 1].max()) / 2, V[:, 2].min()]) \
+        * [-1, -1, 1]  # heading towards the camera (against world x)
+    faces = np.asarray(mesh.faces, np.int64)
+    tracker = Tracker(TrackerConfig(body_shapes="cars", shape_min_length=extent), camera=cam, image_size=size)
+    errors = []
+    for k in range(121):  # 25 m/s, from 150 m out to 30 m
+        x = 150.0 - k
+        X = V + [x, -1.8, 0.0]
+        p = (K @ (R @ X.T + t[:, None])).T
+        hull = _rasterised_hull(p[:, :2] / p[:, 2:], faces, size)
+        box = np.r_[hull.min(0), hull.max(0)].astype(np.float32)[None]
+        det = Detections(box, np.ones(1, np.float32), np.full(1, 2), ["car"])
+        res = tracker.update(k / 25.0, det, [hull], image_size=size, silhouettes=True)
+        o = res.tracks[0].observations[-1] if res.tracks else None
+        if o is not None and o.ref_road is not None and x - car.length / 2 < 45.0:
+            errors.append(o.ref_road[0] * cam.scale - (x - car.length / 2))  # along the road, + behind the bumper
+    track = (tracker.tracks + tracker.finished)[0]
+    assert len(errors) >= 10
+    if extent == 0.0:  # the choice made on the first, tiny silhouettes
+        assert track.shape == 0 and np.median(errors) > 0.4, np.median(errors)
+    else:
+        assert track.shape != 0 and abs(np.median(errors)) < 0.2, np.median(errors)
+
+
+def test_car_length_px_is_the_length_a_car_would_span_along_the_road():
+    """2.5 box widths along the road, in pixels at the box: a car 1.8 m wide spans f h L / X^2 or so far out."""
+    from gst_trafficcal.geometry import Camera, rotation_matrix
+    from gst_trafficcal.tracking.tracker import car_length_px
+
+    K = np.array([[800.0, 0, 480], [0, 800.0, 270], [0, 0, 1]])
+    R = rotation_matrix(5.0, 10.0, 0.0)
+    cam = Camera.from_KRt(K, R, -R @ np.array([0.0, 0.0, 7.0])).with_scale(None)  # plane units: 7 m
+    boxes = np.array([[x - 2.25, x + 2.25, -0.9, 0.9, 1.5] for x in (20.0, 40.0, 80.0)]) / 7.0
+    span = car_length_px(cam, boxes)
+    expected = [np.linalg.norm(np.subtract(*(lambda p: p[:, :2] / p[:, 2:])(
+        (K @ (R @ (np.array([[x, 0, 0], [x + 4.5, 0, 0]]).T - [[0], [0], [7.0]]))).T))) for x in (20.0, 40.0, 80.0)]
+    np.testing.assert_allclose(span, expected, rtol=1e-6)
+    assert span[0] > 3 * span[1] > 9 * span[2] > 0
+    assert car_length_px(cam, np.full((1, 5), np.nan))[0] == 0.0

@@ -70,6 +70,7 @@ class Observation:
     shape_params: np.ndarray | None = field(default=None, repr=False)  # (S, 5) box of each body shape
     shape_fit: np.ndarray | None = field(default=None, repr=False)  # (S,) misfit of each shape (radians)
     shape_ok: bool = field(default=False, repr=False)  # the hull's tangents were valid
+    length_px: float = field(default=0.0, repr=False)  # pixels a car's length would span along the road here
 
 
 @dataclass
@@ -114,11 +115,12 @@ class Track:
         road = np.array([o.ref_road if o.ref_road is not None else (np.nan, np.nan) for o in self.observations])
         return px.reshape(-1, 2), road.reshape(-1, 2)
 
-    def recompute(self, camera: Camera, shape_fits: int | None = None, typical_height: float | None = None) -> None:
+    def recompute(self, camera: Camera, shape_fits: int | None = None, typical_height: float | None = None,
+                  shape_min_px: float = 0.0) -> None:
         """(Re)build the 3D boxes and reference points of every observation with ``camera`` (the body shape
-        chosen over the first ``shape_fits`` silhouette fits, as the tracker does live; ``typical_height``: the
-        scene's, box3d.TypicalHeight)."""
-        rebuild_boxes(camera, self, shape_fits, typical_height)
+        chosen over the first ``shape_fits`` silhouette fits where a car's length spans ``shape_min_px``, as the
+        tracker does live; ``typical_height``: the scene's, box3d.TypicalHeight)."""
+        rebuild_boxes(camera, self, shape_fits, typical_height, shape_min_px)
         _update_direction(self)
         _set_references(camera, self, self.observations)
         self.road_kf = None
@@ -151,6 +153,14 @@ class TrackerConfig:
     # (re-choosing it along the track moved them by up to the shapes' difference at every switch: measured on
     # the vehicleseg replays, 22 of 55 tracks switched 142 times, and their speed samples disagreed)
     shape_fits: int = 10
+    # ... counting only the fits where a car's length spans at least this fraction of the frame's width along the
+    # road (Observation.length_px): an oncoming vehicle is first seen far down the road, where its length is a few
+    # pixels; there its plain box came out 15-20 m long and no car body fitted (a view along the road, the
+    # replays), or the box fitted a small blob as well as any body (exact silhouettes), and the box, held for the
+    # whole track, put the fronts on the front tyres, 0.5-0.9 m behind the bumper where speeds are measured
+    # (docs/tracking.md "Oncoming fronts"); until such a fit comes, the choice over the others stands in; 0: every
+    # fit counts
+    shape_min_length: float = 0.01
     # static occluders (a lamp pole, a sign post in front of the road) learned from where vehicles are seen
     # (occluders.OccluderMap): a vehicle touching one is not measured, its cut box edges are completed with the
     # track's predicted size, and its fragments start no tracks, so a vehicle keeps one track behind a pole
@@ -178,6 +188,8 @@ class TrackerConfig:
             raise InputError(f"body_shapes must be auto, cars or box, got {self.body_shapes!r}")
         if self.shape_fits < 1:
             raise InputError(f"shape_fits must be at least 1, got {self.shape_fits}")
+        if not 0.0 <= self.shape_min_length < 1.0:
+            raise InputError(f"shape_min_length must be in [0, 1) of the frame width, got {self.shape_min_length}")
 
 
 @dataclass
@@ -225,8 +237,14 @@ class Tracker:
             return
         self.typical_height.clear()  # plane units change with the camera
         for tr in sorted(self.tracks + self.finished, key=lambda tr: tr.id):  # in the order they were chosen
-            tr.recompute(camera, self.config.shape_fits, self.typical_height.value)
+            tr.recompute(camera, self.config.shape_fits, self.typical_height.value, self.shape_min_px)
             self.typical_height.add(tr.height)
+
+    @property
+    def shape_min_px(self) -> float:
+        """Least span (pixels) of a car's length along the road where a silhouette has a say in its track's body
+        shape (config.shape_min_length of the frame width; 0 while the frame size is unknown)."""
+        return self.config.shape_min_length * self.image_size[0] if self.image_size is not None else 0.0
 
     # ----------------------------------------------------------------- main step
     def update(self, t: float, detections: Detections, hulls: list[np.ndarray | None] | None = None,
@@ -509,9 +527,10 @@ class Tracker:
             return track.shape
         typical = self.typical_height.value
         if typical is None:  # the scene's first vehicles: the ones in view so far stand in
-            typical = self.typical_height.value_with([_fit_height(tr, self.config.shape_fits) for tr in self.tracks
+            typical = self.typical_height.value_with([_fit_height(tr, self.config.shape_fits, self.shape_min_px)
+                                                      for tr in self.tracks
                                                       if tr.height is None])
-        shape = track_shape(track, self.config.shape_fits, typical)
+        shape = track_shape(track, self.config.shape_fits, typical, self.shape_min_px)
         self.typical_height.add(track.height)
         return shape
 
@@ -626,19 +645,39 @@ def fit_boxes(camera: Camera, observations: list[Observation]) -> None:
         if not idx:
             continue
         fits = fit_shapes(camera, [observations[k].hull for k in idx], None if cars else ())
+        span = car_length_px(camera, fits.params[0])
         for j, k in enumerate(idx):
             o = observations[k]
             o.shape_params, o.shape_fit, o.shape_ok = fits.params[:, j], fits.fit[:, j], bool(fits.valid[j])
+            o.length_px = float(span[j])
+
+
+CAR_LENGTH_WIDTHS = 2.5  # a car is about two and a half times as long as it is wide
+
+
+def car_length_px(camera: Camera, boxes: np.ndarray) -> np.ndarray:
+    """(N,) pixels a car's length (:data:`CAR_LENGTH_WIDTHS` times the width of each plain box (N, 5), which the
+    tangents measure well) spans along the road at the box: how well the silhouette can show a length, and so a
+    body.  0 where the box is not finite."""
+    b = np.asarray(boxes, np.float64).reshape(-1, 5)
+    xc, yc = (b[:, 0] + b[:, 1]) / 2, (b[:, 2] + b[:, 3]) / 2
+    step = CAR_LENGTH_WIDTHS * np.abs(b[:, 3] - b[:, 2])
+    z = np.zeros(len(b))
+    with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
+        a = world_to_pixels(camera, np.stack([xc, yc, z], axis=1))
+        e = world_to_pixels(camera, np.stack([xc + step, yc, z], axis=1))
+        span = np.linalg.norm(e - a, axis=1)
+    return np.where(np.isfinite(span), span, 0.0)
 
 
 def rebuild_boxes(camera: Camera, track: Track, shape_fits: int | None = None,
-                  typical_height: float | None = None) -> None:
+                  typical_height: float | None = None, shape_min_px: float = 0.0) -> None:
     """Fit and set the 3D boxes of all the track's observations, with the body shape chosen over its first
-    ``shape_fits`` silhouette fits (as the tracker chooses live; None: over all; ``typical_height``: the scene's,
-    box3d.TypicalHeight)."""
+    ``shape_fits`` silhouette fits where a car's length spans ``shape_min_px`` (as the tracker chooses live; None: over all;
+    ``typical_height``: the scene's, box3d.TypicalHeight)."""
     fit_boxes(camera, track.observations)
     track.height = None
-    track.shape = track_shape(track, shape_fits, typical_height)
+    track.shape = track_shape(track, shape_fits, typical_height, shape_min_px)
     apply_shape(camera, track, track.observations)
 
 
@@ -652,43 +691,50 @@ def body_shape_name(track: Track) -> str:
     return names[track.shape] if track.shape < len(names) else "box"
 
 
-def _valid_fit(o: Observation) -> bool:
-    """Whether the observation's silhouette was fitted with every shape and its tangents gave a plain box (a
-    silhouette cut by the top edge has no say in the body shape or the height)."""
+def _valid_fit(o: Observation, min_px: float = 0.0) -> bool:
+    """Whether the observation's silhouette has a say in its track's body shape and height: fitted with every
+    shape, its tangents gave a plain box, and a car's length spans at least ``min_px`` along the road there
+    (:func:`car_length_px`).  Not a silhouette cut by the top edge; nor one far down the road, where a few pixels of
+    outline are all a length shows (TrackerConfig.shape_min_length)."""
     return (not o.cut_top and o.shape_fit is not None and len(o.shape_fit) > 1
-            and bool(np.isfinite(o.shape_fit[0])))
+            and bool(np.isfinite(o.shape_fit[0])) and (min_px <= 0 or o.length_px >= min_px))
 
 
-def _first_fits(track: Track, first: int | None) -> list[Observation]:
-    """The track's observations with a valid fit, the first ``first`` of them (all: None)."""
+def _first_fits(track: Track, first: int | None, min_px: float = 0.0) -> list[Observation]:
+    """The track's observations with a valid fit (:func:`_valid_fit`), the first ``first`` of them (all: None)."""
     out = []
     for o in track.observations:
         if first is not None and len(out) >= first:
             break
-        if _valid_fit(o):
+        if _valid_fit(o, min_px):
             out.append(o)
     return out
 
 
-def _fit_height(track: Track, first: int) -> float:
+def _fit_height(track: Track, first: int, min_px: float = 0.0) -> float:
     """Median plain-box height of the track's first ``first`` valid fits so far (NaN: none)."""
-    h = [o.shape_params[0][4] for o in _first_fits(track, first)]
+    h = [o.shape_params[0][4] for o in _first_fits(track, first, min_px)]
     return float(np.median(h)) if h else np.nan
 
 
-def track_shape(track: Track, first: int | None = None, typical_height: float | None = None) -> int:
+def track_shape(track: Track, first: int | None = None, typical_height: float | None = None,
+                min_px: float = 0.0) -> int:
     """The body shape that explains the tangents of the track's silhouettes best (summed misfit; 0 = box), over
-    its ``first`` valid fits (all: None; a silhouette whose tangents give no box does not count), of the shapes
+    its ``first`` valid fits (all: None; a silhouette whose tangents give no box, or where a car's length spans
+    less than ``min_px``, does not count), of the shapes
     its proportions allow (a car's bodies for a car and for a "stretched" one — long, but no taller than the
     scene's ``typical_height`` —, a truck's or a bus's for a long vehicle taller than that, else the box:
     box3d.track_choice).  Sets ``track.proportions`` (that class) and, once those fits are all in (or with
     ``first`` None), ``track.height``: their plain boxes' median height."""
-    rows = _first_fits(track, first)  # the choice is made over these: later fits cannot change it
+    rows = _first_fits(track, first, min_px)  # the choice is made over these: later fits cannot change it
+    final = bool(rows) and (first is None or len(rows) >= first)
+    if not rows:  # none that shows a length yet (a vehicle far down the road): the others stand in meanwhile
+        rows = _first_fits(track, first)
     if not rows:
         track.proportions = ""
         return 0
     boxes = np.array([o.shape_params[0] for o in rows])
-    if first is None or len(rows) >= first:
+    if final:
         track.height = float(np.median(boxes[:, 4]))
     track.proportions = track_class(boxes, typical_height)
     from .shapes import default_shapes
