@@ -673,8 +673,8 @@ def car_length_px(camera: Camera, boxes: np.ndarray) -> np.ndarray:
 def rebuild_boxes(camera: Camera, track: Track, shape_fits: int | None = None,
                   typical_height: float | None = None, shape_min_px: float = 0.0) -> None:
     """Fit and set the 3D boxes of all the track's observations, with the body shape chosen over its first
-    ``shape_fits`` silhouette fits where a car's length spans ``shape_min_px`` (as the tracker chooses live; None: over all;
-    ``typical_height``: the scene's, box3d.TypicalHeight)."""
+    ``shape_fits`` silhouette fits where a car's length spans ``shape_min_px`` (as the tracker chooses live; None:
+    over all; ``typical_height``: the scene's, box3d.TypicalHeight)."""
     fit_boxes(camera, track.observations)
     track.height = None
     track.shape = track_shape(track, shape_fits, typical_height, shape_min_px)
