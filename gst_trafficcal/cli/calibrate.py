@@ -75,10 +75,6 @@ def command(video: Path, out_path: Path, png_path: Path | None, method: str, min
 
     if min_duration < 0 or max_duration <= 0:
         raise InputError("durations must be positive")
-    from ..fileio import writable_dir
-
-    for folder in dict.fromkeys(p.parent for p in (out_path, png_path or out_path.with_suffix(".png"))):
-        writable_dir(folder, "output folder")  # now, not after the whole video
     if with_scale:  # bad scale inputs are one-line errors now, not after the vanishing points were found
         from ..scale.regression import load_regression
         from ..scale.streaming import load_align_models
@@ -89,6 +85,11 @@ def command(video: Path, out_path: Path, png_path: Path | None, method: str, min
     cfg = CalibratorConfig(method=method, min_duration=min_duration, max_duration=max_duration,
                            focal_range=parse_focal_range(focal_range), horizon_max_deg=horizon_max,
                            vp1_constant_speed=constant_speed)
+    from ..fileio import open_video, writable_dir
+
+    open_video(video).release()  # a missing or unreadable video: its one line before anything is created
+    for folder in dict.fromkeys(p.parent for p in (out_path, png_path or out_path.with_suffix(".png"))):
+        writable_dir(folder, "output folder")  # now (after the inputs were checked), not after the whole video
     console = Console(stderr=True)
     with Progress(TextColumn("[bold]calibrate"), BarColumn(), TextColumn("{task.completed}/{task.total} frames"),
                   TextColumn("{task.fields[info]}"), TimeElapsedColumn(), console=console,
