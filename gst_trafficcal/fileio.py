@@ -128,17 +128,28 @@ def quiet_ffmpeg():
             os.environ.pop("OPENCV_FFMPEG_LOGLEVEL", None)
 
 
-def open_video(path: str | Path):
-    """An opened ``cv2.VideoCapture``; InputError "<path>: no such file" / "cannot open video" otherwise."""
-    import cv2
-
+def video_file(path: str | Path) -> Path:
+    """``path`` when a file is there; InputError "<path>: a folder, not a video file" / "no such file" otherwise."""
     path = Path(path)
     if path.is_dir():
         raise InputError(f"{path}: a folder, not a video file")
     if not path.is_file():
         raise InputError(f"{path}: no such file")
+    return path
+
+
+def cannot_open_video(path: str | Path) -> InputError:
+    """The error for a file no decoder opens."""
+    return InputError(f"{path}: cannot open video (not a video file, or no decoder for it)")
+
+
+def open_video(path: str | Path):
+    """An opened ``cv2.VideoCapture``; InputError (:func:`video_file`, :func:`cannot_open_video`) otherwise."""
+    import cv2
+
+    path = video_file(path)
     with quiet_ffmpeg():  # a file it cannot open is said in one line below
         cap = cv2.VideoCapture(str(path))
     if not cap.isOpened():
-        raise InputError(f"{path}: cannot open video (not a video file, or no decoder for it)")
+        raise cannot_open_video(path)
     return cap

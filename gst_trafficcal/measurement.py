@@ -50,7 +50,7 @@ from .outputs import AWAY_FROM_VP1, TOWARDS_VP1, VehicleEvent
 from .speed import DEFAULT_TAU, SpeedChecks, VehicleSpeed, _median_velocity, metres_per_pixel, vehicle_speed
 from .tracking.box3d import TypicalHeight, box_heights, corners_fit_hulls, pixels_to_road
 from .tracking.tracker import Observation, Track, TrackerConfig, TrackState, measured_boxes, rebuild_boxes
-from .tracking.tracker import track_dimensions
+from .tracking.tracker import shape_min_px, track_dimensions
 from .tracking.tracker import _set_references, _update_direction  # the tracker's own finishing step
 from .vehicles.classify import MAX_Z, classify_dimensions, refined_label
 
@@ -368,9 +368,8 @@ class SpeedMeter:
             if camera is not self._late_camera:
                 self._late_heights.clear()
                 self._late_camera = camera
-            width = self.calibration.image_size[0] if self.calibration is not None else 0
             rebuild_boxes(camera, late, TrackerConfig.shape_fits, self._late_heights.value,
-                          TrackerConfig.shape_min_length * width)
+                          shape_min_px(self.calibration.image_size if self.calibration is not None else None))
             self._late_heights.add(late.height)
         if last is not None:
             obs = obs[-last:]

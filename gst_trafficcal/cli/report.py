@@ -13,7 +13,7 @@ def _frame(image: Path | None, video: Path | None, at_s: float):
     """A BGR frame: the image file, or the video's frame at ``at_s`` seconds (None when neither is given)."""
     import cv2
 
-    from ..fileio import open_video
+    from ..fileio import cannot_open_video, open_video, video_file
 
     if image is not None:
         if not image.is_file():
@@ -27,11 +27,9 @@ def _frame(image: Path | None, video: Path | None, at_s: float):
     if at_s <= 0:  # the first frame, as trafficcal run's report shows it (GStreamer where OpenCV refuses the file)
         from .run import first_frame
 
-        if not video.is_file():
-            raise InputError(f"{video}: no such file")
-        frame = first_frame(video)
+        frame = first_frame(video_file(video))
         if frame is None:
-            raise InputError(f"{video}: cannot open video (not a video file, or no decoder for it)")
+            raise cannot_open_video(video)
         return frame
     cap = open_video(video)
     try:

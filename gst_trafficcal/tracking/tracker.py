@@ -242,9 +242,8 @@ class Tracker:
 
     @property
     def shape_min_px(self) -> float:
-        """Least span (pixels) of a car's length along the road where a silhouette has a say in its track's body
-        shape (config.shape_min_length of the frame width; 0 while the frame size is unknown)."""
-        return self.config.shape_min_length * self.image_size[0] if self.image_size is not None else 0.0
+        """:func:`shape_min_px` of this tracker's frames and config."""
+        return shape_min_px(self.image_size, self.config.shape_min_length)
 
     # ----------------------------------------------------------------- main step
     def update(self, t: float, detections: Detections, hulls: list[np.ndarray | None] | None = None,
@@ -653,6 +652,13 @@ def fit_boxes(camera: Camera, observations: list[Observation]) -> None:
 
 
 CAR_LENGTH_WIDTHS = 2.5  # a car is about two and a half times as long as it is wide
+
+
+def shape_min_px(image_size: tuple[int, int] | None,
+                 shape_min_length: float = TrackerConfig.shape_min_length) -> float:
+    """Least span (pixels) of a car's length along the road where a silhouette has a say in its track's body shape
+    (TrackerConfig.shape_min_length of the frame width; 0 while the frame size is unknown)."""
+    return shape_min_length * image_size[0] if image_size is not None else 0.0
 
 
 def car_length_px(camera: Camera, boxes: np.ndarray) -> np.ndarray:
