@@ -290,8 +290,12 @@ def evaluate_scene(preset: str, scene: Path, detector_name: str, background: dic
         key = f"{scene.resolve()}|{detector_name}|{model or ''}|{(scene / 'video.mp4').stat().st_mtime_ns}"
         cache_file = cache / f"{scene.name}-{detector_name}-{zlib.crc32(key.encode()):08x}.pkl"
         if cache_file.is_file():
-            with open(cache_file, "rb") as fh:
-                cached = pickle.load(fh)
+            try:
+                with open(cache_file, "rb") as fh:
+                    cached = pickle.load(fh)
+            except (OSError, EOFError, pickle.UnpicklingError) as exc:  # a run cut short while writing it
+                print(f"{cache_file}: unreadable ({exc}); detecting again", file=sys.stderr)
+                cached = None
     fresh: dict[int, Detections] = {}
     detector = make_detector(detector_name, model) if cached is None else None
     config = TrackerConfig(**(tracker or {}))
@@ -397,8 +401,10 @@ def evaluate_scene(preset: str, scene: Path, detector_name: str, background: dic
     cap.release()
     if cache_file is not None and cached is None:
         cache.mkdir(parents=True, exist_ok=True)
-        with open(cache_file, "wb") as fh:
+        part = cache_file.with_suffix(".part")
+        with open(part, "wb") as fh:
             pickle.dump(fresh, fh)
+        part.replace(cache_file)  # whole or absent: a run stopped while writing leaves no half file behind
     tracks = pipe.flush()
     # BrnoCompSpeed counting rule through the project's evaluator
     from gst_trafficcal.evaluation import evaluate_speeds, prepare_tracks

@@ -53,3 +53,11 @@ def test_a_detections_cache_gives_the_same_scores_without_the_detector(load_benc
     variant = asdict(tr.evaluate_scene("cuboid", cuboid_clip, "vehicleseg", cache=tmp_path,
                                        tracker={"body_shapes": "box"}))  # a tracker variant on the same detections
     assert variant["frames"] == first["frames"] and variant["ap50"] == first["ap50"]
+
+    monkeypatch.undo()  # a cache file cut short (a run stopped while writing) is detected again and rewritten
+    cached = next(tmp_path.glob("*-vehicleseg-*.pkl"))
+    whole = cached.read_bytes()
+    cached.write_bytes(whole[: len(whole) // 2])
+    redone = asdict(tr.evaluate_scene("cuboid", cuboid_clip, "vehicleseg", cache=tmp_path))
+    assert redone["ref_points"] == first["ref_points"] and redone["ap50"] == first["ap50"]
+    assert cached.read_bytes() == whole and not list(tmp_path.glob("*.part"))
