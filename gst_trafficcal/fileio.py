@@ -77,6 +77,16 @@ def writable_dir(path: str | Path, what: str) -> Path:
     return path
 
 
+def writable_file(path: str | Path, what: str) -> Path:
+    """``path``, checked before any work that a file can be written there (its folder made or writable, not a
+    folder itself), without touching a file already there; InputError naming ``what`` otherwise."""
+    path = Path(path)
+    if path.is_dir():
+        raise InputError(f"{path}: a folder, so it cannot be the {what}")
+    writable_dir(path.parent, f"{what}'s folder")
+    return path
+
+
 def free_path(path: str | Path) -> Path:
     """``path`` if nothing is there, else the first of ``name-2.ext``, ``name-3.ext``, ... that is free (a folder's
     ``name-2``): where something is set aside or started without replacing what is already there."""

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import subprocess
 from pathlib import Path
 
@@ -259,3 +260,34 @@ def test_speedometer_builds_no_scale_stage_of_its_own_behind_bbscale(clip, tmp_p
                        f"bbscale ! speedometer scale-regression-file={bad} ! appsink name=sink", timeout=120)
     msgs = [m.fields for m in res.messages if m.name == "trafficcal-speedometer"]
     assert msgs and msgs[0]["scale"] == "upstream"
+
+
+def test_bbscale_without_a_tracker_says_so_and_speedometer_finds_the_scale_itself(clip, tmp_path):
+    """``vehicledetect ! bbscale ! speedometer`` (no tracker): bbscale gets no tracked vehicle and says what is
+    missing; speedometer, which tracks by itself here, does not wait for a scale bbscale cannot find but runs the
+    scale stage itself and measures."""
+    from gst_trafficcal.outputs import read_events
+
+    res = run_pipeline(f"filesrc location={clip / 'video.mp4'} ! decodebin ! videoconvert ! vpdetect mode=fixed "
+                       f"calibration-file={clip / 'vps.json'} ! vehicledetect ! bbscale min-vehicles=3 ! speedometer "
+                       f"scale-min-vehicles=3 events-file={tmp_path / 'e.jsonl'} ! appsink name=sink", timeout=300)
+    said = [w for w in res.warnings if "bbscale" in w]  # once, why, and nothing else
+    assert len(said) == 1 and re.match(r"bbscale\d+: bbscale: vehicles have arrived for \d+ s without a tracker's data",
+                                       said[0]) and \
+        "put a tracker before bbscale (... ! vehicledetect ! tracker ! bbscale ! ...)" in said[0], res.warnings
+    msgs = [m.fields for m in res.messages if m.name == "trafficcal-speedometer"]
+    assert msgs == [{"tracking": "internal", "scale": "internal"}]
+    measured = [e for e in read_events(tmp_path / "e.jsonl").events if e.speed_kmh is not None]
+    assert len(measured) >= 3
+
+
+def test_speedometer_takes_the_scale_of_a_scaled_calibration_from_upstream(clip, tmp_path):
+    """vpdetect ``mode=fixed`` with a calibration that has a scale: speedometer says the scale comes from upstream
+    and runs no scale stage of its own (no "waiting for the vanishing points" at the end, which was wrong)."""
+    res = run_pipeline(f"filesrc location={clip / 'video.mp4'} ! decodebin ! videoconvert ! vpdetect mode=fixed "
+                       f"calibration-file={clip / 'calibration.json'} ! vehicledetect ! speedometer "
+                       f"events-file={tmp_path / 'e.jsonl'} ! appsink name=sink", timeout=300)
+    assert [m.fields for m in res.messages if m.name == "trafficcal-speedometer"] == [
+        {"tracking": "internal", "scale": "upstream"}]
+    assert not [m for m in res.messages if m.name == "trafficcal-scale"]
+    assert any(json.loads(line)["speed_kmh"] is not None for line in (tmp_path / "e.jsonl").read_text().splitlines())

@@ -400,6 +400,37 @@ def test_a_results_file_that_cannot_be_written_is_an_error_at_start(clip, tmp_pa
         run_pipeline(f"{source(clip)} ! {detector(clip)} ! speedometer results-file={where} ! appsink name=sink")
 
 
+def test_tracker_data_dropped_on_the_way_is_said_not_silently_ignored(clip, tmp_path):
+    """A videoconvert that changes the format between the tracker and speedometer (and trafficoverlay) keeps the
+    vehicles' rectangles but drops the tracker's parameters: nothing can be measured or counted, and each element
+    says so once, naming the likely causes, instead of running on with empty files."""
+    register_plugin_file(ELEMENTS / "trafficoverlay.py")
+    cal = clip / "calibration.json"
+    convert = "videoconvert ! video/x-raw,format=BGRx"
+    run = run_pipeline(f"{source(clip)} ! {detector(clip)} ! tracker ! {convert} ! speedometer calibration-file={cal} "
+                       f"events-file={tmp_path / 'e.jsonl'} ! {convert} ! trafficoverlay ! appsink name=sink")
+    for element in ("speedometer", "trafficoverlay"):
+        said = [w for w in run.warnings if f"{element}: vehicles have arrived" in w]
+        assert len(said) == 1 and "although a tracker runs upstream" in said[0] and \
+            "(videoconvert, videoscale) keeps the vehicles' rectangles but drops that data" in said[0], run.warnings
+    assert (tmp_path / "e.jsonl").read_text() == ""
+    # the same chain without the conversion: measured, and nothing said
+    run = run_pipeline(f"{source(clip)} ! {detector(clip)} ! tracker ! speedometer calibration-file={cal} "
+                       f"events-file={tmp_path / 'f.jsonl'} ! trafficoverlay ! appsink name=sink")
+    assert not [w for w in run.warnings if "have arrived" in w] and (tmp_path / "f.jsonl").read_text()
+
+
+def test_speedometer_with_no_detector_says_so(clip, tmp_path):
+    """No detector upstream and no vehicle arriving: said once, not an empty events file in silence."""
+    run = run_pipeline(f"{source(clip)} ! speedometer calibration-file={clip / 'calibration.json'} "
+                       f"events-file={tmp_path / 'e.jsonl'} ! appsink name=sink")
+    said = [w for w in run.warnings if "no detector runs upstream" in w]
+    assert len(said) == 1 and "no vehicle has arrived in 5 s" in said[0], run.warnings
+    run = run_pipeline(f"{source(clip)} ! {detector(clip)} ! speedometer calibration-file={clip / 'calibration.json'} "
+                       f"events-file={tmp_path / 'f.jsonl'} ! appsink name=sink")  # another detector: not said
+    assert not [w for w in run.warnings if "no detector runs upstream" in w]
+
+
 def test_calibration_of_another_image_size_is_an_error(clip, tmp_path):
     cal = load_calibration(clip / "calibration.json")
     from dataclasses import replace

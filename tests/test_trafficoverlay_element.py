@@ -260,6 +260,14 @@ def test_bad_calibration_file_is_a_readable_error(tmp_path: Path) -> None:
         run_pipeline(f"{GREY_SRC},format=I420 ! trafficoverlay calibration-file={bad} ! fakesink")
 
 
+def test_a_calibration_of_another_frame_size_is_an_error(tmp_path: Path) -> None:
+    """Its grid and horizon would be drawn in the wrong place: refused, as vpdetect and speedometer refuse it."""
+    big = save_calibration(Calibration(_camera(), (2 * W, 2 * H), source="test"), tmp_path / "big.json")
+    with pytest.raises(PipelineError, match=rf"trafficoverlay: .*big\.json is a calibration of {2 * W}x{2 * H} "
+                                            rf"images but the video is {W}x{H}"):
+        run_pipeline(f"{GREY_SRC},format=I420 ! trafficoverlay calibration-file={big} ! fakesink")
+
+
 def test_gst_inspect_documents_every_property(tmp_path: Path) -> None:
     env = dict(os.environ, **gst_environment(), GST_REGISTRY=str(tmp_path / "registry.bin"))
     out = subprocess.run(["gst-inspect-1.0", "trafficoverlay"], env=env, capture_output=True, text=True, timeout=120)

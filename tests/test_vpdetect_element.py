@@ -110,6 +110,12 @@ def test_bad_configuration_and_caps_are_clear_errors(tmp_path):
     with pytest.raises(PipelineError, match="YUY2"):
         run_pipeline(f"videotestsrc num-buffers=2 ! video/x-raw,format=YUY2,width={W},height={H} ! vpdetect ! "
                      "fakesink")
+    (tmp_path / "plain").write_text("a file, not a folder")  # a calibration to learn that could not be saved:
+    for mode in ("learn", "auto"):  # said at start, not after the minutes of video the learning takes
+        with pytest.raises(PipelineError, match=r"vpdetect: .*plain: not a folder, so it cannot be the calibration "
+                                                r"file's folder"):
+            run_pipeline(f"appsrc name=src ! vpdetect mode={mode} calibration-file={tmp_path / 'plain' / 'c.json'} "
+                         "! appsink name=sink", blank, CAPS)
 
 
 def test_gst_launch_documents_every_property():

@@ -51,7 +51,11 @@ class BBScale(TrafficcalTransform):
 
     def do_start(self):
         from gst_trafficcal.errors import TrafficcalError
+        from gst_trafficcal.gst.untracked import UntrackedWatch
         from gst_trafficcal.scale.stage import build_stage
+
+        self._untracked = UntrackedWatch("bbscale")
+        self._tracker_upstream = None  # decided at the first frame, when the pipeline is linked
 
         try:
             if self.renderer not in ("projection", "gl"):
@@ -105,8 +109,9 @@ class BBScale(TrafficcalTransform):
                 self._warned_pts = True
                 self.post_warning("bbscale: buffers without timestamps are ignored")
             return Gst.FlowReturn.OK
-        rois = [r for r in read_vehicle_rois(buffer, self.frame_size, only=(VEHICLE,))
-                if r.object_id is not None and VEHICLE in r.params]
+        every = read_vehicle_rois(buffer, self.frame_size, only=(VEHICLE,))
+        rois = [r for r in every if r.object_id is not None and VEHICLE in r.params]
+        self._check_tracked(t, len(every), len(rois))
         probs = [None] * len(rois)
         if self._classifier is not None and rois:
             with self.bgr(buffer) as bgr:
@@ -118,13 +123,23 @@ class BBScale(TrafficcalTransform):
             self._report(ours)
         return Gst.FlowReturn.OK
 
+    def _check_tracked(self, t, n_rois, n_tracked):
+        """Say once when vehicles keep coming untracked (no tracker before bbscale, or its data dropped on the way)."""
+        from gst_trafficcal.gst.element import upstream_element
+
+        if self._tracker_upstream is None:
+            self._tracker_upstream = upstream_element(self, "tracker") is not None
+        warning = self._untracked.check(t, n_rois, n_tracked, self._tracker_upstream)
+        if warning:
+            self.post_warning(warning)
+
     def on_eos(self):
         from gst_trafficcal.scale.stage import upstream_has_scale
 
         if self._stage is None or upstream_has_scale(self.calibration):
             return
         self._report(self._stage.finish(self.calibration))
-        if not self._stage.result().converged:
+        if not self._stage.result().converged and not self._untracked.said:  # else said why already
             self.post_warning(f"bbscale: no scale: {self._stage.result().status}")
 
 

@@ -37,7 +37,8 @@ each vehicle measured again at the end is sent once more — a ``trafficcal-spee
 """
 
 from gst_trafficcal.gst._gi import GObject, Gst
-from gst_trafficcal.gst.element import TrafficcalTransform
+from gst_trafficcal.gst.element import TrafficcalTransform, upstream_element
+from gst_trafficcal.gst.untracked import UNTRACKED_AFTER_S, UntrackedWatch
 
 _RW = GObject.ParamFlags.READWRITE
 _RESULTS_EVERY = 10.0  # seconds of stream time between rewrites of the BrnoCompSpeed results file, at least
@@ -149,6 +150,9 @@ class Speedometer(TrafficcalTransform):
         self._scaled = None  # the upstream calibration with the λ that stage found
         self._start = None  # datetime of stream time 0 (start-datetime), None while unknown
         self._run = None  # this run's id (outputs.new_run_id), set at start
+        self._untracked = UntrackedWatch("speedometer")  # a tracker upstream whose data does not arrive
+        self._detector = None  # whether a vehicledetect runs upstream (decided at the first frame)
+        self._empty_since = None  # stream time since which no vehicle arrived, while no detector is seen upstream
 
     # ------------------------------------------------------------------ life cycle
     def do_start(self):
@@ -214,10 +218,9 @@ class Speedometer(TrafficcalTransform):
         self._finish(post=True)
 
     def on_caps(self, info):
-        cal = self._file_cal
-        if cal is not None and tuple(cal.image_size) != tuple(self.frame_size):
-            self.post_error(f"speedometer: {self.calibration_file} is a calibration of {cal.image_size[0]}x"
-                            f"{cal.image_size[1]} images but the video is {self.frame_size[0]}x{self.frame_size[1]}")
+        wrong = self.file_calibration_mismatch(self._file_cal, self.calibration_file)
+        if wrong:
+            self.post_error(f"speedometer: {wrong}")
         if info.fps_n > 0 and info.fps_d > 0 and self._outputs is not None and self._outputs.brno is not None:
             self._outputs.brno.fps = info.fps_n / info.fps_d  # BrnoCompSpeed frame numbers = t * fps
             self._fps_fixed = True
@@ -228,6 +231,8 @@ class Speedometer(TrafficcalTransform):
             self._scaled = None
             if self._tracking:  # our own tracking: no track continues across the move
                 self._tracking.camera_moved()
+        if self._tracking is not None:  # decided at the first frame; a scale from upstream makes ours needless
+            self._stage = None if self._scale_given() else (self._own_stage or self._stage)
         if self._stage is not None:
             ours = self._stage.on_calibration(cal)
             if ours is not None:
@@ -287,7 +292,7 @@ class Speedometer(TrafficcalTransform):
                 if self._intervals is not None:
                     self._intervals.set_start(self._start)
         if self._tracking is None:
-            upstream = _tracker_upstream(self)
+            upstream = upstream_element(self, "tracker")
             self._tracking = False if upstream is not None else self._tracking_pipeline()
             # a vehicle the tracker still coasts must not be reported as gone
             max_lost = (float(upstream.get_property("max-lost")) if upstream is not None
@@ -305,8 +310,12 @@ class Speedometer(TrafficcalTransform):
                 self._stage.on_calibration(self._upstream)
         rois = read_vehicle_rois(buffer, self.frame_size,  # the tracker here needs the hulls too
                                  only=(VEHICLE,) if self._tracking is False else None)
+        self._check_detector(t, len(rois))
         if self._tracking is False:
             tracked = [r for r in rois if r.object_id is not None and VEHICLE in r.params]
+            warning = self._untracked.check(t, len(rois), len(tracked), tracker_upstream=True)
+            if warning:
+                self.post_warning(warning)
             labelled = [(r, Sighting.from_fields(r.object_id, r.label, r.confidence, r.params[VEHICLE], t=t))
                         for r in tracked]
         else:
@@ -337,6 +346,24 @@ class Speedometer(TrafficcalTransform):
             self._results_every = checkpoint_interval(time.monotonic() - began, _RESULTS_EVERY)
         return Gst.FlowReturn.OK
 
+    def _check_detector(self, t, n_rois):
+        """Say once when no vehicle has come for a while and nothing upstream marks vehicles: speedometer measures
+        the ROIs a detector (vehicledetect, or another that writes ROI metas) puts on the frames."""
+        if self._detector is None:
+            self._detector = upstream_element(self, "vehicledetect") is not None
+        if self._detector or self._empty_since is False:
+            return
+        if n_rois:
+            self._empty_since = False  # another detector marks them
+            return
+        if self._empty_since is None:
+            self._empty_since = t
+        elif t - self._empty_since >= UNTRACKED_AFTER_S:
+            waited, self._empty_since = t - self._empty_since, False
+            self.post_warning(f"speedometer: no vehicle has arrived in {waited:.0f} s and no detector runs upstream: "
+                              "speedometer measures the vehicles a detector marks (... ! vehicledetect ! speedometer "
+                              "! ...)")
+
     def _new_scale_stage(self):
         """bbscale's stage with our scale-* properties (built at start, so bad models or a bad regression file
         are an error there)."""
@@ -345,11 +372,12 @@ class Speedometer(TrafficcalTransform):
         return build_stage(self.scale_models, self.scale_min_vehicles, self.scale_regression_file)
 
     def _scale_given(self) -> bool:
-        """Something else gives the scale: bbscale upstream, the ``scale`` property or a calibration file with a
-        scale."""
-        return _upstream_element(self, "bbscale") is not None or self.scale > 0 or \
-            (self._file_cal is not None and self._file_cal.camera is not None
-             and self._file_cal.camera.scale is not None)
+        """Something else gives the scale: bbscale upstream with a tracker before it (without one it sees no tracked
+        vehicle, and our own stage must find the scale), the ``scale`` property, a calibration file with a scale,
+        or an upstream calibration that has one (vpdetect ``mode=fixed`` with a scaled file)."""
+        bbscale = upstream_element(self, "bbscale")
+        return (bbscale is not None and upstream_element(bbscale, "tracker") is not None) or self.scale > 0 or \
+            _has_scale(self._file_cal) or _has_scale(self._upstream)
 
     def _scale_stage(self):
         """Our own scale stage when nothing else can give the scale (built at start, or here when bbscale seemed
@@ -623,33 +651,8 @@ def _tracker_default(name, fallback):
         return fallback
 
 
-def _tracker_upstream(element):
-    """The gst-trafficcal ``tracker`` element feeding ``element`` (directly or through other elements/bins), or None."""
-    return _upstream_element(element, "tracker")
-
-
-def _upstream_element(element, factory_name):
-    """The element made by ``factory_name`` feeding ``element`` (directly or through other elements/bins), or None."""
-    seen = set()
-    pads = list(element.sinkpads)
-    while pads:
-        peer = pads.pop().get_peer()
-        if peer is None:
-            continue
-        if isinstance(peer, Gst.GhostPad):  # the src pad of a bin: continue inside it
-            peer = peer.get_target() or peer
-        owner = peer.get_parent()
-        if isinstance(owner, Gst.GhostPad):  # the inner side of a bin's sink ghost pad: continue outside
-            pads.append(owner)
-            continue
-        if not isinstance(owner, Gst.Element) or owner in seen:
-            continue
-        seen.add(owner)
-        factory = owner.get_factory()
-        if factory is not None and factory.get_name() == factory_name:
-            return owner
-        pads.extend(owner.sinkpads)
-    return None
+def _has_scale(cal) -> bool:
+    return cal is not None and cal.camera is not None and cal.camera.scale is not None
 
 
 GObject.type_register(Speedometer)

@@ -17,6 +17,7 @@ with another branch (e.g. after a ``tee``) is copied first and the other branch 
 
 from gst_trafficcal.gst._gi import GObject, Gst
 from gst_trafficcal.gst.element import TrafficcalTransform
+from gst_trafficcal.gst.untracked import UntrackedWatch
 
 _RW = GObject.ParamFlags.READWRITE
 
@@ -68,11 +69,14 @@ class TrafficOverlay(TrafficcalTransform):
             return False
         self._counter = VehicleCounter(speed_limit_kmh=self._limit)
         self._grid_cache = GridCache()
+        self._untracked = UntrackedWatch("trafficoverlay")
+        self._tracked_upstream = None  # a tracker or speedometer upstream (decided at the first frame)
+        self._file_cal = None
         if self.calibration_file:
             from gst_trafficcal.calibration import load_calibration
 
             try:
-                self.calibration = load_calibration(self.calibration_file)
+                self.calibration = self._file_cal = load_calibration(self.calibration_file)
             except Exception as exc:  # a bad file is a readable pipeline error
                 self.post_error(f"trafficoverlay: {exc}")
                 return False
@@ -105,6 +109,9 @@ class TrafficOverlay(TrafficcalTransform):
         ok, kr, kb = GstVideo.VideoColorMatrix.get_Kr_Kb(c.matrix)
         full = c.range == getattr(GstVideo.VideoColorRange, "0_255")
         self._yuv = (kr, kb, full) if ok else (0.299, 0.114, full)
+        wrong = self.file_calibration_mismatch(self._file_cal, self.calibration_file)
+        if wrong:
+            self.post_error(f"trafficoverlay: {wrong}")
 
     def transform_frame(self, buffer):
         from gst_trafficcal.gst.buffers import format_name
@@ -114,6 +121,7 @@ class TrafficOverlay(TrafficcalTransform):
 
         marks = [marks_from_params(r.box, r.label, r.object_id, r.params)
                  for r in read_vehicle_rois(buffer, self.frame_size, only=(VEHICLE, "speed"))]
+        self._check_tracked(marks)
         cal = self.calibration
         camera = cal.camera if cal is not None else None
         self._counter.update(marks, camera)
@@ -127,6 +135,19 @@ class TrafficOverlay(TrafficcalTransform):
             draw_overlay(canvas, marks, camera, options, counter_lines, grid_cache=self._grid_cache)
             del canvas
         return Gst.FlowReturn.OK
+
+    def _check_tracked(self, marks):
+        """Say once when a tracker (or speedometer) runs upstream but its ids do not arrive: an element between
+        dropped them, and the overlay would draw bare boxes without ids, speeds or counts."""
+        from gst_trafficcal.gst.element import upstream_element
+
+        if self._tracked_upstream is None:
+            self._tracked_upstream = any(upstream_element(self, name) is not None for name in ("tracker", "speedometer"))
+        t = self.buffer_t
+        if self._tracked_upstream and t is not None:
+            warning = self._untracked.check(t, len(marks), sum(m.track_id is not None for m in marks), True)
+            if warning:
+                self.post_warning(warning)
 
 
 GObject.type_register(TrafficOverlay)

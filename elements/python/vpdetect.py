@@ -93,6 +93,20 @@ class VpDetect(TrafficcalTransform):
         self._views_loaded = False  # views-dir read
         self._size = None  # the frame size of the caps so far
 
+    def do_start(self):
+        """A calibration file to be written (modes learn and auto) whose folder cannot be written is an error now,
+        not after the minutes of video the calibration takes to learn."""
+        from gst_trafficcal.errors import InputError
+        from gst_trafficcal.fileio import writable_file
+
+        if self.calibration_file and self.mode in ("learn", "auto"):
+            try:
+                writable_file(self.calibration_file, "calibration file")
+            except InputError as exc:
+                self.post_error(f"vpdetect: {exc}")
+                return False
+        return True
+
     def on_caps(self, info):
         from gst_trafficcal.calibration import Calibration, load_calibration
         from gst_trafficcal.gst.buffers import format_name
@@ -120,9 +134,9 @@ class VpDetect(TrafficcalTransform):
                 cal = load_calibration(path)
                 if cal.camera is None:
                     raise ValueError(f"{path}: holds no vanishing points (state {cal.state})")
-                if tuple(cal.image_size) != tuple(self.frame_size):
-                    raise ValueError(f"{path}: calibration is for {cal.image_size[0]}x{cal.image_size[1]}, "
-                                     f"the video is {self.frame_size[0]}x{self.frame_size[1]}")
+                wrong = self.file_calibration_mismatch(cal, path)
+                if wrong:
+                    raise ValueError(wrong)
             except Exception as exc:
                 self.post_error(f"vpdetect: {exc}")
                 return
@@ -317,8 +331,6 @@ class VpDetect(TrafficcalTransform):
         seen before belongs to another view), and watch it."""
         from dataclasses import replace
 
-        from gst_trafficcal.calibration import save_calibration
-
         cal = self._known[key]
         moved = t is not None and (self._in_force is not None or self._moved_at is not None)
         self._learner, self._return, self._moved_at, self._views = None, None, None, None
@@ -334,7 +346,7 @@ class VpDetect(TrafficcalTransform):
             "similarity": float(match.similarity)})
         self.publish_calibration(replace(cal, moved_at=float(t)) if moved else cal)
         if self.calibration_file and self.mode != "fixed":
-            save_calibration(cal, self.calibration_file)  # the file holds the calibration in force
+            self._save(cal)  # the file holds the calibration in force
         self._watch(*self._library.views[key], key)
 
     def _monitor_frame(self, buffer, t):
@@ -389,8 +401,6 @@ class VpDetect(TrafficcalTransform):
     def _publish(self, cal):
         from dataclasses import replace
 
-        from gst_trafficcal.calibration import save_calibration
-
         if cal.state == "failed" and self._moved_at is not None:  # say why there was something to learn
             cal = replace(cal, reason=f"the camera moved at {self._moved_at:.1f} s and the new view could not be "
                                       f"calibrated: {cal.reason}")
@@ -424,7 +434,18 @@ class VpDetect(TrafficcalTransform):
         if cal.state == "failed":
             self.post_warning(f"vpdetect: calibration failed: {cal.reason}")
         elif self.calibration_file:
+            self._save(cal)
+
+    def _save(self, cal):
+        """Write ``cal`` to ``calibration-file``; a file that cannot be written (a full disk) is a warning: the
+        calibration is in force downstream and on the bus all the same, and the measurement goes on."""
+        from gst_trafficcal.calibration import save_calibration
+        from gst_trafficcal.errors import InputError
+
+        try:
             save_calibration(cal, self.calibration_file)
+        except InputError as exc:
+            self.post_warning(f"vpdetect: the calibration is in force but not saved: {exc}")
 
 
 GObject.type_register(VpDetect)

@@ -157,6 +157,14 @@ class TrafficcalTransform(GstBase.BaseTransform):
         self._pending_calibration = cal
         self.post_message(calibration_message(self, cal))
 
+    def file_calibration_mismatch(self, cal: Calibration | None, path: str) -> str | None:
+        """What is wrong when ``cal`` (read from the ``calibration-file`` at ``path``) was made for another frame
+        size than the negotiated video's (its vanishing points are pixels of that size); None when it fits."""
+        if cal is None or self.frame_size is None or tuple(cal.image_size) == tuple(self.frame_size):
+            return None
+        return (f"{path} is a calibration of {cal.image_size[0]}x{cal.image_size[1]} images but the video is "
+                f"{self.frame_size[0]}x{self.frame_size[1]}")
+
     def keep_scale_view(self, cal: Calibration, folder: str) -> None:
         """Keep ``cal`` (a scale found for a view) in the camera's views ``folder`` (``views-dir``, as vpdetect reads
         it), so that after a restart vpdetect announces the view with its scale at once; a folder that cannot be
@@ -266,6 +274,31 @@ class TrafficcalTransform(GstBase.BaseTransform):
         self.frame_size = None
         self.stream_clock = StreamClock()
         return True
+
+
+def upstream_element(element: Gst.Element, factory_name: str) -> Gst.Element | None:
+    """The element made by ``factory_name`` feeding ``element`` (directly, through other elements or through bins),
+    or None: how an element learns what runs before it (a tracker, bbscale, vehicledetect)."""
+    seen = set()
+    pads = list(element.sinkpads)
+    while pads:
+        peer = pads.pop().get_peer()
+        if peer is None:
+            continue
+        if isinstance(peer, Gst.GhostPad):  # the src pad of a bin: continue inside it
+            peer = peer.get_target() or peer
+        owner = peer.get_parent()
+        if isinstance(owner, Gst.GhostPad):  # the inner side of a bin's sink ghost pad: continue outside
+            pads.append(owner)
+            continue
+        if not isinstance(owner, Gst.Element) or owner in seen:
+            continue
+        seen.add(owner)
+        factory = owner.get_factory()
+        if factory is not None and factory.get_name() == factory_name:
+            return owner
+        pads.extend(owner.sinkpads)
+    return None
 
 
 def _attr(prop_name: str) -> str:
