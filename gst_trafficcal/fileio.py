@@ -80,10 +80,20 @@ def writable_dir(path: str | Path, what: str) -> Path:
 def writable_file(path: str | Path, what: str) -> Path:
     """``path``, checked before any work that a file can be written there (its folder made or writable, not a
     folder itself), without touching a file already there; InputError naming ``what`` otherwise."""
+    import tempfile
+
     path = Path(path)
     if path.is_dir():
         raise InputError(f"{path}: a folder, so it cannot be the {what}")
-    writable_dir(path.parent, f"{what}'s folder")
+    folder = path.parent
+    try:
+        if folder.exists() and not folder.is_dir():
+            raise NotADirectoryError(20, f"{folder} is not a folder")
+        folder.mkdir(parents=True, exist_ok=True)
+        with tempfile.NamedTemporaryFile(dir=folder, prefix=".write-check-"):
+            pass
+    except OSError as exc:
+        raise InputError(f"{path}: cannot write the {what} there ({exc.strerror or exc})") from None
     return path
 
 

@@ -23,6 +23,7 @@ import io
 import json
 import math
 import os
+import stat
 import tempfile
 from collections import Counter
 from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
@@ -206,16 +207,19 @@ def unmeasured_by_kind(events: Iterable[VehicleEvent]) -> list[tuple[str, int]]:
 
 
 class _LineFile:
-    """A file written one complete line at a time, unbuffered, each line synced to disk."""
+    """A file written one complete line at a time, unbuffered, each line synced to disk.  ``lazy``: opened now (a
+    path that cannot be written is an error at once) but emptied only by :meth:`begin` or the first line, so that a
+    pipeline that never started keeps the earlier run's file."""
 
-    def __init__(self, path: str | Path, append: bool = False, fsync: bool = True) -> None:
+    def __init__(self, path: str | Path, append: bool = False, fsync: bool = True, lazy: bool = False) -> None:
         self.path = Path(path)
         self.fsync = fsync
         self._broken = False  # the last write stopped mid-line
+        self.pending = lazy and not append  # to be emptied at begin()
         try:
             if self.path.parent != Path(""):
                 self.path.parent.mkdir(parents=True, exist_ok=True)
-            self._f = open(self.path, "ab" if append else "wb", buffering=0)
+            self._f = open(self.path, "ab" if append or lazy else "wb", buffering=0)
         except OSError as exc:
             raise InputError(f"{self.path}: cannot open for writing ({exc.strerror or exc})") from None
         if append and not self.empty:  # an earlier run cut mid-line (a crash): its fragment ends before our first line
@@ -233,9 +237,20 @@ class _LineFile:
         except OSError:
             return False
 
+    def begin(self) -> None:
+        """Empty a lazily opened file (the run has really started); nothing otherwise."""
+        if self.pending:
+            try:
+                if stat.S_ISREG(os.fstat(self._f.fileno()).st_mode):  # not /dev/null, a pipe, /dev/full
+                    self._f.truncate(0)
+            except OSError as exc:
+                raise InputError(f"{self.path}: cannot write ({exc.strerror or exc})") from None
+            self.pending = False
+
     def write_line(self, text: str) -> None:
         if self._f.closed:
             raise InputError(f"{self.path}: writer already closed")
+        self.begin()
         data = (("\n" if self._broken else "") + text.rstrip("\n") + "\n").encode("utf-8")
         view, done = memoryview(data), 0
         try:
@@ -267,10 +282,13 @@ class _LineFile:
 class JsonlEventWriter:
     """Vehicle events as JSON lines: one object per vehicle, written (and synced) when it is given."""
 
-    def __init__(self, path: str | Path, append: bool = False, fsync: bool = True) -> None:
-        self._file = _LineFile(path, append, fsync)
+    def __init__(self, path: str | Path, append: bool = False, fsync: bool = True, lazy: bool = False) -> None:
+        self._file = _LineFile(path, append, fsync, lazy)
         self.path = self._file.path
         self.count = 0
+
+    def begin(self) -> None:
+        self._file.begin()
 
     def write(self, event: VehicleEvent, extra: Mapping[str, Any] | None = None) -> None:
         """One line: ``extra`` fields (e.g. the part of a batch it came from) first, then the event's."""
@@ -297,16 +315,24 @@ class CsvEventWriter:
     (given with each event) if any."""
 
     def __init__(self, path: str | Path, append: bool = False, fsync: bool = True,
-                 extra_columns: Sequence[str] = ()) -> None:
-        self._file = _LineFile(path, append, fsync)
+                 extra_columns: Sequence[str] = (), lazy: bool = False) -> None:
+        self._file = _LineFile(path, append, fsync, lazy)
         self.path = self._file.path
         self.count = 0
         self.extra_columns = tuple(extra_columns)
+        self._headed = False
+        if not self._file.pending:
+            self.begin()
+
+    def begin(self) -> None:
+        """The header, unless the file has it already (appending: then it must be ours)."""
+        self._file.begin()
         header = self._row(self.extra_columns + EVENT_FIELDS)
         if self._file.empty:
             self._file.write_line(header)
-        elif append:
+        elif not self._headed:
             self._check_header(header)
+        self._headed = True
 
     def _check_header(self, header: str) -> None:
         """Appending rows under another header would shift every column: refused at start, naming the file."""
@@ -328,6 +354,8 @@ class CsvEventWriter:
         return buf.getvalue()
 
     def write(self, event: VehicleEvent, extra: Mapping[str, Any] | None = None) -> None:
+        if self._file.pending:
+            self.begin()
         d = event.to_dict()
         extra = extra or {}
         self._file.write_line(self._row([extra.get(k) for k in self.extra_columns] + [d[k] for k in EVENT_FIELDS]))
@@ -364,17 +392,22 @@ class EventWriters:
 
     @classmethod
     def open(cls, jsonl: str | Path | None = None, csv_path: str | Path | None = None,
-             append: bool = False, fsync: bool = True, extra_columns: Sequence[str] = ()) -> "EventWriters":
+             append: bool = False, fsync: bool = True, extra_columns: Sequence[str] = (),
+             lazy: bool = False) -> "EventWriters":
+        """``lazy``: the files are emptied (and the CSV gets its header) only at :meth:`begin` or the first event."""
         out = cls()
         try:
             if jsonl:
-                out.writers.append(JsonlEventWriter(jsonl, append, fsync))
+                out.writers.append(JsonlEventWriter(jsonl, append, fsync, lazy))
             if csv_path:
-                out.writers.append(CsvEventWriter(csv_path, append, fsync, extra_columns))
+                out.writers.append(CsvEventWriter(csv_path, append, fsync, extra_columns, lazy))
         except InputError:
             out.close()
             raise
         return out
+
+    def begin(self) -> None:
+        attempt_all(w.begin for w in self.writers)
 
     def write(self, event: VehicleEvent, extra: Mapping[str, Any] | None = None) -> None:
         attempt_all(lambda w=w: w.write(event, extra) for w in self.writers)
@@ -623,16 +656,25 @@ class VehicleOutputs:
 
     def __init__(self, events_jsonl: str | Path | None = None, events_csv: str | Path | None = None,
                  brno_json: str | Path | None = None, fps: float | None = None, append: bool = False,
-                 fsync: bool = True) -> None:
+                 fsync: bool = True, lazy: bool = False) -> None:
         if brno_json is not None and fps is None:
             raise InputError(f"{brno_json}: BrnoCompSpeed results need the video's frame rate")
         self.brno = BrnoResultsWriter(brno_json, fps) if brno_json is not None else None
-        self.events = EventWriters.open(events_jsonl, events_csv, append, fsync)
+        self.events = EventWriters.open(events_jsonl, events_csv, append, fsync, lazy=lazy)
         self.count = 0
+        self.started = not lazy  # lazy: the files of an earlier run stay as they are until begin()
+
+    def begin(self) -> None:
+        """The run has really started (its video arrives): the event files are emptied, and closing writes the
+        BrnoCompSpeed file.  A pipeline that fails before this (a missing input, an unreachable camera) leaves the
+        files of the run before as they were."""
+        self.started = True
+        self.events.begin()
 
     def vehicle(self, event: VehicleEvent, times_s: Iterable[float] | None = None,
                 points_px: Iterable[Sequence[float]] | None = None) -> None:
         """One vehicle that left: its event and (for BrnoCompSpeed) its reference points and timestamps."""
+        self.started = True
         self.count += 1
         steps = [lambda: self.events.write(event)]
         if self.brno is not None and times_s is not None and points_px is not None:
@@ -661,8 +703,9 @@ class VehicleOutputs:
             self.brno.write(calibration)
 
     def close(self, calibration: Calibration | None) -> None:
-        """Write the BrnoCompSpeed file and close the event files (both attempted even if one fails)."""
-        attempt_all((lambda: self.checkpoint(calibration), self.events.close,
+        """Write the BrnoCompSpeed file (once the run started) and close the event files (both attempted even if
+        one fails)."""
+        attempt_all((lambda: self.checkpoint(calibration) if self.started else None, self.events.close,
                      self.brno.close if self.brno is not None else lambda: None))
 
 
@@ -723,11 +766,14 @@ class FrameJsonlWriter:
     the event files (``fsync`` off by default: a line per frame)."""
 
     def __init__(self, path: str | Path, append: bool = False, fsync: bool = False,
-                 skip_empty: bool = False) -> None:
-        self._file = _LineFile(path, append, fsync)
+                 skip_empty: bool = False, lazy: bool = False) -> None:
+        self._file = _LineFile(path, append, fsync, lazy)
         self.path = self._file.path
         self.skip_empty = skip_empty
         self.count = 0
+
+    def begin(self) -> None:
+        self._file.begin()
 
     def write(self, rois: Iterable[Any], frame_size: tuple[int, int], timestamp_s: float | None,
               source: str = "") -> None:

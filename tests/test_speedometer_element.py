@@ -431,6 +431,29 @@ def test_speedometer_with_no_detector_says_so(clip, tmp_path):
     assert not [w for w in run.warnings if "no detector runs upstream" in w]
 
 
+def test_a_pipeline_whose_source_fails_keeps_the_files_of_the_run_before(clip, tmp_path):
+    """A mistyped input or an unreachable camera stops the pipeline before any video: the event, CSV, results,
+    interval and frame files of the run before are left as they were (they were emptied at start before); the
+    same files are replaced once a video plays."""
+    names = {"events-file": "v.jsonl", "csv-file": "v.csv", "results-file": "system.json",
+             "intervals-file": "intervals.csv", "frames-file": "frames.jsonl"}
+    props = " ".join(f"{k}={tmp_path / v}" for k, v in names.items())
+    before = {}
+    for i, name in enumerate(names.values()):
+        before[name] = f"line of the run before {i}\n"
+        (tmp_path / name).write_text(before[name])
+    with pytest.raises(PipelineError, match="Resource not found|No such file"):
+        run_pipeline(f"filesrc location={tmp_path / 'nope.mp4'} ! decodebin ! videoconvert ! {detector(clip)} ! "
+                     f"speedometer calibration-file={clip / 'calibration.json'} {props} ! appsink name=sink")
+    assert {name: (tmp_path / name).read_text() for name in names.values()} == before
+    run_pipeline(f"{source(clip)} ! {detector(clip)} ! speedometer calibration-file={clip / 'calibration.json'} "
+                 f"{props} ! appsink name=sink")
+    events = read_events(tmp_path / "v.jsonl")
+    assert events.skipped == 0 and events.events
+    assert all((tmp_path / name).read_text() != text for name, text in before.items())
+    assert load_results(tmp_path / "system.json").cars
+
+
 def test_calibration_of_another_image_size_is_an_error(clip, tmp_path):
     cal = load_calibration(clip / "calibration.json")
     from dataclasses import replace

@@ -150,6 +150,7 @@ class Speedometer(TrafficcalTransform):
         self._scaled = None  # the upstream calibration with the λ that stage found
         self._start = None  # datetime of stream time 0 (start-datetime), None while unknown
         self._run = None  # this run's id (outputs.new_run_id), set at start
+        self._begun = False  # the video arrived and the files were started (_begin)
         self._untracked = UntrackedWatch("speedometer")  # a tracker upstream whose data does not arrive
         self._detector = None  # whether a vehicledetect runs upstream (decided at the first frame)
         self._empty_since = None  # stream time since which no vehicle arrived, while no detector is seen upstream
@@ -171,23 +172,18 @@ class Speedometer(TrafficcalTransform):
                 self._start = parse_start_time(self.start_datetime, "start-datetime")
             if self.calibration_file:
                 self._file_cal = load_calibration(self.calibration_file)
-            if self.append:  # the tables of an earlier run are kept, not replaced
-                from gst_trafficcal.fileio import keep_aside
-
-                for path in (self.results_file, self.intervals_file):
-                    kept = keep_aside(path) if path else None
-                    if kept is not None:
-                        self.post_info(f"speedometer: the earlier {path} is kept as {kept}")
-            # opened now so that an unwritable path fails at start; the frame rate is set from the caps
+            # opened now so that an unwritable path fails at start, but emptied only when the video arrives
+            # (_begin): a pipeline whose source fails keeps the files of the run before; fps is set from the caps
             self._outputs = VehicleOutputs(self.events_file or None, self.csv_file or None,
-                                           self.results_file or None, fps=25.0, append=self.append)
+                                           self.results_file or None, fps=25.0, append=self.append, lazy=True)
             from gst_trafficcal.traffic_stats import element_limit
 
             self._limit = element_limit(self.speed_limit, self.class_limits)
             if self.intervals_file:
-                from gst_trafficcal.traffic_stats import IntervalTable, write_intervals_csv
+                from gst_trafficcal.fileio import writable_file
+                from gst_trafficcal.traffic_stats import IntervalTable
 
-                write_intervals_csv(self.intervals_file, [])  # an unwritable path fails now, not in an hour
+                writable_file(self.intervals_file, "interval table")  # an unwritable path fails now, not in an hour
                 self._intervals = IntervalTable(self.intervals_file, 60.0 * self.interval, self._start, self._limit)
             if self.events_url:
                 from gst_trafficcal.publish import EventPoster
@@ -196,7 +192,7 @@ class Speedometer(TrafficcalTransform):
             if self.frames_file:
                 from gst_trafficcal.outputs import FrameJsonlWriter
 
-                self._frames = FrameJsonlWriter(self.frames_file, append=self.append, skip_empty=True)
+                self._frames = FrameJsonlWriter(self.frames_file, append=self.append, skip_empty=True, lazy=True)
             if not self._scale_given():  # built now, so bad scale-* properties are an error at start
                 self._own_stage = self._new_scale_stage()
         except Exception as exc:  # bad properties / unreadable calibration / unwritable file: readable error
@@ -217,7 +213,34 @@ class Speedometer(TrafficcalTransform):
             self._scale_changed(True, self._stage.finish(self._upstream))
         self._finish(post=True)
 
+    def _begin(self):
+        """The video arrives (first caps): now the run's files replace the earlier run's — with ``append`` its
+        tables are kept aside and its event files go on — and the interval table's header is on disk."""
+        from gst_trafficcal.errors import InputError
+
+        self._begun = True
+        try:
+            if self.append:
+                from gst_trafficcal.fileio import keep_aside
+
+                for path in (self.results_file, self.intervals_file):
+                    kept = keep_aside(path) if path else None
+                    if kept is not None:
+                        self.post_info(f"speedometer: the earlier {path} is kept as {kept}")
+            self._outputs.begin()
+            if self._frames is not None:
+                self._frames.begin()
+            if self._intervals is not None:
+                from gst_trafficcal.traffic_stats import write_intervals_csv
+
+                write_intervals_csv(self.intervals_file, [])
+        except InputError as exc:
+            self.post_error(f"speedometer: {exc}")
+            self._failed = True
+
     def on_caps(self, info):
+        if not self._begun and self._outputs is not None:
+            self._begin()
         wrong = self.file_calibration_mismatch(self._file_cal, self.calibration_file)
         if wrong:
             self.post_error(f"speedometer: {wrong}")
@@ -622,7 +645,7 @@ class Speedometer(TrafficcalTransform):
                 self.post_warning(f"speedometer: {stats.failed + stats.dropped} of {self._posted} vehicle events "
                                   f"could not be posted to {poster.shown_url} ({why}); every vehicle is in the files")
 
-        intervals, self._intervals = self._intervals, None
+        intervals, self._intervals = self._intervals if self._begun else None, None  # never started: untouched
         frames, self._frames = self._frames, None
         outputs, self._outputs = self._outputs, None
         calibration = self._meter.calibration if self._meter is not None else None
