@@ -3,6 +3,7 @@
 #
 #   pipelines/calibrate.sh INPUT CALIBRATION.json
 #   pipelines/calibrate.sh --check            # only report whether every element is installed
+#   pipelines/calibrate.sh --help             # print this text
 #
 # INPUT        a video file or any URI uridecodebin plays: file:///..., http(s)://..., rtsp://user:pw@cam/stream
 # CALIBRATION  where to write the calibration (our calibration JSON, state "vps": vanishing points, no scale yet).
@@ -20,10 +21,11 @@
 set -euo pipefail
 
 here="$(cd "$(dirname "${BASH_SOURCE[0]}")" && pwd)"
-# shellcheck source=../scripts/env.sh
-. "$here/../scripts/env.sh"
 # shellcheck source=lib.sh
 . "$here/lib.sh"
+[[ "${1:-}" == "--help" || "${1:-}" == "-h" ]] && { print_usage "${BASH_SOURCE[0]}"; exit 0; }
+# shellcheck source=../scripts/env.sh
+. "$here/../scripts/env.sh"
 
 die() { echo "calibrate: error: $*" >&2; exit 2; }
 
@@ -36,7 +38,8 @@ report_missing() {
         case "$e" in
             vpdetect)
                 echo "calibrate: error: GStreamer element '$e' is not installed (gst-trafficcal element; is the" \
-                     "project set up: scripts/setup.sh, and does 'gst-inspect-1.0 $e' work after '. scripts/env.sh'?)" >&2 ;;
+                     "project set up: scripts/setup.sh, and does 'gst-inspect-1.0 $e' work after" \
+                     "'. scripts/env.sh'?)" >&2 ;;
             *)
                 echo "calibrate: error: GStreamer element '$e' is not installed (install the GStreamer plugin" \
                      "that provides it, e.g. gstreamer1.0-plugins-base/-good)" >&2 ;;
@@ -46,7 +49,7 @@ report_missing() {
 
 [[ "${1:-}" == "--check" ]] && run_check calibrate "${need[@]}"
 
-[[ $# -eq 2 ]] || die "usage: $(basename "$0") INPUT CALIBRATION.json   (or --check)"
+[[ $# -eq 2 ]] || die "usage: $(basename "$0") INPUT CALIBRATION.json   (or --check, --help)"
 input="$1"
 output="$2"
 
@@ -84,18 +87,22 @@ while kill -0 "$pid" 2>/dev/null; do
     sleep 0.2
 done
 rc=0
-wait "$pid" || rc=$?
+while kill -0 "$pid" 2>/dev/null; do  # a trapped SIGTERM/SIGINT ends a wait early: wait until it has finished
+    wait "$pid" || true
+done
+wait "$pid" || rc=$?  # its exit code (bash keeps it)
+trap - INT TERM
 
 if [[ -s "$tmp" ]]; then
     mv -f "$tmp" "$output"
     echo "calibrate: wrote $output"
     exit 0
 fi
-reason="$(grep -o 'calibration failed: .*' "$log" | head -n 1 || true)"
+reason="$(grep -m 1 -o 'calibration failed: .*' "$log" || true)"  # -m 1, not `| head` (SIGPIPE under pipefail)
 if [[ -n "$reason" ]]; then
     echo "calibrate: error: the calibration did not converge: ${reason#calibration failed: }" >&2
 else
-    grep -v 'should be floating' "$log" | grep -E 'ERROR|WARNING|error' | head -n 5 >&2 || true
+    grep -v 'should be floating' "$log" | grep -m 5 -E 'ERROR|WARNING|error' >&2 || true
     echo "calibrate: error: no calibration was learnt (gst-launch-1.0 exit code $rc)" >&2
 fi
 exit 1

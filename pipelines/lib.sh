@@ -84,12 +84,32 @@ launch() {  # ARGS...: gst-launch-1.0 -e ARGS, with SIGTERM handled as Ctrl-C; r
     # once on SIGTERM — what systemctl stop, docker stop and Kubernetes send —, and a script killed while it waits
     # leaves it running. Here it runs in the background and both signals reach it as SIGINT; the script waits
     # until it has finished. (A terminal's Ctrl-C reaches it twice, directly and passed on: -e still ends cleanly.)
+    # Safe under set -e however it is called (bare or `launch ... || rc=$?`): an interrupted wait does not end the
+    # script, which always waits for gst-launch-1.0 and returns its exit code.
+    local stop=0
+    launch_pid=
+    trap 'stop=1; [[ -z "$launch_pid" ]] || kill -INT "$launch_pid" 2>/dev/null || true' INT TERM
     gst-launch-1.0 -e "$@" &
     launch_pid=$!
-    trap 'kill -INT "$launch_pid" 2>/dev/null || true' INT TERM
+    [[ $stop == 0 ]] || kill -INT "$launch_pid" 2>/dev/null || true  # a signal came before its pid was known
     while kill -0 "$launch_pid" 2>/dev/null; do
-        wait "$launch_pid"  # returns early when a trapped signal arrives: wait again
+        wait "$launch_pid" || true  # returns early when a trapped signal arrives: wait again
     done
     trap - INT TERM
-    wait "$launch_pid"  # its exit code (bash keeps it)
+    local rc=0
+    wait "$launch_pid" || rc=$?  # its exit code (bash keeps it)
+    return "$rc"
+}
+
+print_usage() {  # SCRIPT: prints SCRIPT's header comment (the usage and environment it documents), for --help
+    local line
+    while IFS= read -r line; do
+        case "$line" in
+            '#!'*) ;;
+            '#') echo ;;
+            '# '*) echo "${line#'# '}" ;;
+            '#'*) echo "${line#'#'}" ;;
+            *) break ;;
+        esac
+    done <"$1"
 }

@@ -3,6 +3,7 @@
 #
 #   pipelines/measure.sh INPUT OUT_DIR [CALIBRATION]
 #   pipelines/measure.sh --check            # only report whether every element is installed
+#   pipelines/measure.sh --help             # print this text
 #
 # INPUT        a video file or any URI uridecodebin plays: file:///..., http(s)://..., rtsp://user:pw@cam/stream
 # OUT_DIR      created if needed; receives vehicles.jsonl (one JSON object per vehicle when it leaves),
@@ -40,10 +41,11 @@
 set -euo pipefail
 
 here="$(cd "$(dirname "${BASH_SOURCE[0]}")" && pwd)"
-# shellcheck source=../scripts/env.sh
-. "$here/../scripts/env.sh"
 # shellcheck source=lib.sh
 . "$here/lib.sh"
+[[ "${1:-}" == "--help" || "${1:-}" == "-h" ]] && { print_usage "${BASH_SOURCE[0]}"; exit 0; }
+# shellcheck source=../scripts/env.sh
+. "$here/../scripts/env.sh"
 
 die() { echo "measure: error: $*" >&2; exit 2; }
 
@@ -52,7 +54,7 @@ need=(uridecodebin videoconvert vpdetect vehicledetect speedometer fakesink)
 
 [[ "${1:-}" == "--check" ]] && run_check measure "${need[@]}"
 
-[[ $# -ge 2 && $# -le 3 ]] || die "usage: $(basename "$0") INPUT OUT_DIR [CALIBRATION]   (or --check)"
+[[ $# -ge 2 && $# -le 3 ]] || die "usage: $(basename "$0") INPUT OUT_DIR [CALIBRATION]   (or --check, --help)"
 input="$1"
 out_dir="$2"
 calibration="${3:-}"
@@ -67,7 +69,8 @@ if [[ -n "$missing" ]]; then
         case "$e" in
             vpdetect|vehicledetect|speedometer)
                 echo "measure: error: GStreamer element '$e' is not installed (gst-trafficcal element; is the" \
-                     "project set up: scripts/setup.sh, and does 'gst-inspect-1.0 $e' work after '. scripts/env.sh'?)" >&2 ;;
+                     "project set up: scripts/setup.sh, and does 'gst-inspect-1.0 $e' work after" \
+                     "'. scripts/env.sh'?)" >&2 ;;
             *)
                 echo "measure: error: GStreamer element '$e' is not installed (install the GStreamer plugin" \
                      "that provides it, e.g. gstreamer1.0-plugins-base)" >&2 ;;
@@ -100,15 +103,27 @@ echo "measure: gst-launch-1.0 -e ${pipeline[*]}" >&2
 
 rc=0
 launch "${pipeline[@]}" || rc=$?  # SIGTERM handled as Ctrl-C (lib.sh)
+if [[ "$rc" -ne 0 ]]; then  # no summary as if it had succeeded: one line, and the pipeline's exit code
+    so_far=""
+    if [[ -s "$events" ]]; then
+        so_far="; $events holds $(grep -c . "$events" || true) vehicles"  # measured before it stopped, or by the
+        # run before when it stopped before any video (speedometer leaves the files of a run that never started)
+    fi
+    echo "measure: error: the pipeline failed (gst-launch-1.0 exit code $rc)$so_far" >&2
+    exit "$rc"
+fi
 if [[ -f "$events" ]]; then
     total="$(grep -c . "$events" || true)"
     unmeasured="$(grep -c '"speed_kmh": null' "$events" || true)"
     echo "measure: $total vehicles ($((total - unmeasured)) with a speed) in $events, BrnoCompSpeed results in" \
          "$out_dir/system.json"
     if [[ "$total" -gt 0 && "$unmeasured" -eq "$total" ]]; then
-        reason="$(grep -o '"reason": "[^"]*"' "$events" | head -n 1 | cut -d'"' -f4)"
-        echo "measure: note: no vehicle has a speed (first reason: $reason); speeds need a calibration with a" \
-             "scale (CALIBRATION argument)" >&2
+        # the first reason only: grep stops at it (no `| head`, whose early exit would kill grep with SIGPIPE and,
+        # under pipefail, the script with 141)
+        reason="$(grep -m 1 -o '"reason": "[^"]*"' "$events" || true)"
+        reason="${reason#'"reason": "'}"
+        echo "measure: note: no vehicle has a speed (first reason: ${reason%'"'}); speeds need a calibration" \
+             "with a scale (CALIBRATION argument)" >&2
     fi
 fi
-exit "$rc"
+exit 0

@@ -4,6 +4,7 @@
 #
 #   pipelines/nvr-overlay.sh INPUT OUTPUT [CALIBRATION]
 #   pipelines/nvr-overlay.sh --check            # only report whether every element is installed
+#   pipelines/nvr-overlay.sh --help             # print this text
 #
 # INPUT        a video file or any URI uridecodebin plays: file:///..., http(s)://..., rtsp://user:pw@cam/stream
 # OUTPUT       the recording; its extension picks the container:
@@ -32,10 +33,11 @@
 set -euo pipefail
 
 here="$(cd "$(dirname "${BASH_SOURCE[0]}")" && pwd)"
-# shellcheck source=../scripts/env.sh
-. "$here/../scripts/env.sh"
 # shellcheck source=lib.sh
 . "$here/lib.sh"
+[[ "${1:-}" == "--help" || "${1:-}" == "-h" ]] && { print_usage "${BASH_SOURCE[0]}"; exit 0; }
+# shellcheck source=../scripts/env.sh
+. "$here/../scripts/env.sh"
 
 die() { echo "nvr-overlay: error: $*" >&2; exit 2; }
 
@@ -55,7 +57,7 @@ fi
 
 [[ "${1:-}" == "--check" ]] && run_check nvr-overlay "${need[@]}" speedometer mp4mux matroskamux mpegtsmux
 
-[[ $# -ge 2 && $# -le 3 ]] || die "usage: $(basename "$0") INPUT OUTPUT [CALIBRATION]   (or --check)"
+[[ $# -ge 2 && $# -le 3 ]] || die "usage: $(basename "$0") INPUT OUTPUT [CALIBRATION]   (or --check, --help)"
 input="$1"
 output="$2"
 calibration="${3:-}"
@@ -91,7 +93,8 @@ if [[ -n "$missing" ]]; then
         case "$e" in
             vpdetect|vehicledetect|tracker|speedometer|trafficoverlay)
                 echo "nvr-overlay: error: GStreamer element '$e' is not installed (gst-trafficcal element; is the" \
-                     "project set up: scripts/setup.sh, and does 'gst-inspect-1.0 $e' work after '. scripts/env.sh'?)" >&2 ;;
+                     "project set up: scripts/setup.sh, and does 'gst-inspect-1.0 $e' work after" \
+                     "'. scripts/env.sh'?)" >&2 ;;
             *)
                 echo "nvr-overlay: error: GStreamer element '$e' is not installed (install the GStreamer plugin" \
                      "that provides it, e.g. gstreamer1.0-plugins-good/-bad/-ugly)" >&2 ;;
@@ -133,4 +136,13 @@ pipeline+=(! trafficoverlay "${overlay_cal[@]}" ${OVERLAY_OPTS:-} ! videoconvert
            ! $encoder ! h264parse ! $muxer ! "${sink[@]}")
 
 echo "nvr-overlay: gst-launch-1.0 -e ${pipeline[*]}" >&2
-launch "${pipeline[@]}"  # SIGTERM handled as Ctrl-C: the recording is completed (lib.sh)
+rc=0
+# SIGTERM handled as Ctrl-C: the recording is completed, and the script waits for it (lib.sh). Not bare: under
+# set -e a failing gst-launch-1.0 must still reach the line below.
+launch "${pipeline[@]}" || rc=$?
+if [[ "$rc" -ne 0 ]]; then
+    so_far=""
+    if [[ "$output" != *://* && -s "$output" ]]; then so_far="; what was recorded before it is in $output"; fi
+    echo "nvr-overlay: error: the pipeline failed (gst-launch-1.0 exit code $rc)$so_far" >&2
+    exit "$rc"
+fi

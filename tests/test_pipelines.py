@@ -99,12 +99,17 @@ def test_calibrate_learns_the_vanishing_points(cuboid_video, tmp_path):
     assert not list(tmp_path.glob(".calibrate.*"))  # no temporary file left behind
 
 
-def test_calibrate_says_why_when_the_video_has_no_traffic(tmp_path):
-    """Four seconds of a static test pattern: no vehicle moves, so no calibration; vpdetect's reason is shown."""
-    video = tmp_path / "static.mp4"
+def static_video(path: Path) -> Path:
+    """Four seconds of a static test pattern (no traffic) at 320x240, as an MP4 file."""
     subprocess.run(["gst-launch-1.0", "-q", "videotestsrc", "num-buffers=50", "pattern=smpte", "!",
                     "video/x-raw,width=320,height=240,framerate=25/2", "!", "x264enc", "!", "mp4mux", "!",
-                    "filesink", f"location={video}"], check=True, capture_output=True, timeout=120)
+                    "filesink", f"location={path}"], check=True, capture_output=True, timeout=120)
+    return path
+
+
+def test_calibrate_says_why_when_the_video_has_no_traffic(tmp_path):
+    """Four seconds of a static test pattern: no vehicle moves, so no calibration; vpdetect's reason is shown."""
+    video = static_video(tmp_path / "static.mp4")
     out = tmp_path / "cal.json"
     out.write_text("an earlier calibration\n")
     proc = script("calibrate.sh", video, out)
@@ -199,6 +204,54 @@ def test_measure_without_a_scale_keeps_vehicles_and_says_why(clip, tmp_path):
     assert "measure: note: no vehicle has a speed" in proc.stderr
 
 
+def test_measure_notes_the_first_reason_however_big_the_events_file(tmp_path):
+    """No vehicle with a speed in a large events file (here a service's, appended to run after run): the note names
+    the first vehicle's reason. It used to be cut from `grep | head -n 1`, and head's early exit killed grep with
+    SIGPIPE: under pipefail the script ended with 141 and no note. 5000 lines give grep far more to write than a
+    pipe holds (64 kB), so that happened every time."""
+    out = tmp_path / "out"
+    out.mkdir()
+    first, later = "the calibration has no scale (the stream ended before the scale was known)", "too short"
+    lines = [json.dumps({"id": i, "label": "car", "first_timestamp_s": i / 10, "last_timestamp_s": i / 10 + 2,
+                         "speed_kmh": None, "reason": first if i == 1 else later, "lane": None, "direction": None})
+             for i in range(1, 5001)]
+    (out / "vehicles.jsonl").write_text("\n".join(lines) + "\n")
+    proc = script("measure.sh", static_video(tmp_path / "static.mp4"), out, SPEEDOMETER_OPTS="append=true")
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    total = len((out / "vehicles.jsonl").read_text().splitlines())
+    assert total >= 5000 and f"measure: {total} vehicles (0 with a speed) in {out / 'vehicles.jsonl'}" in proc.stdout
+    assert f"measure: note: no vehicle has a speed (first reason: {first}); speeds need a calibration" in proc.stderr
+
+
+@pytest.mark.parametrize("name, uri, out, earlier, append", [
+    ("measure.sh", "file:///nonexistent/nope.mp4", "out", 0, False),
+    ("measure.sh", "file:///nonexistent/nope.mp4", "out", 2, True),
+    ("measure.sh", "file:///nonexistent/nope.mp4", "out", 2, False),
+    ("measure.sh", "rtsp://127.0.0.1:9/x", "out", 0, False),
+    ("nvr-overlay.sh", "file:///nonexistent/nope.mp4", "o.mkv", 0, False)])
+def test_a_failed_pipeline_is_said_to_have_failed(tmp_path, name, uri, out, earlier, append):
+    """A source that cannot be played: gst-launch-1.0's error, then one line saying the pipeline failed (and what
+    the events file holds, if anything) and its exit code; no summary as if it had succeeded. The run before's
+    events file is left as it was, whether this run was to add to it or to replace it."""
+    prefix = name.split(".")[0]
+    events = tmp_path / out / "vehicles.jsonl"
+    env = {}
+    before = "".join(f'{{"id": {i}, "speed_kmh": 80.0}}\n' for i in range(earlier))
+    if earlier:  # the run before's events file
+        events.parent.mkdir()
+        events.write_text(before)
+    if append:
+        env["SPEEDOMETER_OPTS"] = "append=true"
+    proc = script(name, uri, tmp_path / out, STALL_TIMEOUT="3", **env)  # now and then rtspsrc waits, silent
+    assert proc.returncode not in (0, 2), proc.stderr[-2000:]  # gst-launch-1.0's code, not a usage error's
+    assert f"{prefix}: " not in proc.stdout and "vehicles (" not in proc.stdout + proc.stderr, proc.stdout
+    so_far = f"; {events} holds {earlier} vehicles" if earlier else ""
+    assert proc.stderr.strip().splitlines()[-1] == \
+        f"{prefix}: error: the pipeline failed (gst-launch-1.0 exit code {proc.returncode}){so_far}", proc.stderr
+    if earlier:
+        assert events.read_text() == before
+
+
 def test_measure_on_a_source_that_sends_nothing_stops_after_stall_timeout(tmp_path):
     """A live source that never sends a frame (a UDP port nobody sends to; now and then an RTSP camera whose
     connection failed without rtspsrc saying so, which used to leave measure.sh waiting for ever) ends the run with
@@ -209,6 +262,8 @@ def test_measure_on_a_source_that_sends_nothing_stops_after_stall_timeout(tmp_pa
     proc = script("measure.sh", uri, tmp_path / "out", STALL_TIMEOUT="2")
     assert proc.returncode != 0 and "Watchdog triggered" in proc.stderr, proc.stderr[-2000:]
     assert "! watchdog timeout=2000 ! video/x-raw,format=I420" in proc.stderr
+    assert proc.stderr.strip().splitlines()[-1].startswith("measure: error: the pipeline failed (gst-launch-1.0 exit")
+    assert "measure: " not in proc.stdout  # no summary as if it had succeeded
     bad = script("measure.sh", uri, tmp_path / "bad", STALL_TIMEOUT="soon")
     assert bad.returncode == 2 and "STALL_TIMEOUT must be a number of seconds, got 'soon'" in bad.stderr
 
@@ -247,3 +302,84 @@ def test_measure_stopped_by_sigterm_completes_its_files(clip, rtsp_clip, tmp_pat
     assert len(written) >= 2 and max(e.last_timestamp_s for e in written) < 11.5  # stopped before the clip's end
     assert load_results(out / "system.json").calibration is not None  # completed at the end of the stream
     assert read_events_csv(out / "vehicles.csv") == written
+
+
+@pytest.mark.parametrize("name", ["calibrate.sh", "measure.sh", "nvr-overlay.sh"])
+@pytest.mark.parametrize("flag", ["--help", "-h"])
+def test_help_prints_the_usage_header(name, flag):
+    """--help and -h print the script's header comment (usage, arguments, environment) to stdout and succeed."""
+    header = []
+    for line in (PIPELINES / name).read_text().splitlines()[1:]:
+        if not line.startswith("#"):
+            break
+        header.append(line[2:] if line.startswith("# ") else line[1:])
+    proc = script(name, flag)
+    assert proc.returncode == 0 and proc.stderr == "", proc.stderr
+    assert proc.stdout == "\n".join(header) + "\n"
+    assert f"pipelines/{name} INPUT " in proc.stdout and "STALL_TIMEOUT" in proc.stdout
+
+
+def matroska_finalised(path: Path) -> bool:
+    """Whether matroskamux completed the file at the end of the stream: it writes the Segment with an unknown size
+    (0x01ffffffffffffff) and puts the real one in when it finishes (with the duration and the index)."""
+    data = path.read_bytes()
+    pos = data.find(bytes.fromhex("18538067"))  # the Segment element, after the EBML header
+    size = data[pos + 4:pos + 12]
+    return pos > 0 and size[0] == 0x01 and int.from_bytes(size[1:], "big") == len(data) - pos - 12
+
+
+def processes_mentioning(text: str) -> list[int]:
+    """The pids of the running processes whose command line contains text."""
+    pids = []
+    for cmdline in Path("/proc").glob("[0-9]*/cmdline"):
+        try:
+            if text.encode() in cmdline.read_bytes():
+                pids.append(int(cmdline.parent.name))
+        except OSError:
+            pass
+    return pids
+
+
+def test_nvr_overlay_stopped_by_sigterm_completes_the_recording(rtsp_clip, tmp_path):
+    """SIGTERM to nvr-overlay.sh alone (systemctl stop, docker stop) ends it as Ctrl-C does: gst-launch-1.0 ends the
+    stream (EOS), the recording is completed and the script waits for that. It used to exit at once with 143 (an
+    interrupted wait under set -e), leaving gst-launch-1.0 to finish the file on its own, orphaned."""
+    import signal
+    import time
+
+    from gst_trafficcal.gst._gi import Gst
+
+    out = tmp_path / "overlay.mkv"
+    env = dict(os.environ, GST_REGISTRY=str(REGISTRY))
+    # its output in files, not pipes: a pipe stays open (communicate() waits) as long as an orphan holds it
+    with open(tmp_path / "stdout", "w") as o, open(tmp_path / "stderr", "w") as e:
+        proc = subprocess.Popen(["bash", str(PIPELINES / "nvr-overlay.sh"), rtsp_clip, str(out)], stdout=o,
+                                stderr=e, env=env)
+    deadline = time.monotonic() + 120
+    while time.monotonic() < deadline and proc.poll() is None and not (out.is_file() and out.stat().st_size > 50_000):
+        time.sleep(0.2)
+    time.sleep(3)  # recording: a few seconds of the 12 s stream
+    assert proc.poll() is None, (tmp_path / "stderr").read_text()[-2000:]
+    proc.send_signal(signal.SIGTERM)
+    proc.wait(timeout=120)
+    left = processes_mentioning(f"location={out}")  # gst-launch-1.0 still running without the script
+    finalised = matroska_finalised(out)
+    stdout, stderr = (tmp_path / "stdout").read_text(), (tmp_path / "stderr").read_text()
+    try:
+        assert not left, f"gst-launch-1.0 ({left}) outlived the script (exit code {proc.returncode})"
+        assert proc.returncode == 0, stderr[-2000:]
+        assert "Forcing EOS on the pipeline" in stdout, stdout[-2000:]
+        assert finalised
+    finally:
+        deadline = time.monotonic() + 60  # an orphan (the old script) finishes on its own: let it
+        while left and time.monotonic() < deadline:
+            time.sleep(0.2)
+            left = processes_mentioning(f"location={out}")
+    import gi
+
+    gi.require_version("GstPbutils", "1.0")
+    from gi.repository import GstPbutils
+
+    info = GstPbutils.Discoverer.new(30 * Gst.SECOND).discover_uri(out.as_uri())
+    assert info.get_result() == GstPbutils.DiscovererResult.OK and info.get_video_streams()
+    assert 1.0 < info.get_duration() / Gst.SECOND < 11.5  # what was recorded until the stop, before the clip's end
