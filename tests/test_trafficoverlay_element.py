@@ -268,6 +268,42 @@ def test_a_calibration_of_another_frame_size_is_an_error(tmp_path: Path) -> None
         run_pipeline(f"{GREY_SRC},format=I420 ! trafficoverlay calibration-file={big} ! fakesink")
 
 
+def test_a_property_read_at_start_set_while_running_is_warned_about() -> None:
+    """speed-limit is read when the element starts: set while the stream runs it is said to apply from the next
+    start (gst-inspect: "changeable only in NULL or READY state"); the draw-* toggles apply at once, silently."""
+    pipeline = Gst.parse_launch(f"{GREY_SRC} ! trafficoverlay name=o ! fakesink")
+    overlay = pipeline.get_by_name("o")
+    assert int(overlay.find_property("speed-limit").flags) & Gst.PARAM_MUTABLE_READY
+    assert int(overlay.find_property("draw-grid").flags) & Gst.PARAM_MUTABLE_PLAYING
+    overlay.set_property("speed-limit", 80.0)  # before the start: read at start, nothing to say
+    done = []
+
+    def at_third_frame(pad, info):
+        if not done and info.get_buffer().pts >= 3 * Gst.SECOND // 25:
+            done.append(True)
+            overlay.set_property("speed-limit", 50.0)
+            overlay.set_property("draw-grid", False)
+        return Gst.PadProbeReturn.OK
+
+    overlay.get_static_pad("sink").add_probe(Gst.PadProbeType.BUFFER, at_third_frame)
+    bus = pipeline.get_bus()
+    pipeline.set_state(Gst.State.PLAYING)
+    warnings = []
+    try:
+        while True:
+            msg = bus.timed_pop_filtered(30 * Gst.SECOND, Gst.MessageType.EOS | Gst.MessageType.ERROR |
+                                         Gst.MessageType.WARNING)
+            assert msg is not None and msg.type != Gst.MessageType.ERROR, msg and msg.parse_error()
+            if msg.type == Gst.MessageType.EOS:
+                break
+            warnings.append(msg.parse_warning()[0].message)
+    finally:
+        pipeline.set_state(Gst.State.NULL)
+    assert done and warnings == ["trafficoverlay: speed-limit was set to 50.0 while the stream runs; it is read when "
+                                 "the element starts, so the change applies from the next start (set it before "
+                                 "PLAYING)"]
+
+
 def test_gst_inspect_documents_every_property(tmp_path: Path) -> None:
     env = dict(os.environ, **gst_environment(), GST_REGISTRY=str(tmp_path / "registry.bin"))
     out = subprocess.run(["gst-inspect-1.0", "trafficoverlay"], env=env, capture_output=True, text=True, timeout=120)

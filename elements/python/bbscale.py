@@ -12,9 +12,9 @@ scale found is kept there with its view, so that a restarted pipeline measures f
 """
 
 from gst_trafficcal.gst._gi import GObject, Gst
-from gst_trafficcal.gst.element import TrafficcalTransform
+from gst_trafficcal.gst.element import READY_ONLY, TrafficcalTransform
 
-_RW = GObject.ParamFlags.READWRITE
+_RW = READY_ONLY  # read at start (gst-inspect-1.0: changeable only in NULL or READY state)
 
 
 class BBScale(TrafficcalTransform):

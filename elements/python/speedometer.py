@@ -37,10 +37,10 @@ each vehicle measured again at the end is sent once more — a ``trafficcal-spee
 """
 
 from gst_trafficcal.gst._gi import GObject, Gst
-from gst_trafficcal.gst.element import TrafficcalTransform, upstream_element
+from gst_trafficcal.gst.element import READY_ONLY, TrafficcalTransform, upstream_element
 from gst_trafficcal.gst.untracked import UNTRACKED_AFTER_S, UntrackedWatch
 
-_RW = GObject.ParamFlags.READWRITE
+_RW = READY_ONLY  # read at start (gst-inspect-1.0: changeable only in NULL or READY state)
 _RESULTS_EVERY = 10.0  # seconds of stream time between rewrites of the BrnoCompSpeed results file, at least
 
 

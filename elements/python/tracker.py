@@ -10,9 +10,9 @@ Time comes from buffer PTS.  A bus message ``trafficcal-track`` is posted when a
 """
 
 from gst_trafficcal.gst._gi import GObject, Gst
-from gst_trafficcal.gst.element import TrafficcalTransform
+from gst_trafficcal.gst.element import READY_ONLY, TrafficcalTransform
 
-_RW = GObject.ParamFlags.READWRITE
+_RW = READY_ONLY  # read at start (gst-inspect-1.0: changeable only in NULL or READY state)
 
 
 class Tracker(TrafficcalTransform):

@@ -16,10 +16,10 @@ with another branch (e.g. after a ``tee``) is copied first and the other branch 
 """
 
 from gst_trafficcal.gst._gi import GObject, Gst
-from gst_trafficcal.gst.element import TrafficcalTransform
+from gst_trafficcal.gst.element import LIVE, READY_ONLY, TrafficcalTransform
 from gst_trafficcal.gst.untracked import UntrackedWatch
 
-_RW = GObject.ParamFlags.READWRITE
+_RW = READY_ONLY  # read at start (gst-inspect-1.0: changeable only in NULL or READY state)
 
 
 class TrafficOverlay(TrafficcalTransform):
@@ -29,19 +29,19 @@ class TrafficOverlay(TrafficcalTransform):
                        "onto the video, in place", "gst-trafficcal")
     __gproperties__ = {
         "draw-grid": (bool, "Draw grid", "Draw the road-plane grid (lines towards VP1 and VP2) of the calibration",
-                      True, _RW),
-        "draw-horizon": (bool, "Draw horizon", "Draw the horizon (the line through VP1 and VP2)", True, _RW),
+                      True, LIVE),
+        "draw-horizon": (bool, "Draw horizon", "Draw the horizon (the line through VP1 and VP2)", True, LIVE),
         "draw-boxes": (bool, "Draw boxes", "Draw each vehicle's 3D box (2D box when it has none) and reference "
-                       "point", True, _RW),
-        "draw-labels": (bool, "Draw labels", "Write each vehicle's track id and label", True, _RW),
-        "draw-speeds": (bool, "Draw speeds", "Write each vehicle's speed in km/h when it is known", True, _RW),
+                       "point", True, LIVE),
+        "draw-labels": (bool, "Draw labels", "Write each vehicle's track id and label", True, LIVE),
+        "draw-speeds": (bool, "Draw speeds", "Write each vehicle's speed in km/h when it is known", True, LIVE),
         "draw-counters": (bool, "Draw counters", "Show counts of distinct tracked vehicles per direction and lane",
-                          True, _RW),
+                          True, LIVE),
         "grid-spacing": (float, "Grid spacing", "Cell size of the road grid in metres (while the calibration has "
-                         "no scale, the grid assumes a camera 7 m above the road)", 0.1, 1000.0, 3.0, _RW),
-        "line-thickness": (int, "Line thickness", "Thickness of boxes and the horizon in pixels", 1, 16, 2, _RW),
+                         "no scale, the grid assumes a camera 7 m above the road)", 0.1, 1000.0, 3.0, LIVE),
+        "line-thickness": (int, "Line thickness", "Thickness of boxes and the horizon in pixels", 1, 16, 2, LIVE),
         "font-scale": (float, "Font scale", "Text size (OpenCV font scale); 0 = from the frame height", 0.0, 10.0,
-                       0.0, _RW),
+                       0.0, LIVE),
         "speed-limit": (float, "Speed limit", "km/h; vehicles faster than this are drawn in red and counted in the "
                         "counters panel (0: none)", 0.0, 1000.0, 0.0, _RW),
         "class-limits": (str, "Class limits", "Classes with speed limits of their own, CLASS=KMH,... (e.g. "

@@ -14,9 +14,9 @@ with ``moved_at``) a detector with a background of its own (the built-in one, ve
 """
 
 from gst_trafficcal.gst._gi import GObject, Gst
-from gst_trafficcal.gst.element import TrafficcalTransform
+from gst_trafficcal.gst.element import LIVE, READY_ONLY, TrafficcalTransform
 
-_RW = GObject.ParamFlags.READWRITE
+_RW = READY_ONLY  # read at start (gst-inspect-1.0: changeable only in NULL or READY state)
 
 
 class VehicleDetect(TrafficcalTransform):
@@ -37,7 +37,7 @@ class VehicleDetect(TrafficcalTransform):
         "threshold": (float, "Threshold", "Minimum detection confidence of the ONNX model (the background "
                       "detector keeps every blob large enough)", 0.0, 1.0, 0.4, _RW),
         "interval": (int, "Interval", "Detect on every N-th frame; frames in between carry no vehicle metadata",
-                     1, 1000, 1, _RW),
+                     1, 1000, 1, LIVE),
         "tiles": (str, "Tiles", "Run the ONNX model on COLUMNSxROWS overlapping tiles of the frame (e.g. 3x2): finds "
                   "distant vehicles in full-HD frames at one inference per tile", "1x1", _RW),
         "background": (str, "Background method", "Model of the built-in detector (no model given): mog2 (default) or "

@@ -24,9 +24,9 @@ known from the start — the stream's first seconds pick the one it shows — an
 """
 
 from gst_trafficcal.gst._gi import GObject, Gst
-from gst_trafficcal.gst.element import TrafficcalTransform
+from gst_trafficcal.gst.element import READY_ONLY, TrafficcalTransform
 
-_RW = GObject.ParamFlags.READWRITE
+_RW = READY_ONLY  # read at start (gst-inspect-1.0: changeable only in NULL or READY state)
 MODES = ("auto", "learn", "fixed")
 VIEW_CHECK_SAMPLES = 15  # thumbnails (every 5th frame: 3 s at 25 fps) before a loaded calibration's view is checked
 

@@ -59,6 +59,13 @@ from .calibration_event import calibration_event, calibration_message, parse_cal
 from .meta import make_structure
 
 
+READY_ONLY = GObject.ParamFlags(int(GObject.ParamFlags.READWRITE) | Gst.PARAM_MUTABLE_READY)
+"""Flags of a property the element reads when it starts: gst-inspect-1.0 says "changeable only in NULL or READY
+state", and a change while the stream runs is answered with a warning (it applies from the next start)."""
+LIVE = GObject.ParamFlags(int(GObject.ParamFlags.READWRITE) | Gst.PARAM_MUTABLE_PLAYING)
+"""Flags of a property read for every frame: changing it while the stream runs takes effect at once."""
+
+
 def video_pad_templates(formats: tuple[str, ...] = SUPPORTED_FORMATS) -> tuple[Gst.PadTemplate, Gst.PadTemplate]:
     """(src, sink) always-pad templates for raw video in ``formats``."""
     caps = Gst.Caps.from_string(video_caps_string(formats))
@@ -88,6 +95,7 @@ class TrafficcalTransform(GstBase.BaseTransform):
         self.buffer_t: float | None = None
         self._pending_calibration: Calibration | None = None
         self._refused_caps: set[str] = set()
+        self._streaming = False  # caps negotiated, until stopped: READY_ONLY properties are read by now
         for pspec in self.list_properties():  # property "min-score" <-> attribute self.min_score
             if pspec.owner_type.is_a(TrafficcalTransform.__gtype__):  # declared in Python, not by GstBaseTransform
                 setattr(self, _attr(pspec.name), pspec.default_value)
@@ -99,6 +107,10 @@ class TrafficcalTransform(GstBase.BaseTransform):
         return getattr(self, _attr(prop.name))
 
     def do_set_property(self, prop: GObject.ParamSpec, value: Any) -> None:
+        if self._streaming and int(prop.flags) & Gst.PARAM_MUTABLE_READY:
+            self.post_warning(f"{self.get_factory().get_name()}: {prop.name} was set to {value!r} while the stream "
+                              "runs; it is read when the element starts, so the change applies from the next start "
+                              "(set it before PLAYING)")
         setattr(self, _attr(prop.name), value)
 
     # ------------------------------------------------------------------ hooks for subclasses
@@ -227,6 +239,7 @@ class TrafficcalTransform(GstBase.BaseTransform):
             return False
         self.video_info = info
         self.frame_size = (int(info.width), int(info.height))
+        self._streaming = True
         self.on_caps(info)
         return True
 
@@ -270,6 +283,7 @@ class TrafficcalTransform(GstBase.BaseTransform):
             return Gst.FlowReturn.ERROR
 
     def do_stop(self) -> bool:
+        self._streaming = False
         self.video_info = None
         self.frame_size = None
         self.stream_clock = StreamClock()
