@@ -80,11 +80,13 @@ class SpeedLimit:
 VEHICLE_CLASSES = ("car", "van", "bus", "truck", "motorcycle")
 
 
-def parse_speed_limit(text: str | float | None, what: str = "speed limit") -> SpeedLimit:
+def parse_speed_limit(text: str | float | None, what: str = "speed limit", classes_only: bool = False) -> SpeedLimit:
     """``80``, ``80,truck=60,bus=60`` or ``truck=60`` (km/h; 0 or empty: none) as a :class:`SpeedLimit`;
-    InputError naming ``what`` for anything else."""
+    InputError naming ``what`` for anything else (``classes_only``: only ``CLASS=KMH`` pairs are valid)."""
     if text is None or isinstance(text, (int, float)):
         return SpeedLimit(check_limit(text))
+    form = ("CLASS=KMH,... (e.g. truck=60,bus=60)" if classes_only
+            else "KMH or KMH,CLASS=KMH,... (e.g. 80,truck=60,bus=60)")
     kmh, by_class = None, []
     for part in (p.strip() for p in str(text).split(",")):
         if not part:
@@ -93,7 +95,7 @@ def parse_speed_limit(text: str | float | None, what: str = "speed limit") -> Sp
         try:
             number = float(value if sep else name)
         except ValueError:
-            raise InputError(f"{what}: {text!r} is not KMH or KMH,CLASS=KMH,... (e.g. 80,truck=60,bus=60)") from None
+            raise InputError(f"{what}: {text!r} is not {form}") from None
         try:
             v = check_limit(number)
         except InputError:
@@ -112,7 +114,7 @@ def parse_speed_limit(text: str | float | None, what: str = "speed limit") -> Sp
 def element_limit(speed_limit: float, class_limits: str) -> SpeedLimit:
     """The limit of an element's ``speed-limit`` (km/h, 0: none) and ``class-limits`` (``truck=60,bus=60``)
     properties; InputError naming class-limits when it is not CLASS=KMH pairs."""
-    classes = parse_speed_limit(class_limits, "class-limits")
+    classes = parse_speed_limit(class_limits, "class-limits", classes_only=True)
     if classes.kmh is not None:
         raise InputError(f"class-limits {class_limits!r}: CLASS=KMH pairs only (the limit for every vehicle is "
                          "speed-limit)")

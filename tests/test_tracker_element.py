@@ -191,7 +191,7 @@ def test_bad_body_shapes_value_is_an_error_at_start_up(tmp_path):
     out = subprocess.run(["gst-launch-1.0", "videotestsrc", "num-buffers=3", "!", "tracker", "body-shapes=cuboid",
                           "!", "fakesink"], env=env, capture_output=True, text=True, timeout=120)
     assert out.returncode != 0
-    assert "body_shapes must be auto, cars or box" in out.stdout + out.stderr
+    assert "body-shapes must be auto, cars or box" in out.stdout + out.stderr
 
 
 @pytest.mark.shared

@@ -166,6 +166,9 @@ class Speedometer(TrafficcalTransform):
         try:
             from gst_trafficcal.clock import NOW, parse_start_time
 
+            if self.min_track_length < self.tau + 1:  # the library says the same with its own argument names
+                raise ValueError(f"min-track-length must be at least tau + 1 = {self.tau + 1}, got "
+                                 f"{self.min_track_length}")
             self._meter = SpeedMeter(tau=self.tau, min_track_length=self.min_track_length, max_waiting=self.max_waiting,
                                      keep_measured=self.remeasure)
             if self.start_datetime.strip().lower() != NOW:

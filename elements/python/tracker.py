@@ -63,6 +63,8 @@ class Tracker(TrafficcalTransform):
         from gst_trafficcal.tracking.tracker import TrackerConfig
 
         try:
+            if self.body_shapes not in ("auto", "cars", "box"):
+                raise ValueError(f"body-shapes must be auto, cars or box, got {self.body_shapes!r}")
             config = TrackerConfig(n_init=self.min_hits, max_lost=self.max_lost, iou_gate=self.iou_threshold,
                                    drop_occluded=self.drop_occluded, body_shapes=self.body_shapes)
             if not self.background:

@@ -338,8 +338,8 @@ class VpDetect(TrafficcalTransform):
             self.post_warning(f"vpdetect: the camera moved at {t:.1f} s to a view it was calibrated on before "
                               f"({match.describe()} against it): using calibration {cal.id} again")
         else:
-            self.post_warning(f"vpdetect: the stream shows a view calibrated before ({match.describe()} against "
-                              f"it): using calibration {cal.id}")
+            self.post_info(f"vpdetect: the stream shows a view calibrated before ({match.describe()} against "
+                           f"it): using calibration {cal.id}")  # good news: an INFO, not a warning
         self.post_element_message("trafficcal-view", {
             "state": "returned", "t": float(t or 0.0), "calibration_id": cal.id, "shift_x": match.shift[0],
             "shift_y": match.shift[1], "zoom": float(match.zoom), "rotation_deg": float(match.rotation_deg),
