@@ -135,6 +135,22 @@ def test_background_average_property_reaches_the_detector(frames):
     assert sum(len(sf.rois) for sf in late) >= 2 * len(late)
 
 
+def test_options_the_detector_does_not_use_are_said_at_start(frames, nanodet):
+    """labels, tiles and threshold are an ONNX model's: set with the built-in detector (or vehicleseg) they change
+    nothing, and the start says so once; with the ONNX model they are used, and nothing is said."""
+    run = run_pipeline("appsrc name=src ! videoconvert ! vehicledetect labels=car tiles=2x1 threshold=0.6 ! "
+                       "appsink name=sink", frames[:3], CAPS)
+    assert [w.split(": ", 1)[1] for w in run.warnings] == [
+        "vehicledetect: labels, threshold, tiles are not used by the built-in background detector; ignored"]
+    run = run_pipeline(f"appsrc name=src ! videoconvert ! vehicledetect model={nanodet} labels=car tiles=2x1 "
+                       "threshold=0.6 ! appsink name=sink", frames[:3], CAPS)
+    assert not run.warnings
+    run = run_pipeline(f"appsrc name=src ! videoconvert ! vehicledetect model={nanodet} background=average ! "
+                       "appsink name=sink", frames[:3], CAPS)
+    assert [w.split(": ", 1)[1] for w in run.warnings] == [
+        f"vehicledetect: background is not used by model {nanodet}; ignored"]
+
+
 def test_bad_background_method_fails_at_start(frames):
     with pytest.raises(PipelineError, match="background method must be mog2 or average"):
         run_pipeline("appsrc name=src ! videoconvert ! vehicledetect background=median ! appsink name=sink",

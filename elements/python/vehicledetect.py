@@ -51,15 +51,21 @@ class VehicleDetect(TrafficcalTransform):
         self._frame = 0
 
     def do_start(self):
-        from gst_trafficcal.detection.factory import create_detector
+        from gst_trafficcal.detection.factory import create_detector, ignored_options
         from gst_trafficcal.errors import TrafficcalError
 
         try:
             self._detector = create_detector(self.model, self.model_format, self.labels, self.threshold, self.threads,
                                              self.tiles, background=self.background)
+            ignored = ignored_options(self._detector, self.model_format, self.labels, self.threshold, self.tiles,
+                                      self.background)
         except TrafficcalError as exc:
             self.post_error(f"vehicledetect: {exc}", code=Gst.CoreError.FAILED)
             return False
+        if ignored:
+            which = "the built-in background detector" if not self.model else f"model {self.model}"
+            self.post_warning(f"vehicledetect: {', '.join(ignored)} {'is' if len(ignored) == 1 else 'are'} not used "
+                              f"by {which}; ignored")
         self._frame = 0
         return True
 

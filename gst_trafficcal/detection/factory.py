@@ -45,6 +45,27 @@ def create_detector(
                         threads=threads, tiles=parse_tiles(tiles) if isinstance(tiles, str) else tiles)
 
 
+def ignored_options(detector: Detector, model_format: str = "auto", labels: str | None = None,
+                    threshold: float = 0.4, tiles: str | tuple[int, int] = (1, 1),
+                    background: str = "mog2") -> list[str]:
+    """The options given (not at their defaults) that ``detector`` does not use — ``labels``, ``tiles``,
+    ``threshold`` and ``model-format`` are an ONNX model's, ``background`` the built-in detector's — named as the
+    element's properties, so that a user learns at start why setting them changes nothing."""
+    from .background import BackgroundDetector
+    from .onnx_detector import OnnxDetector
+
+    given = {"model-format": model_format not in ("auto", ""), "labels": bool(labels), "threshold": threshold != 0.4,
+             "tiles": (parse_tiles(tiles) if isinstance(tiles, str) else tuple(tiles)) != (1, 1),
+             "background": background != "mog2"}
+    if isinstance(detector, BackgroundDetector):
+        used = {"background"}
+    elif isinstance(detector, OnnxDetector):
+        used = {"model-format", "labels", "threshold", "tiles"}
+    else:  # vehicleseg: its own outputs, classes and threshold
+        used = {"model-format"}
+    return [name for name, set_ in given.items() if set_ and name not in used]
+
+
 def detect(detector: Detector, image: np.ndarray, t: float | None = None,
            frame_size: tuple[int, int] | None = None) -> Detections:
     """Run any detector on one frame; detectors that keep a background over time (``timed``, e.g. vehicleseg) get
