@@ -821,7 +821,8 @@ def test_an_events_url_that_does_not_answer_costs_no_vehicle(clip, implicit, tmp
     assert any(f"{len(events)} of {len(events)} vehicle events could not be posted to {url}" in w for w in run.warnings)
     with pytest.raises(PipelineError, match="events-url: 'ftp://host/x' is not an http:// or https:// URL"):
         measure(clip, tmp_path / "bad", detector(clip), "events-url=ftp://host/x")
-    with pytest.raises(PipelineError, match=r"class-limits: 'truck' is not CLASS=KMH,\.\.\. \(e\.g\. truck=60,bus=60\)"):
+    with pytest.raises(PipelineError,
+                       match=r"class-limits: 'truck' is not CLASS=KMH,\.\.\. \(e\.g\. truck=60,bus=60\)"):
         measure(clip, tmp_path / "bad2", detector(clip), "class-limits=truck")
 
 

@@ -142,7 +142,8 @@ class TrafficOverlay(TrafficcalTransform):
         from gst_trafficcal.gst.element import upstream_element
 
         if self._tracked_upstream is None:
-            self._tracked_upstream = any(upstream_element(self, name) is not None for name in ("tracker", "speedometer"))
+            self._tracked_upstream = any(upstream_element(self, name) is not None
+                                         for name in ("tracker", "speedometer"))
         t = self.buffer_t
         if self._tracked_upstream and t is not None:
             warning = self._untracked.check(t, len(marks), sum(m.track_id is not None for m in marks), True)
