@@ -526,17 +526,21 @@ def evaluate(gt: GroundTruth, camera: Camera, results: Results | None = None, mo
 # --------------------------------------------------------------------------- plot
 
 
+_PLAIN_TICKS = (0.1, 0.2, 0.5, 1, 2, 3, 5, 10, 20, 50, 100, 200, 500)
+
+
 def plot_cumulative_errors(errors: dict[str, np.ndarray], path, unit: str = "km/h", what: str = "absolute speed",
                            threshold: float = 3.0) -> None:
     """PNG cumulative histogram of errors per system, like the official plot (paper's Figure 8).
 
-    1000 bins from 0 to max + 1, log x axis from 0.1, grey dashed line at ``threshold``.
+    1000 bins from 0 to max + 1, log x axis from 0.1 with plain ticks (0.1, 0.2, 0.5, 1, 2, 3, 5, ...), grey dashed
+    line at ``threshold`` in the legend.
     """
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
-    from matplotlib.ticker import MultipleLocator
+    from matplotlib.ticker import FixedLocator, FuncFormatter, MultipleLocator, NullLocator
 
     arrays = {k: np.asarray(v, float) for k, v in errors.items() if len(v)}
     if not arrays:
@@ -548,13 +552,17 @@ def plot_cumulative_errors(errors: dict[str, np.ndarray], path, unit: str = "km/
         for label, e in arrays.items():
             hist = np.cumsum(np.histogram(e, bins=bins)[0] / len(e))
             ax.semilogx(bins[:-1], hist, label=f"{label} (n={len(e)})", linewidth=2)
-        ax.plot([threshold, threshold], [0, 1], ls="--", color="grey", linewidth=2)
+        ax.plot([threshold, threshold], [0, 1], ls="--", color="grey", linewidth=2, label=f"{threshold:g} {unit}")
+        ax.xaxis.set_major_locator(FixedLocator([t for t in _PLAIN_TICKS if t <= 2 * max_err + 1]))
+        ax.xaxis.set_major_formatter(FuncFormatter(lambda v, _: f"{v:g}"))
+        ax.xaxis.set_minor_locator(NullLocator())  # plain numbers, no 3×10⁻¹ labels running into each other
         ax.yaxis.set_major_locator(MultipleLocator(0.2))
         ax.yaxis.set_minor_locator(MultipleLocator(0.1))
         ax.grid(which="major", axis="both", linewidth=0.5, linestyle="--", alpha=0.3)
         ax.grid(which="minor", axis="both", linewidth=0.5, linestyle="--", alpha=0.15)
         ax.set_ylim(0, 1)
-        ax.set_xlim(0.1, max(max_err, 1.2 * threshold))  # keep the threshold line in view
+        # the threshold line in view, and a margin after the largest error: the curve visibly reaches 1
+        ax.set_xlim(0.1, max(1.15 * max_err, 1.2 * threshold))
         ax.set_xlabel(f"Error [{unit}]")
         ax.set_ylabel("portion of vehicles")
         ax.set_title(f"Cumulative histogram of {what} errors")

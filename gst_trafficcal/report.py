@@ -82,6 +82,14 @@ def _img(uri: str, alt: str) -> str:
 # --------------------------------------------------------------------------- pictures
 
 
+def horizon_in_view(camera: Camera, image_size: tuple[int, int]) -> bool:
+    """Whether the horizon line (through VP1 and VP2) crosses the image: the frame's corners on both sides of it."""
+    w, h = image_size
+    corners = np.array([[0.0, 0.0, 1.0], [w, 0.0, 1.0], [0.0, h, 1.0], [w, h, 1.0]])
+    side = corners @ np.asarray(camera.horizon, float)
+    return bool(side.min() <= 0.0 <= side.max())
+
+
 def calibration_picture(calibration: Calibration | None, frame: np.ndarray | None,
                         grid_spacing_m: float = 3.0, max_width: int = 1100) -> np.ndarray | None:
     """The frame (or a grey canvas of the calibration's image size) with the road grid and horizon."""
@@ -268,8 +276,12 @@ def _calibration_section(cal: Calibration | None, frame: np.ndarray | None, spac
             out.append(f'<p class="warn">{_esc(cond.describe())}.</p>')
     pic = calibration_picture(cal, frame, spacing)
     if pic is not None:
-        caption = (f"Road grid ({spacing:g} m cells; amber lines run towards VP1, blue towards VP2) and the "
-                   "horizon (red)." if cal is not None and cal.camera is not None else "A frame of the video.")
+        if cal is not None and cal.camera is not None:
+            horizon = (" and the horizon (red)" if horizon_in_view(cal.camera, cal.image_size)
+                       else "; the horizon, through both vanishing points, lies outside the picture")
+            caption = (f"Road grid ({spacing:g} m cells; amber lines run towards VP1, blue towards VP2){horizon}.")
+        else:
+            caption = "A frame of the video."
         out.append(f"<figure>{_img(png_data_uri(pic), 'calibration picture')}<figcaption>{_esc(caption)}"
                    "</figcaption></figure>")
     return "\n".join(out)
@@ -454,6 +466,7 @@ def render_report(inputs: ReportInputs) -> str:
              f"<style>{_CSS}</style></head><body><h1>{_esc(inputs.title)}</h1>"]
     if inputs.source:
         parts.append(f'<p class="muted">Video: {_esc(inputs.source)}</p>')
+    parts.append(f'<p class="muted">{_esc(_run_line(inputs))}</p>')
     parts.append(_calibration_section(inputs.calibration, inputs.frame, inputs.grid_spacing_m))
     limit = as_limit(inputs.speed_limit_kmh)
     parts.append(_vehicles_section(list(inputs.events), limit))
@@ -463,6 +476,40 @@ def render_report(inputs: ReportInputs) -> str:
         parts.append(_evaluation_section(inputs.evaluation, inputs.ground_truth_name))
     parts.append("</body></html>\n")
     return "\n".join(parts)
+
+
+def _run_line(inputs: ReportInputs) -> str:
+    """What the report covers, in one line: the stream time watched (and its clock times), the vehicles and their
+    flow per hour, the software and when the report was written."""
+    from datetime import timezone
+
+    from . import __version__
+
+    parts = []
+    watched = sum(max(0.0, b - a) for a, b in inputs.covered or ())
+    if watched > 0:
+        span = f"{_clock_span(inputs.start_time, inputs.covered)}" if inputs.start_time is not None else ""
+        parts.append(f"{_duration(watched)} of video watched{span}")
+    n, measured = len(inputs.events), sum(e.measured for e in inputs.events)
+    flow = f", {3600.0 * n / watched:.0f} vehicles/h" if watched >= 60 else ""
+    parts.append(f"{n} vehicles ({measured} with a speed){flow}")
+    written = datetime.now(timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
+    parts.append(f"gst-trafficcal {__version__}, report written {written}")
+    return " · ".join(parts)
+
+
+def _duration(seconds: float) -> str:
+    m, s = divmod(int(round(seconds)), 60)
+    h, m = divmod(m, 60)
+    return f"{h} h {m:02d} min" if h else (f"{m} min {s:02d} s" if m else f"{seconds:.1f} s")
+
+
+def _clock_span(start: datetime, covered: Sequence[tuple[float, float]]) -> str:
+    from datetime import timedelta
+
+    first, last = min(a for a, _ in covered), max(b for _, b in covered)
+    a, b = start + timedelta(seconds=first), start + timedelta(seconds=last)
+    return f" ({a:%Y-%m-%d %H:%M:%S} – {b:%H:%M:%S})"
 
 
 def write_report(path: str | Path, inputs: ReportInputs) -> Path:

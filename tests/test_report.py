@@ -412,3 +412,32 @@ def test_report_of_appended_runs_counts_each_run() -> None:
     assert len(listing) == len(both) + 1 and [r[0] for r in listing[1:]][-3:] == ["20261206T070000Z-beef"] * 3
     single = _parse(render_report(ReportInputs(both[:len(events)], _calibration())))
     assert not any(t[0][0] == "run" for t in single.tables if t)
+
+
+def test_report_says_what_it_covers_and_where_the_horizon_is() -> None:
+    """The header line: the video time watched (with its clock times when dated), vehicles and flow per hour, the
+    software; the caption names the red horizon only when the picture shows it."""
+    from datetime import datetime, timezone
+
+    from gst_trafficcal import __version__
+    from gst_trafficcal.report import horizon_in_view
+
+    events = _events()
+    measured = sum(e.measured for e in events)
+    start = datetime(2026, 12, 6, 8, 0, 0, tzinfo=timezone.utc)
+    text = "".join(_parse(render_report(ReportInputs(events, _calibration(), covered=[(0.0, 120.0)],
+                                                     start_time=start))).text)
+    assert (f"2 min 00 s of video watched (2026-12-06 08:00:00 – 08:02:00) · {len(events)} vehicles ({measured} "
+            f"with a speed), {30 * len(events)} vehicles/h · gst-trafficcal {__version__}, report written ") in text
+    short = "".join(_parse(render_report(ReportInputs(events, covered=[(0.0, 42.0)]))).text)
+    assert "42.0 s of video watched · 40 vehicles" in short and "vehicles/h" not in short  # no rate from 42 s
+    cal = _calibration()
+    assert horizon_in_view(cal.camera, cal.image_size)
+    assert "and the horizon (red)." in text
+    R = rotation_matrix(20.0, 70.0, 0.0)
+    level = Calibration(Camera.from_KRt(np.array([[600.0, 0, W / 2], [0, 600.0, H / 2], [0, 0, 1]]), R,
+                                        -R @ np.array([0.0, 0.0, 7.0])), (W, H), source="test")
+    assert not horizon_in_view(level.camera, level.image_size)  # looking down steeply: the horizon above the frame
+    steep = "".join(_parse(render_report(ReportInputs(events, level))).text)
+    assert "the horizon, through both vanishing points, lies outside the picture" in steep
+    assert "horizon (red)" not in steep
