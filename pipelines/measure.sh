@@ -22,7 +22,9 @@
 # so nothing already measured is lost if the run is interrupted. For any input that is not a file,
 # speedometer gets start-datetime=now: every vehicle carries the date and time it passed (first_time,
 # last_time) by this machine's clock; for a recording, give its start yourself:
-# SPEEDOMETER_OPTS="start-datetime=2026-12-05T08:00:00+01:00".
+# SPEEDOMETER_OPTS="start-datetime=2026-12-05T08:00:00+01:00". For a file, speedometer gets remeasure=true:
+# the vehicles that passed before the calibration settled are measured again with the final one at the end, as
+# trafficcal run does, so both give the same numbers.
 #
 # Environment (optional):
 #   VPDETECT_OPTS       extra vpdetect properties (e.g. "min-duration=60")
@@ -87,6 +89,8 @@ fi
 
 clock=()
 [[ "$uri" == file://* ]] || clock=(start-datetime=now)  # a live source: date the vehicles by this machine's clock
+again=()  # a file's vehicles seen before the calibration settled: measured again with the final one, as in run
+[[ "$uri" != file://* ]] || again=(remeasure=true)
 
 events="$out_dir/vehicles.jsonl"
 kept="$(keep_earlier_live "$uri" "$out_dir")" || die "$out_dir: cannot keep the earlier run's results aside"
@@ -98,7 +102,7 @@ set_stall_watchdog "$uri"  # a live source that stops sending ends the run (lib.
 pipeline=(uridecodebin "uri=$uri" ! videoconvert ! "${stall[@]}" video/x-raw,format=I420 ! "${queue[@]}"
           ! "${vp[@]}" ${VPDETECT_OPTS:-} ! vehicledetect ${VEHICLEDETECT_OPTS:-}
           ! speedometer "events-file=$events" "csv-file=$out_dir/vehicles.csv" "results-file=$out_dir/system.json"
-            "intervals-file=$out_dir/intervals.csv" "${clock[@]}" ${SPEEDOMETER_OPTS:-} ! fakesink)
+            "intervals-file=$out_dir/intervals.csv" "${clock[@]}" "${again[@]}" ${SPEEDOMETER_OPTS:-} ! fakesink)
 echo "measure: gst-launch-1.0 -e ${pipeline[*]}" >&2
 
 rc=0
