@@ -16,7 +16,7 @@ _RW = READY_ONLY  # read at start (gst-inspect-1.0: changeable only in NULL or R
 
 
 class Tracker(TrafficcalTransform):
-    __gtype_name__ = "GstTrafficcalTracker"
+    __gtype_name__ = "GstTracker"  # instances tracker0, ...
     __gstmetadata__ = ("tracker", "Filter/Analyzer/Video",
                        "Tracks vehicle ROIs with a Kalman filter over convex hulls of foreground blobs; adds "
                        "object_id and a trafficcal-vehicle structure (3D box, road-plane reference point)",

@@ -20,7 +20,7 @@ _RW = READY_ONLY  # read at start (gst-inspect-1.0: changeable only in NULL or R
 
 
 class VehicleDetect(TrafficcalTransform):
-    __gtype_name__ = "GstTrafficcalVehicleDetect"
+    __gtype_name__ = "GstVehicledetect"  # instances vehicledetect0, ...
     __gstmetadata__ = ("vehicledetect", "Filter/Analyzer/Video",
                        "Detects vehicles (ONNX detector or background subtraction) and attaches ROI metas with "
                        "DL Streamer 'detection' params", "gst-trafficcal")
