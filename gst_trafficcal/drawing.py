@@ -93,6 +93,13 @@ class RoadGrid:
     spacing_m: float
 
 
+def grid_min_cell_px(height: int, thickness: int = 1) -> float:
+    """The shortest grid cell (pixels along the road) drawn in a picture ``height`` pixels tall: a thirty-sixth of
+    the height, so a 1080p picture is no denser than a 540p one, and never below what the line width leaves
+    readable."""
+    return max(8.0 + 6.0 * thickness, height / 36.0)
+
+
 def road_grid_segments(camera: Camera, image_size: tuple[int, int], spacing_m: float = 3.0,
                        max_lines: int = 200, pieces: int = 24, min_cell_px: float = 12.0) -> RoadGrid:
     """The grid of the road plane with ``spacing_m`` cells over the visible road, clipped to the frame.
@@ -185,7 +192,7 @@ def draw_calibration(image: np.ndarray, camera: Camera, spacing_m: float = 3.0, 
     ``opacity`` < 1 blends it in, for pictures whose own marks must stand out above it.
     """
     h, w = image.shape[:2]
-    grid = road_grid_segments(camera, (w, h), spacing_m, min_cell_px=max(8.0 + 6.0 * thickness, h / 36.0))
+    grid = road_grid_segments(camera, (w, h), spacing_m, min_cell_px=grid_min_cell_px(h, thickness))
     layer = image.copy() if opacity < 1.0 else image
     draw_segments(layer, grid.along, GRID_ALONG_BGR, thickness)
     draw_segments(layer, grid.across, GRID_ACROSS_BGR, thickness)

@@ -19,8 +19,8 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
-from .drawing import (GRID_ACROSS_BGR, GRID_ALONG_BGR, HORIZON_BGR, RoadGrid, clip_segments, horizon_segment,
-                      road_grid_segments)
+from .drawing import (GRID_ACROSS_BGR, GRID_ALONG_BGR, HORIZON_BGR, RoadGrid, clip_segments, grid_min_cell_px,
+                      horizon_segment, road_grid_segments)
 from .geometry import Camera
 from .lanes import DEFAULT_LANE_WIDTH_M, lane_centres
 from .outputs import AWAY_FROM_VP1, TOWARDS_VP1, direction_name
@@ -475,6 +475,16 @@ def mark_label(mark: VehicleMark, options: OverlayOptions) -> list[str]:
 # --------------------------------------------------------------------------- the overlay
 
 
+def calibration_status(camera: Camera | None) -> str | None:
+    """The overlay's status line while there is no speed to show yet, so that a recording does not look broken
+    during the minute the calibration takes; None once speeds can be measured."""
+    if camera is None:
+        return "calibrating: no speeds yet"
+    if camera.scale is None:
+        return "finding the scale: no speeds yet"
+    return None
+
+
 class GridCache:
     """The road grid of the current calibration (recomputed only when the camera or frame size changes)."""
 
@@ -483,10 +493,13 @@ class GridCache:
         self._grid: RoadGrid | None = None
         self._horizon: np.ndarray | None = None
 
-    def get(self, camera: Camera, size: tuple[int, int], spacing_m: float) -> tuple[RoadGrid, np.ndarray | None]:
-        key = (tuple(camera.vp1), tuple(camera.vp2), tuple(camera.pp), camera.scale, tuple(size), spacing_m)
-        if key != self._key:
-            self._grid = road_grid_segments(camera, size, spacing_m)
+    def get(self, camera: Camera, size: tuple[int, int], spacing_m: float,
+            thickness: int = 1) -> tuple[RoadGrid, np.ndarray | None]:
+        key = (tuple(camera.vp1), tuple(camera.vp2), tuple(camera.pp), camera.scale, tuple(size), spacing_m,
+               thickness)
+        if key != self._key:  # as dense as the report's picture (drawing.draw_calibration), no denser
+            self._grid = road_grid_segments(camera, size, spacing_m,
+                                            min_cell_px=grid_min_cell_px(size[1], thickness))
             self._horizon = horizon_segment(camera, size)
             self._key = key
         return self._grid, self._horizon
@@ -516,13 +529,15 @@ def wrap_lines(lines: Sequence[str], max_width: float, scale: float, thickness: 
 
 def draw_overlay(canvas: Canvas, marks: Sequence[VehicleMark], camera: Camera | None = None,
                  options: OverlayOptions = OverlayOptions(), counter_lines: Sequence[str] = (),
-                 style: Style = Style(), grid_cache: GridCache | None = None) -> None:
-    """Draw everything ``options`` asks for; vehicles with 3D corners get their 3D box, others their 2D box."""
+                 style: Style = Style(), grid_cache: GridCache | None = None, status: str | None = None) -> None:
+    """Draw everything ``options`` asks for; vehicles with 3D corners get their 3D box, others their 2D box.
+    ``status`` (:func:`calibration_status`): one line at the bottom left, out of the counters' and the far traffic's
+    way."""
     th = options.thickness
     fs = options.font_scale or max(0.35, 0.6 * canvas.size[1] / 720)
     ft = 1 if fs < 1.0 else 2
     if camera is not None and (options.grid or options.horizon):
-        grid, horizon = (grid_cache or GridCache()).get(camera, canvas.size, options.grid_spacing_m)
+        grid, horizon = (grid_cache or GridCache()).get(camera, canvas.size, options.grid_spacing_m)  # 1 px lines
         if options.grid:
             canvas.segments(grid.along, style.grid_along_bgr, 1)
             canvas.segments(grid.across, style.grid_across_bgr, 1)
@@ -563,6 +578,9 @@ def draw_overlay(canvas: Canvas, marks: Sequence[VehicleMark], camera: Camera | 
         # at most half the frame wide, so a small frame's many lanes do not cover the road
         lines = wrap_lines(counter_lines, 0.5 * canvas.size[0], fs, ft)
         canvas.label((8, 8), lines, fs, ft, style.text_bgr, style.text_bg_bgr, above=False, alpha=style.panel_alpha)
+    if status:
+        canvas.label((8, canvas.size[1] - 8), [status], fs, ft, style.text_bgr, style.text_bg_bgr,
+                     alpha=style.panel_alpha)
 
 
 def marks_from_params(box: Sequence[float], label: str, object_id: int | None,

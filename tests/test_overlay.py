@@ -8,8 +8,8 @@ import pytest
 
 from gst_trafficcal.geometry import Camera, rotation_matrix
 from gst_trafficcal.overlay import (
-    BOX_EDGES, OverlayOptions, Style, VehicleCounter, VehicleMark, bgr_to_yuv, canvas_for_bgr, canvas_for_planes,
-    draw_overlay, mark_label, marks_from_params, wrap_lines,
+    BOX_EDGES, GridCache, OverlayOptions, Style, VehicleCounter, VehicleMark, bgr_to_yuv, calibration_status,
+    canvas_for_bgr, canvas_for_planes, draw_overlay, mark_label, marks_from_params, wrap_lines,
 )
 from gst_trafficcal.tracking.box3d import EDGES
 from gst_trafficcal.tracking.tracker import Observation, Track, TrackState
@@ -388,3 +388,30 @@ def test_vehicles_measured_after_they_left_are_counted_by_their_final_values() -
     assert c.left(8, "towards_vp1", 1, 88.0, "car", merged=[6, 99])  # 99: never counted here, nothing to undo
     assert c.total == 6 and c.speeding == 1 and c.by_direction() == {"towards_vp1": 4, "away_from_vp1": 1, None: 1}
     assert c.by_lane() == {0: 1, 1: 3, 2: 1} and 6 not in c._done_ids
+
+
+def test_the_panel_says_when_no_speed_can_be_shown_yet() -> None:
+    cam = _camera()
+    assert calibration_status(None) == "calibrating: no speeds yet"
+    assert calibration_status(Camera(cam.vp1, cam.vp2, cam.pp, None)) == "finding the scale: no speeds yet"
+    assert calibration_status(cam) is None
+    img = np.full((H, W, 3), GREY, np.uint8)  # drawn at the bottom left, not into the counters at the top
+    draw_overlay(canvas_for_bgr(img), [], None, OverlayOptions(), ["vehicles: 0"], status=calibration_status(None))
+    dark = img.max(axis=2) < 60
+    assert dark[H - 20:H - 8, 8:60].mean() > 0.5 and (img[H - 24:H - 8, 8:150].min(axis=2) > 200).any()
+    assert not dark[H // 2 - 20:H // 2 + 20].any()
+
+
+def test_the_overlay_grid_is_no_denser_at_1080p_than_the_report_picture() -> None:
+    """The cells along the road stop at a thirty-sixth of the frame height (drawing.grid_min_cell_px), as in the
+    report's calibration picture: at 1080p the far field is not a solid mesh."""
+    from gst_trafficcal.drawing import grid_min_cell_px, road_grid_segments
+
+    K = np.array([[1800.0, 0, 960], [0, 1800.0, 540], [0, 0, 1]])
+    R = rotation_matrix(20.0, 12.0, 0.0)
+    cam = Camera.from_KRt(K, R, -R @ np.array([0.0, 0.0, 6.0]))
+    grid, _ = GridCache().get(cam, (1920, 1080), 3.0)
+    assert grid_min_cell_px(1080) == 30.0 and grid_min_cell_px(360) == 14.0
+    dense = road_grid_segments(cam, (1920, 1080), 3.0)  # the old rule: 12 px cells
+    same = road_grid_segments(cam, (1920, 1080), 3.0, min_cell_px=30.0)
+    assert len(grid.across) == len(same.across) < len(dense.across)

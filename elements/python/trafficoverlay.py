@@ -116,7 +116,8 @@ class TrafficOverlay(TrafficcalTransform):
     def transform_frame(self, buffer):
         from gst_trafficcal.gst.buffers import format_name
         from gst_trafficcal.gst.meta import read_vehicle_rois
-        from gst_trafficcal.overlay import OverlayOptions, canvas_for_planes, draw_overlay, marks_from_params
+        from gst_trafficcal.overlay import (OverlayOptions, calibration_status, canvas_for_planes, draw_overlay,
+                                            marks_from_params)
         from gst_trafficcal.tracking.vehicle_meta import STRUCTURE as VEHICLE
 
         marks = [marks_from_params(r.box, r.label, r.object_id, r.params)
@@ -132,7 +133,8 @@ class TrafficOverlay(TrafficcalTransform):
         counter_lines = self._counter.lines() + [f"in view: {len(marks)}"]
         with self.planes(buffer, writable=True) as planes:
             canvas = canvas_for_planes(planes, format_name(self.video_info), *self._yuv)
-            draw_overlay(canvas, marks, camera, options, counter_lines, grid_cache=self._grid_cache)
+            draw_overlay(canvas, marks, camera, options, counter_lines, grid_cache=self._grid_cache,
+                         status=calibration_status(camera) if self.draw_counters else None)
             del canvas
         return Gst.FlowReturn.OK
 
