@@ -321,15 +321,18 @@ def _vehicles_section(events: Sequence[VehicleEvent], limit_kmh: SpeedLimit = Sp
                      [_stats_row("all", measured, limit_kmh)]
                      + [_stats_row(_direction_label(d), [e for e in measured if e.direction == d], limit_kmh)
                         for d in (TOWARDS_VP1, AWAY_FROM_VP1) if any(e.direction == d for e in measured)])]
-    lanes = Counter(e.lane for e in events)
-    lane_meas = Counter(e.lane for e in measured)
+    # per lane and direction, as intervals.csv counts them: a lane that holds both directions shows both
+    lanes = Counter((e.lane, e.direction) for e in events)
+    lane_meas = Counter((e.lane, e.direction) for e in measured)
+    order = {TOWARDS_VP1: 0, AWAY_FROM_VP1: 1}
     lane_rows = []
-    for lane in sorted(lanes, key=lambda v: (v is None, v if v is not None else 0)):
-        st = event_stats([e for e in measured if e.lane == lane], limit_kmh)
-        row = ["unknown" if lane is None else f"lane {lane}", lanes[lane], lane_meas[lane], _num(st.mean),
-               _num(st.v85)]
+    for lane, d in sorted(lanes, key=lambda k: (k[0] is None, k[0] or 0, order.get(k[1] or "", 2))):
+        st = event_stats([e for e in measured if e.lane == lane and e.direction == d], limit_kmh)
+        row = ["unknown" if lane is None else f"lane {lane}", _direction_label(d), lanes[lane, d],
+               lane_meas[lane, d], _num(st.mean), _num(st.v85)]
         lane_rows.append(row + ([st.over_limit] if limit_kmh else []))
-    tables.append("<h3>Per lane</h3>" + _table(["lane", "vehicles", "measured", "mean speed [km/h]", "V85 [km/h]"]
+    tables.append("<h3>Per lane</h3>" + _table(["lane", "direction", "vehicles", "measured", "mean speed [km/h]",
+                                                "V85 [km/h]"]
                                                + ([f"over {limit_kmh.describe()}"] if limit_kmh else []), lane_rows))
     classes = Counter(e.label or "unknown" for e in events)
     class_rows = []

@@ -134,18 +134,22 @@ def test_report_without_ground_truth() -> None:
     measured = [e for e in events if e.measured]
     text = "".join(page.text)
     assert f"{len(events)} vehicles, {len(measured)} with a measured speed." in text
-    lanes = _table_after(page, "lane")
-    want = Counter(e.lane for e in events)
-    got = {r[0]: (int(r[1]), int(r[2])) for r in lanes[1:]}
-    assert got == {"lane 0": (want[0], sum(e.lane == 0 for e in measured)),
-                   "lane 1": (want[1], sum(e.lane == 1 for e in measured)),
-                   "unknown": (want[None], sum(e.lane is None for e in measured))}
+    lanes = _table_after(page, "lane")  # per lane and direction
+    names = {"towards_vp1": "towards VP1", "away_from_vp1": "away from VP1"}
+    want = Counter((f"lane {e.lane}" if e.lane is not None else "unknown", names[e.direction]) for e in events)
+    got = {(r[0], r[1]): int(r[2]) for r in lanes[1:]}
+    assert got == dict(want) and len(got) > 3
+    got_measured = Counter()
+    for r in lanes[1:]:
+        got_measured[r[0]] += int(r[3])
+    assert got_measured == Counter(f"lane {e.lane}" if e.lane is not None else "unknown" for e in measured)
     stats = _table_after(page, "speed [km/h]")
     speeds = [e.speed_kmh for e in measured]
     assert stats[1][:3] == ["all", str(len(measured)), f"{np.mean(speeds):.2f}"]
     assert stats[0][4] == "V85" and stats[1][4] == f"{np.percentile(speeds, 85):.2f}" and len(stats[0]) == 7
-    lane0 = [e.speed_kmh for e in measured if e.lane == 0]
-    assert lanes[0][4] == "V85 [km/h]" and lanes[1][4] == f"{np.percentile(lane0, 85):.2f}"
+    lane0 = [e.speed_kmh for e in measured if e.lane == 0 and e.direction == "towards_vp1"]
+    assert lanes[1][:2] == ["lane 0", "towards VP1"]
+    assert lanes[0][5] == "V85 [km/h]" and lanes[1][5] == f"{np.percentile(lane0, 85):.2f}"
     reasons = {r[0]: int(r[1]) for r in _table_after(page, "reason")[1:]}
     assert reasons == dict(Counter(e.reason for e in events if not e.measured))
     classes = {r[0]: (int(r[1]), int(r[2])) for r in _table_after(page, "class")[1:]}
