@@ -311,6 +311,11 @@ def _vehicles_section(events: Sequence[VehicleEvent], limit_kmh: SpeedLimit = Sp
     out.append(f"<p>{len(events)} vehicles, {len(measured)} with a measured speed.</p>")
     if not events:
         return "\n".join(out)
+    out.append('<p class="muted">Directions: <i>towards VP1</i> are the vehicles driving away from the camera, into '
+               'the distance along the road; <i>away from VP1</i> those coming towards it. In overlay.mp4 their boxes '
+               'are green and magenta, yellow while the direction is not known yet, and dark red over a speed '
+               'limit; the counters there are those of the frame shown, the final ones are these (vehicles measured '
+               'again at the end of a file included).</p>')
     blocks = []
     if len(speeds):
         blocks.append(_img(speed_histogram_uri(speeds, limit_kmh), "speed histogram"))
