@@ -304,11 +304,14 @@ def _direction_label(d: str | None) -> str:
     return {TOWARDS_VP1: "towards VP1", AWAY_FROM_VP1: "away from VP1"}.get(d or "", "unknown")
 
 
-def _vehicles_section(events: Sequence[VehicleEvent], limit_kmh: SpeedLimit = SpeedLimit()) -> str:
+def _vehicles_section(events: Sequence[VehicleEvent], limit_kmh: SpeedLimit = SpeedLimit(),
+                      remeasured: tuple[int, int] = (0, 0)) -> str:
     out = ["<h2>Vehicles</h2>"]
     measured = [e for e in events if e.measured]
     speeds = np.array([e.speed_kmh for e in measured], float)
-    out.append(f"<p>{len(events)} vehicles, {len(measured)} with a measured speed.</p>")
+    again = (f" {remeasured[0]} of them passed before the calibration settled and were measured again with the "
+             f"final one at the end ({remeasured[1]} with a speed)." if remeasured[0] else "")
+    out.append(f"<p>{len(events)} vehicles, {len(measured)} with a measured speed.{again}</p>")
     if not events:
         return "\n".join(out)
     out.append('<p class="muted">Directions: <i>towards VP1</i> are the vehicles driving away from the camera, into '
@@ -466,6 +469,7 @@ class ReportInputs:
     interval_s: float = 900.0  # the "Per interval" table's interval
     start_time: datetime | None = None  # date and time of stream time 0: intervals aligned to and named by the clock
     covered: Sequence[tuple[float, float]] | None = None  # stream time (s) the video spans: every interval it reaches
+    remeasured: tuple[int, int] = (0, 0)  # vehicles measured again at the end with the final calibration (with speed)
 
 
 def render_report(inputs: ReportInputs) -> str:
@@ -477,7 +481,7 @@ def render_report(inputs: ReportInputs) -> str:
     parts.append(f'<p class="muted">{_esc(_run_line(inputs))}</p>')
     parts.append(_calibration_section(inputs.calibration, inputs.frame, inputs.grid_spacing_m))
     limit = as_limit(inputs.speed_limit_kmh)
-    parts.append(_vehicles_section(list(inputs.events), limit))
+    parts.append(_vehicles_section(list(inputs.events), limit, inputs.remeasured))
     parts.append(_intervals_section(list(inputs.events), inputs.interval_s, inputs.start_time, limit,
                                     inputs.covered))
     if inputs.evaluation is not None:

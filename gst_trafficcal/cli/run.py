@@ -907,7 +907,8 @@ def run_one(console, video: Path | str, out_dir: Path, calibration_path: Path | 
             title=f"gst-trafficcal run: {getattr(video, 'name', None) or shown_source(video)}",
             source=shown_source(video),
             speed_limit_kmh=speed_limit, interval_s=60 * interval_min, start_time=start,
-            covered=[(0.0, summary.watched_s)] if summary.watched_s else None))
+            covered=[(0.0, summary.watched_s)] if summary.watched_s else None,
+            remeasured=(summary.remeasured, summary.remeasured_speeds)))
     except InputError as exc:
         summary.errors.append(str(exc))
     written = [n for n in OUTPUTS if (out_dir / n).exists()]
