@@ -143,8 +143,7 @@ class Canvas:
             return
         sizes = [cv2.getTextSize(s, cv2.FONT_HERSHEY_SIMPLEX, scale, thickness) for s in lines]
         line_h = max(sz[0][1] + sz[1] for sz in sizes) + 3
-        width = max(sz[0][0] for sz in sizes) + 6
-        height = line_h * len(lines) + 3
+        width, height = label_size(lines, scale, thickness)
         w, h = self.size
         x0 = float(np.clip(anchor[0], 0, max(0, w - width)))
         y0 = anchor[1] - height if above else anchor[1]
@@ -154,6 +153,35 @@ class Canvas:
         self.rectangles(np.array([[x0, y0, x0 + width, y0 + height]]), bg, -1, alpha)
         for k, (s, sz) in enumerate(zip(lines, sizes)):
             self.text((x0 + 3, y0 + line_h * (k + 1) - sz[1]), s, fg, scale, thickness)
+
+
+def label_size(lines: Sequence[str], scale: float, thickness: int = 1) -> tuple[int, int]:
+    """(width, height) in pixels of :meth:`Canvas.label`'s box for ``lines`` (before rounding to even)."""
+    sizes = [cv2.getTextSize(s, cv2.FONT_HERSHEY_SIMPLEX, scale, thickness) for s in lines]
+    line_h = max(sz[0][1] + sz[1] for sz in sizes) + 3
+    return max(sz[0][0] for sz in sizes) + 6, line_h * len(lines) + 3
+
+
+def place_labels(boxes: np.ndarray, size: tuple[int, int]) -> np.ndarray:
+    """Top-left corners for label boxes (N x 4: x0, y0, width, height, each wanted where its row says, in drawing
+    order) kept inside the frame and off the ones placed before: a label that would cover an earlier one moves up
+    above it (below it when there is no room above).  Vehicles side by side in a queue keep readable labels."""
+    w, h = size
+    placed: list[np.ndarray] = []
+    out = np.zeros((len(boxes), 2))
+    for i, (x0, y0, bw, bh) in enumerate(np.asarray(boxes, float)):
+        x = float(np.clip(x0, 0, max(0.0, w - bw)))
+        y = float(np.clip(y0, 0, max(0.0, h - bh)))
+        for _ in range(len(placed) + 1):
+            hit = next((p for p in placed if x < p[0] + p[2] and p[0] < x + bw and y < p[1] + p[3] and p[1] < y + bh),
+                       None)
+            if hit is None:
+                break
+            y = hit[1] - bh - 1 if hit[1] - bh - 1 >= 0 else hit[1] + hit[3] + 1
+            y = float(np.clip(y, 0, max(0.0, h - bh)))
+        placed.append(np.array([x, y, bw, bh]))
+        out[i] = (x, y)
+    return out
 
 
 def canvas_for_planes(planes: list[np.ndarray], fmt: str, kr: float = 0.299, kb: float = 0.114,
@@ -566,14 +594,19 @@ def draw_overlay(canvas: Canvas, marks: Sequence[VehicleMark], camera: Camera | 
             cross = np.concatenate([np.stack([r - [d, 0], r + [d, 0]], 1), np.stack([r - [0, d], r + [0, d]], 1)])
             canvas.segments(cross, style.ref_point_bgr, th)
     if options.labels or options.speeds:
-        for m in marks:
-            lines = mark_label(m, options)
-            if lines:
-                top = np.min(m.corners[:, 1]) if m.corners is not None else m.box[1]
-                left = np.min(m.corners[:, 0]) if m.corners is not None else m.box[0]
-                bg = style.speeding_bgr if is_over_limit(m.speed_kmh, options.speed_limit_kmh, m.label) \
-                    else style.text_bg_bgr
-                canvas.label((left, top - 2), lines, fs, ft, style.text_bgr, bg)
+        labelled = [(m, lines) for m in marks if (lines := mark_label(m, options))]
+        # nearest vehicles (lowest in the picture) first: theirs stay at their boxes, farther ones give way
+        labelled.sort(key=lambda ml: -(np.max(ml[0].corners[:, 1]) if ml[0].corners is not None else ml[0].box[3]))
+        wanted = []
+        for m, lines in labelled:
+            top = np.min(m.corners[:, 1]) if m.corners is not None else m.box[1]
+            left = np.min(m.corners[:, 0]) if m.corners is not None else m.box[0]
+            bw, bh = label_size(lines, fs, ft)
+            wanted.append((left, top - 2 - bh, bw + 1, bh + 1))  # + 1: the even rounding of Canvas.label
+        for (m, lines), (x, y) in zip(labelled, place_labels(np.array(wanted).reshape(-1, 4), canvas.size)):
+            bg = style.speeding_bgr if is_over_limit(m.speed_kmh, options.speed_limit_kmh, m.label) \
+                else style.text_bg_bgr
+            canvas.label((x, y), lines, fs, ft, style.text_bgr, bg, above=False)
     if options.counters and counter_lines:  # last, to stay readable; translucent: the traffic under it shows;
         # at most half the frame wide, so a small frame's many lanes do not cover the road
         lines = wrap_lines(counter_lines, 0.5 * canvas.size[0], fs, ft)

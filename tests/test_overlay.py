@@ -415,3 +415,22 @@ def test_the_overlay_grid_is_no_denser_at_1080p_than_the_report_picture() -> Non
     dense = road_grid_segments(cam, (1920, 1080), 3.0)  # the old rule: 12 px cells
     same = road_grid_segments(cam, (1920, 1080), 3.0, min_cell_px=30.0)
     assert len(grid.across) == len(same.across) < len(dense.across)
+
+
+def test_labels_of_vehicles_side_by_side_do_not_cover_each_other() -> None:
+    """A queue: three labels wanted at nearly the same place. The first (the nearest vehicle's) stays where it was
+    wanted, the others move above it; none overlap and all stay inside the frame, also at the frame's top."""
+    from gst_trafficcal.overlay import place_labels
+
+    wanted = np.array([[100, 120, 90, 16], [110, 118, 90, 16], [95, 125, 60, 16], [300, 2, 50, 16], [310, 0, 50, 16]])
+    got = place_labels(wanted, (W, H))
+    assert tuple(got[0]) == (100, 120) and tuple(got[3]) == (W - 50, 2)  # clipped to the frame, else as wanted
+    boxes = np.column_stack([got, wanted[:, 2:]])
+    for i in range(len(boxes)):
+        x, y, w, h = boxes[i]
+        assert 0 <= x <= W - w and 0 <= y <= H - h
+        for j in range(i):
+            a = boxes[j]
+            assert not (x < a[0] + a[2] and a[0] < x + w and y < a[1] + a[3] and a[1] < y + h), (i, j, boxes)
+    assert got[1][1] < 120 and got[2][1] < got[1][1]  # moved up, one above the other
+    assert got[4][1] > 2  # no room above the frame's top: below the one there
