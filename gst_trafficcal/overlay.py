@@ -162,24 +162,25 @@ def label_size(lines: Sequence[str], scale: float, thickness: int = 1) -> tuple[
     return max(sz[0][0] for sz in sizes) + 6, line_h * len(lines) + 3
 
 
-def place_labels(boxes: np.ndarray, size: tuple[int, int]) -> np.ndarray:
+def place_labels(boxes: np.ndarray, size: tuple[int, int], taken: np.ndarray | None = None) -> np.ndarray:
     """Top-left corners for label boxes (N x 4: x0, y0, width, height, each wanted where its row says, in drawing
-    order) kept inside the frame and off the ones placed before: a label that would cover an earlier one moves up
-    above it (below it when there is no room above).  Vehicles side by side in a queue keep readable labels."""
+    order) kept inside the frame and off the ones placed before: each goes to the free height nearest above where it
+    was wanted — just above a label already there — or, with no room above, the nearest below, so vehicles side by
+    side keep readable labels.  Where
+    no height is free (more labels than the column holds), the wanted one.  ``taken``: boxes (x, y, width, height)
+    already covered (the counters panel)."""
     w, h = size
-    placed: list[np.ndarray] = []
+    placed = np.zeros((0, 4)) if taken is None else np.asarray(taken, float).reshape(-1, 4)
     out = np.zeros((len(boxes), 2))
     for i, (x0, y0, bw, bh) in enumerate(np.asarray(boxes, float)):
         x = float(np.clip(x0, 0, max(0.0, w - bw)))
-        y = float(np.clip(y0, 0, max(0.0, h - bh)))
-        for _ in range(len(placed) + 1):
-            hit = next((p for p in placed if x < p[0] + p[2] and p[0] < x + bw and y < p[1] + p[3] and p[1] < y + bh),
-                       None)
-            if hit is None:
-                break
-            y = hit[1] - bh - 1 if hit[1] - bh - 1 >= 0 else hit[1] + hit[3] + 1
-            y = float(np.clip(y, 0, max(0.0, h - bh)))
-        placed.append(np.array([x, y, bw, bh]))
+        want = float(np.clip(y0, 0, max(0.0, h - bh)))
+        cols = placed[(placed[:, 0] < x + bw) & (x < placed[:, 0] + placed[:, 2])]  # labels this one could touch
+        ys = np.concatenate([[want], cols[:, 1] - bh - 1, cols[:, 1] + cols[:, 3] + 1])
+        ys = ys[(ys >= 0) & (ys <= h - bh)]
+        free = [y for y in ys if not np.any((y < cols[:, 1] + cols[:, 3]) & (cols[:, 1] < y + bh))]
+        y = min(free, key=lambda v: (v > want, abs(v - want))) if free else want  # above the vehicle first
+        placed = np.vstack([placed, [x, y, bw, bh]])
         out[i] = (x, y)
     return out
 
@@ -593,6 +594,13 @@ def draw_overlay(canvas: Canvas, marks: Sequence[VehicleMark], camera: Camera | 
             d = 2.0 + th
             cross = np.concatenate([np.stack([r - [d, 0], r + [d, 0]], 1), np.stack([r - [0, d], r + [0, d]], 1)])
             canvas.segments(cross, style.ref_point_bgr, th)
+    panel = wrap_lines(counter_lines, 0.5 * canvas.size[0], fs, ft) if options.counters and counter_lines else []
+    taken = []  # where the counters panel and the status line will be: labels keep off them
+    if panel:
+        taken.append((8, 8, *np.add(label_size(panel, fs, ft), 2)))
+    if status:
+        sw, sh = np.add(label_size([status], fs, ft), 2)
+        taken.append((8, canvas.size[1] - 8 - sh, sw, sh))
     if options.labels or options.speeds:
         labelled = [(m, lines) for m in marks if (lines := mark_label(m, options))]
         # nearest vehicles (lowest in the picture) first: theirs stay at their boxes, farther ones give way
@@ -603,14 +611,14 @@ def draw_overlay(canvas: Canvas, marks: Sequence[VehicleMark], camera: Camera | 
             left = np.min(m.corners[:, 0]) if m.corners is not None else m.box[0]
             bw, bh = label_size(lines, fs, ft)
             wanted.append((left, top - 2 - bh, bw + 1, bh + 1))  # + 1: the even rounding of Canvas.label
-        for (m, lines), (x, y) in zip(labelled, place_labels(np.array(wanted).reshape(-1, 4), canvas.size)):
+        spots = place_labels(np.array(wanted).reshape(-1, 4), canvas.size, np.array(taken).reshape(-1, 4))
+        for (m, lines), (x, y) in zip(labelled, spots):
             bg = style.speeding_bgr if is_over_limit(m.speed_kmh, options.speed_limit_kmh, m.label) \
                 else style.text_bg_bgr
             canvas.label((x, y), lines, fs, ft, style.text_bgr, bg, above=False)
-    if options.counters and counter_lines:  # last, to stay readable; translucent: the traffic under it shows;
-        # at most half the frame wide, so a small frame's many lanes do not cover the road
-        lines = wrap_lines(counter_lines, 0.5 * canvas.size[0], fs, ft)
-        canvas.label((8, 8), lines, fs, ft, style.text_bgr, style.text_bg_bgr, above=False, alpha=style.panel_alpha)
+    if panel:  # last, to stay readable; translucent: the traffic under it shows; at most half the frame wide
+        # (wrap_lines above), so a small frame's many lanes do not cover the road
+        canvas.label((8, 8), panel, fs, ft, style.text_bgr, style.text_bg_bgr, above=False, alpha=style.panel_alpha)
     if status:
         canvas.label((8, canvas.size[1] - 8), [status], fs, ft, style.text_bgr, style.text_bg_bgr,
                      alpha=style.panel_alpha)

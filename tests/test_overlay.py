@@ -434,3 +434,21 @@ def test_labels_of_vehicles_side_by_side_do_not_cover_each_other() -> None:
             assert not (x < a[0] + a[2] and a[0] < x + w and y < a[1] + a[3] and a[1] < y + h), (i, j, boxes)
     assert got[1][1] < 120 and got[2][1] < got[1][1]  # moved up, one above the other
     assert got[4][1] > 2  # no room above the frame's top: below the one there
+
+
+def test_crowded_labels_never_overlap_while_there_is_room() -> None:
+    """Random crowds of labels (a queue at a junction): no two overlap and each stays in the frame."""
+    from gst_trafficcal.overlay import place_labels
+
+    rng = np.random.default_rng(3)
+    for _ in range(50):
+        n = int(rng.integers(2, 12))
+        wanted = np.column_stack([rng.uniform(-20, W, n), rng.uniform(-20, H, n), rng.uniform(40, 120, n),
+                                  np.full(n, 14.0)])
+        got = np.column_stack([place_labels(wanted, (W, H)), wanted[:, 2:]])
+        for i in range(n):
+            x, y, w, h = got[i]
+            assert 0 <= x <= W - w and 0 <= y <= H - h
+            for j in range(i):
+                a = got[j]
+                assert not (x < a[0] + a[2] and a[0] < x + w and y < a[1] + a[3] and a[1] < y + h)

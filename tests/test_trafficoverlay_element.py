@@ -98,10 +98,11 @@ def _box_band(box: list[float], grow: int) -> np.ndarray:
 
 
 def test_overlay_in_an_h264_mp4_file(tmp_path: Path) -> None:
-    """videotestsrc -> ROIs -> trafficoverlay -> x264enc -> mp4mux -> file; decoded with OpenCV."""
+    """videotestsrc -> ROIs -> trafficoverlay -> x264enc -> mp4mux -> file; decoded with OpenCV (no counters panel:
+    on this small frame the car's label would keep off it, below its box's top edge)."""
     out = tmp_path / "overlay.mp4"
     run_pipeline(f"{GREY_SRC},format=I420 ! tcroisource {_rois_prop([_roi_2d(), _roi_3d()])} ! "
-                 f"trafficoverlay draw-grid=false draw-horizon=false line-thickness=4 ! {ENCODE} ! "
+                 f"trafficoverlay draw-grid=false draw-horizon=false draw-counters=false line-thickness=4 ! {ENCODE} ! "
                  f"filesink location={out}")
     frames = _decode(out)
     assert len(frames) >= 5 and frames[0].shape == (H, W, 3)
