@@ -354,7 +354,7 @@ class CsvEventWriter:
         return buf.getvalue()
 
     def write(self, event: VehicleEvent, extra: Mapping[str, Any] | None = None) -> None:
-        if self._file.pending:
+        if not self._headed:  # a lazily opened file written before begin()
             self.begin()
         d = event.to_dict()
         extra = extra or {}

@@ -141,9 +141,7 @@ class Canvas:
         ``anchor``, kept inside the frame."""
         if not lines:
             return
-        sizes = [cv2.getTextSize(s, cv2.FONT_HERSHEY_SIMPLEX, scale, thickness) for s in lines]
-        line_h = max(sz[0][1] + sz[1] for sz in sizes) + 3
-        width, height = label_size(lines, scale, thickness)
+        sizes, line_h, width, height = _text_layout(lines, scale, thickness)
         w, h = self.size
         x0 = float(np.clip(anchor[0], 0, max(0, w - width)))
         y0 = anchor[1] - height if above else anchor[1]
@@ -155,20 +153,24 @@ class Canvas:
             self.text((x0 + 3, y0 + line_h * (k + 1) - sz[1]), s, fg, scale, thickness)
 
 
-def label_size(lines: Sequence[str], scale: float, thickness: int = 1) -> tuple[int, int]:
-    """(width, height) in pixels of :meth:`Canvas.label`'s box for ``lines`` (before rounding to even)."""
+def _text_layout(lines: Sequence[str], scale: float, thickness: int) -> tuple[list, int, int, int]:
+    """(each line's cv2.getTextSize, line height, box width, box height) of :meth:`Canvas.label`'s box."""
     sizes = [cv2.getTextSize(s, cv2.FONT_HERSHEY_SIMPLEX, scale, thickness) for s in lines]
     line_h = max(sz[0][1] + sz[1] for sz in sizes) + 3
-    return max(sz[0][0] for sz in sizes) + 6, line_h * len(lines) + 3
+    return sizes, line_h, max(sz[0][0] for sz in sizes) + 6, line_h * len(lines) + 3
+
+
+def label_size(lines: Sequence[str], scale: float, thickness: int = 1) -> tuple[int, int]:
+    """(width, height) in pixels of :meth:`Canvas.label`'s box for ``lines`` (before rounding to even)."""
+    return _text_layout(lines, scale, thickness)[2:]
 
 
 def place_labels(boxes: np.ndarray, size: tuple[int, int], taken: np.ndarray | None = None) -> np.ndarray:
     """Top-left corners for label boxes (N x 4: x0, y0, width, height, each wanted where its row says, in drawing
     order) kept inside the frame and off the ones placed before: each goes to the free height nearest above where it
     was wanted — just above a label already there — or, with no room above, the nearest below, so vehicles side by
-    side keep readable labels.  Where
-    no height is free (more labels than the column holds), the wanted one.  ``taken``: boxes (x, y, width, height)
-    already covered (the counters panel)."""
+    side keep readable labels.  Where no height is free (more labels than the column holds), the wanted one.
+    ``taken``: boxes (x, y, width, height) already covered (the counters panel)."""
     w, h = size
     placed = np.zeros((0, 4)) if taken is None else np.asarray(taken, float).reshape(-1, 4)
     out = np.zeros((len(boxes), 2))
