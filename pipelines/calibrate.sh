@@ -76,22 +76,9 @@ pipeline=(uridecodebin "uri=$uri" ! videoconvert ! "${stall[@]}" video/x-raw,for
           ! vpdetect mode=learn "calibration-file=$tmp" ${VPDETECT_OPTS:-} ! fakesink)
 echo "calibrate: gst-launch-1.0 -e ${pipeline[*]}" >&2
 
-gst-launch-1.0 -e "${pipeline[@]}" >"$log" 2>&1 &
-pid=$!
-trap 'kill -INT "$pid" 2>/dev/null || true' INT TERM
-while kill -0 "$pid" 2>/dev/null; do
-    if [[ -s "$tmp" ]]; then  # converged and saved: end the stream cleanly (EOS), vpdetect keeps its file
-        kill -INT "$pid" 2>/dev/null || true
-        break
-    fi
-    sleep 0.2
-done
 rc=0
-while kill -0 "$pid" 2>/dev/null; do  # a trapped SIGTERM/SIGINT ends a wait early: wait until it has finished
-    wait "$pid" || true
-done
-wait "$pid" || rc=$?  # its exit code (bash keeps it)
-trap - INT TERM
+# converged and saved: the stream is ended cleanly (EOS) and vpdetect keeps its file; SIGTERM handled as Ctrl-C
+launch --until "$tmp" "${pipeline[@]}" >"$log" 2>&1 || rc=$?
 
 if [[ -s "$tmp" ]]; then
     mv -f "$tmp" "$output"

@@ -79,20 +79,34 @@ keep_earlier_live() {  # URI OUT_DIR: prints the folder a live stream's earlier 
     echo "$kept"
 }
 
-launch() {  # ARGS...: gst-launch-1.0 -e ARGS, with SIGTERM handled as Ctrl-C; returns its exit code
+launch() {  # [--until FILE] ARGS...: gst-launch-1.0 -e ARGS, with SIGTERM handled as Ctrl-C; returns its exit code
     # gst-launch-1.0 ends the stream on Ctrl-C (-e: every element finishes, a recording is completed) but dies at
     # once on SIGTERM — what systemctl stop, docker stop and Kubernetes send —, and a script killed while it waits
     # leaves it running. Here it runs in the background and both signals reach it as SIGINT; the script waits
     # until it has finished. (A terminal's Ctrl-C reaches it twice, directly and passed on: -e still ends cleanly.)
     # Safe under set -e however it is called (bare or `launch ... || rc=$?`): an interrupted wait does not end the
-    # script, which always waits for gst-launch-1.0 and returns its exit code.
-    local stop=0
+    # script, which always waits for gst-launch-1.0 and returns its exit code. --until FILE: the stream is ended
+    # the same way (EOS) once FILE is not empty (calibrate.sh: vpdetect has saved its calibration).
+    local stop=0 until=""
+    if [[ "${1:-}" == "--until" ]]; then
+        until="$2"
+        shift 2
+    fi
     launch_pid=
     trap 'stop=1; [[ -z "$launch_pid" ]] || kill -INT "$launch_pid" 2>/dev/null || true' INT TERM
     gst-launch-1.0 -e "$@" &
     launch_pid=$!
     [[ $stop == 0 ]] || kill -INT "$launch_pid" 2>/dev/null || true  # a signal came before its pid was known
     while kill -0 "$launch_pid" 2>/dev/null; do
+        if [[ -n "$until" ]]; then
+            if [[ -s "$until" ]]; then
+                kill -INT "$launch_pid" 2>/dev/null || true
+                until=""
+            else
+                sleep 0.2
+            fi
+            continue
+        fi
         wait "$launch_pid" || true  # returns early when a trapped signal arrives: wait again
     done
     trap - INT TERM
