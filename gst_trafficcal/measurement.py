@@ -33,10 +33,17 @@ vanishing points was in force) and, whenever it changes, the current calibration
   depend on whether the tracker ran upstream or inside the caller.
 * **Direction**: sign of the reference points' motion along the road (world x, towards VP1); **lane**: the
   online :class:`~gst_trafficcal.lanes.LaneModel` over the vehicles' lateral offsets.
+* **Not every track is a vehicle** (:func:`not_a_vehicle`): a track left unmeasured that was seen for under
+  ``min_seen_s`` (a fragment of a vehicle the tracker also follows, a flicker of the detector; not when the end of
+  the stream or a camera move cut it short) or that moved under ``min_passing_m`` along the road (a parked
+  vehicle, a fixed object taken for one) is not reported —
+  the traffic counts are of vehicles passing; :attr:`SpeedMeter.not_counted` counts them by reason.  A vehicle with
+  a speed is always reported.
 """
 
 from __future__ import annotations
 
+from collections import Counter
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
 from typing import Any
@@ -55,6 +62,10 @@ from .tracking.tracker import _set_references, _update_direction  # the tracker'
 from .vehicles.classify import MAX_Z, classify_dimensions, refined_label
 
 DEFAULT_MIN_TRACK_LENGTH = 10
+MIN_SEEN_S = 0.5  # an unmeasured track seen for less is no vehicle of its own (a fragment, a detector's flicker)
+MIN_PASSING_M = 3.0  # an unmeasured track that moved less along the road did not pass (parked, fixed)
+BRIEF = "brief"  # SpeedMeter.not_counted's reasons
+STATIONARY = "stationary"
 END_AFTER_MARGIN = 0.4  # seconds beyond the tracker's coasting time (max_lost) before a vehicle counts as gone
 DEFAULT_END_AFTER = TrackerConfig.max_lost + END_AFTER_MARGIN  # a vehicle the tracker still coasts is not cut
 MIN_DIRECTION_SPAN = 0.05  # plane units the reference point must travel along the road to give a direction
@@ -149,6 +160,7 @@ class _Record:
     live: LiveSpeed | None = None  # the current estimate of the vehicle in view (refreshed every LIVE_EVERY)
     live_at: int = -1  # how many observations it had then
     merged: list[int] = field(default_factory=list)  # ids of the earlier tracks stitched in front of this one
+    cut: bool = False  # its view was cut short (end of stream, camera move): a brief track may still be a vehicle
 
     def track(self) -> Track:
         return Track(id=self.id, state=TrackState.FINISHED, observations=self.observations)
@@ -168,7 +180,8 @@ class SpeedMeter:
     def __init__(self, tau: int = DEFAULT_TAU, min_track_length: int = DEFAULT_MIN_TRACK_LENGTH,
                  end_after: float = DEFAULT_END_AFTER, calibration: Calibration | None = None,
                  checks: SpeedChecks = SpeedChecks(), stitch_gap: float = DEFAULT_STITCH_GAP,
-                 max_waiting: int = DEFAULT_MAX_WAITING, keep_measured: bool = False) -> None:
+                 max_waiting: int = DEFAULT_MAX_WAITING, keep_measured: bool = False,
+                 min_seen_s: float = MIN_SEEN_S, min_passing_m: float = MIN_PASSING_M) -> None:
         if tau < 1:
             raise ValueError(f"tau must be at least 1, got {tau}")
         if min_track_length < tau + 1:
@@ -193,6 +206,9 @@ class SpeedMeter:
         self._retired: set[int] = set()  # ids of the vehicles cut by a camera move (their tracks must not go on)
         self._blind: dict[int, float] = {}  # tracks begun between a move and its notice -> when it was noticed
         self.discarded = 0  # such tracks never seen after the notice: not reported
+        self.min_seen_s, self.min_passing_m = float(min_seen_s), float(min_passing_m)
+        self.not_counted: Counter[str] = Counter()  # unmeasured tracks that were no vehicle passing (BRIEF, STATIONARY)
+        self.not_counted_ids: list[int] = []  # their track ids (and of the tracks stitched into them), for the caller
         # keep_measured: every vehicle measured (its reference points and size, _Kept: about 4 kB), with the calibration
         # it was measured with, for remeasure() (a file's early vehicles measured again with the one it ends with)
         self.keep_measured = bool(keep_measured)
@@ -229,7 +245,7 @@ class SpeedMeter:
         if not self.can_measure or not self._pending:
             return out
         pending, self._pending = self._pending, []
-        return out + [self._measure(r) for r in pending]
+        return out + _vehicles(self._measure(r) for r in pending)
 
     def _camera_moved(self, t_move: float) -> list[MeasuredVehicle]:
         """End what the previous calibration saw: the vehicles in view, cut at ``t_move``, and the ones waiting for a
@@ -244,15 +260,16 @@ class SpeedMeter:
             del self._live[rec.id]
             self._retired.add(rec.id)
             rec.last_t = rec.observations[-1].t
+            rec.cut = True
             self._pending.append(rec)
         pending, self._pending = self._pending, []
         pending.sort(key=lambda r: (r.last_t, r.id))
         if self.can_measure:
-            out = [self._measure(r) for r in pending]
+            out = _vehicles(self._measure(r) for r in pending)
         else:
             why = (f"the camera moved at {t_move:.1f} s, before the calibration of the view it was seen in "
                    + ("had vanishing points" if self.camera is None else "had a scale"))
-            out = [self._unmeasured(r, why, self.calibration) for r in pending]
+            out = _vehicles(self._unmeasured(r, why, self.calibration) for r in pending)
         self.lanes = LaneModel()  # the lanes lie elsewhere in the new view
         self._measured.clear()  # measured in the old view: never again with another view's calibration
         return out
@@ -288,9 +305,11 @@ class SpeedMeter:
 
     def flush(self) -> list[MeasuredVehicle]:
         """End of stream: every vehicle in view leaves; those still waiting for a scale are reported unmeasured."""
+        for rec in self._live.values():
+            rec.cut = True
         out = self._end(list(self._live.values()))
         pending, self._pending = self._pending, []
-        out += [self._unmeasured(r, self._no_calibration_reason()) for r in pending]
+        out += _vehicles(self._unmeasured(r, self._no_calibration_reason()) for r in pending)
         return out
 
     # ------------------------------------------------------------------ measurement
@@ -305,7 +324,7 @@ class SpeedMeter:
             if self.can_measure and self.stitch_gap > 0 and self._stitch(rec):
                 continue  # continued by a later track of the same vehicle: measured with it
             if self.can_measure:
-                out.append(self._measure(rec))
+                out += _vehicles([self._measure(rec)])
             else:
                 self._pending.append(rec)
         excess = len(self._pending) - self.max_waiting
@@ -313,7 +332,7 @@ class SpeedMeter:
             old, self._pending = self._pending[:excess], self._pending[excess:]
             why = (f"no calibration with a scale while {self.max_waiting} later vehicles left (at most that many "
                    "wait for one; the oldest is then written unmeasured)")
-            out += [self._unmeasured(r, why) for r in old]
+            out += _vehicles(self._unmeasured(r, why) for r in old)
         return out
 
     def _stitch(self, rec: _Record) -> bool:
@@ -430,12 +449,18 @@ class SpeedMeter:
             out.append(self._finish(k.rec, label, m.speed_kmh, m.reason, k.times, k.px, cal, m.n_pairs, m.kept, dims))
         return out
 
-    def _measure(self, rec: _Record) -> MeasuredVehicle:
+    def _measure(self, rec: _Record) -> MeasuredVehicle | None:
+        """The vehicle's event, measured with the calibration in force; None when the track was no vehicle
+        passing (:func:`not_a_vehicle`)."""
         cal = self.calibration
         times, px, track = self._reference_points(rec, self.camera)
         if len(px) == 0:
             return self._unmeasured(rec, "no reference point (no 3D box: never fully visible, nor cut by the top edge alone)", cal)
         m = self._speed(px, times)
+        # the road it covered: its own points (the longest consistent run) when there are enough of them — a parked
+        # car's points jump to each vehicle that passes it, merging with it for a moment
+        if not m.measured and self._not_counted(rec, px[m.kept] if m.kept.sum() > self.tau else px):
+            return None
         label, dims = self._label(track)
         if self.keep_measured:
             ends = _Record(rec.id, observations=[rec.observations[0], rec.observations[-1]], last_t=rec.last_t)
@@ -498,8 +523,53 @@ class SpeedMeter:
             times, px = times[kept], px[kept]
         return MeasuredVehicle(event, times, px, tuple(rec.merged))
 
-    def _unmeasured(self, rec: _Record, reason: str, cal: Calibration | None = None) -> MeasuredVehicle:
+    def _unmeasured(self, rec: _Record, reason: str, cal: Calibration | None = None) -> MeasuredVehicle | None:
+        """The event of a vehicle left unmeasured for ``reason``; None when the track was no vehicle passing."""
+        if self._not_counted(rec, np.zeros((0, 2))):
+            return None
         return self._finish(rec, rec.track().label, None, reason, np.zeros(0), np.zeros((0, 2)), cal, 0)
+
+    def _not_counted(self, rec: _Record, px: np.ndarray) -> bool:
+        """Whether the unmeasured track ``rec`` (its own reference points ``px``, pixels, in time order) was no
+        vehicle passing; counted in :attr:`not_counted` by reason."""
+        moved = None
+        cam = self.camera
+        if len(px) >= 2 and cam is not None and cam.scale is not None:
+            # metres along the road between where it was in its first and its last quarter (medians): a parked
+            # car's point jumps by its length when its front is not known, and back
+            along = cam.to_world(px)[:, 0] * cam.scale
+            q = max(1, len(along) // 4)
+            moved = float(abs(np.median(along[-q:]) - np.median(along[:q])))
+        seen_s = np.inf if rec.cut else rec.observations[-1].t - rec.observations[0].t
+        why = not_a_vehicle(seen_s, moved, self.min_seen_s, self.min_passing_m)
+        if why:
+            self.not_counted[why] += 1
+            self.not_counted_ids += rec.merged + [rec.id]
+        return bool(why)
+
+    def take_not_counted_ids(self) -> list[int]:
+        """The track ids found to be no vehicle since the last call (a counter downstream takes them out)."""
+        ids, self.not_counted_ids = self.not_counted_ids, []
+        return ids
+
+
+def not_a_vehicle(seen_s: float, moved_m: float | None, min_seen_s: float = MIN_SEEN_S,
+                  min_passing_m: float = MIN_PASSING_M) -> str:
+    """Why a track left unmeasured is no vehicle passing ("" when it may be one): :data:`BRIEF` when it was seen
+    for under ``min_seen_s`` seconds — vehicles take seconds to cross a traffic camera's view; such tracks are a
+    piece of a vehicle followed by another track, or a detector's flicker —, :data:`STATIONARY` when it moved under
+    ``min_passing_m`` metres along the road (``moved_m``; None: not known) — a parked vehicle, or a fixed object
+    taken for one, which the traffic counts must not count once per time it is occluded."""
+    if seen_s < min_seen_s:
+        return BRIEF
+    if moved_m is not None and moved_m < min_passing_m:
+        return STATIONARY
+    return ""
+
+
+def _vehicles(found: Iterable[MeasuredVehicle | None]) -> list[MeasuredVehicle]:
+    """The vehicles among ``found`` (None: a track that was no vehicle passing)."""
+    return [m for m in found if m is not None]
 
 
 def _observation(s: Sighting, camera: Camera | None) -> Observation:

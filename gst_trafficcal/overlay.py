@@ -387,8 +387,13 @@ class VehicleCounter:
         self._done_ids[track_id] = (direction, lane, fast)
         return True
 
+    def not_vehicles(self, track_ids: Iterable[int]) -> None:
+        """Take tracks speedometer found to be no vehicle passing (a fragment, a parked car) out of the counts."""
+        for i in track_ids:
+            self._uncount(i)
+
     def _uncount(self, track_id: int) -> None:
-        """Take a track out of the counts (it was part of another vehicle)."""
+        """Take a track out of the counts (it was part of another vehicle, or none)."""
         if track_id in self.seen:
             del self.seen[track_id], self._last_seen[track_id]
             self._speed.pop(track_id, None)

@@ -304,14 +304,30 @@ def _direction_label(d: str | None) -> str:
     return {TOWARDS_VP1: "towards VP1", AWAY_FROM_VP1: "away from VP1"}.get(d or "", "unknown")
 
 
+def not_counted_text(brief: int, stationary: int) -> str:
+    """The sentence on the tracks not counted as vehicles (``measurement.not_a_vehicle``); "" when none were."""
+    from .measurement import MIN_PASSING_M, MIN_SEEN_S
+
+    parts = []
+    if brief:
+        parts.append(f"{brief} seen for under {MIN_SEEN_S:g} s (pieces of vehicles counted once, or a detector's "
+                     "flicker)")
+    if stationary:
+        parts.append(f"{stationary} that did not move {MIN_PASSING_M:g} m along the road (parked vehicles, or fixed "
+                     "objects taken for one)")
+    return f"Tracks not counted as vehicles: {' and '.join(parts)}." if parts else ""
+
+
 def _vehicles_section(events: Sequence[VehicleEvent], limit_kmh: SpeedLimit = SpeedLimit(),
-                      remeasured: tuple[int, int] = (0, 0)) -> str:
+                      remeasured: tuple[int, int] = (0, 0), not_counted: tuple[int, int] = (0, 0)) -> str:
     out = ["<h2>Vehicles</h2>"]
     measured = [e for e in events if e.measured]
     speeds = np.array([e.speed_kmh for e in measured], float)
     again = (f" {remeasured[0]} of them passed before the calibration settled and were measured again with the "
              f"final one at the end ({remeasured[1]} with a speed)." if remeasured[0] else "")
     out.append(f"<p>{len(events)} vehicles, {len(measured)} with a measured speed.{again}</p>")
+    if any(not_counted):
+        out.append(f'<p class="muted">{_esc(not_counted_text(*not_counted))}</p>')
     if not events:
         return "\n".join(out)
     out.append('<p class="muted">Directions: <i>towards VP1</i> are the vehicles driving away from the camera, into '
@@ -470,6 +486,7 @@ class ReportInputs:
     start_time: datetime | None = None  # date and time of stream time 0: intervals aligned to and named by the clock
     covered: Sequence[tuple[float, float]] | None = None  # stream time (s) the video spans: every interval it reaches
     remeasured: tuple[int, int] = (0, 0)  # vehicles measured again at the end with the final calibration (with speed)
+    not_counted: tuple[int, int] = (0, 0)  # tracks that were no vehicle passing: (brief, stationary)
 
 
 def render_report(inputs: ReportInputs) -> str:
@@ -481,7 +498,7 @@ def render_report(inputs: ReportInputs) -> str:
     parts.append(f'<p class="muted">{_esc(_run_line(inputs))}</p>')
     parts.append(_calibration_section(inputs.calibration, inputs.frame, inputs.grid_spacing_m))
     limit = as_limit(inputs.speed_limit_kmh)
-    parts.append(_vehicles_section(list(inputs.events), limit, inputs.remeasured))
+    parts.append(_vehicles_section(list(inputs.events), limit, inputs.remeasured, inputs.not_counted))
     parts.append(_intervals_section(list(inputs.events), inputs.interval_s, inputs.start_time, limit,
                                     inputs.covered))
     if inputs.evaluation is not None:

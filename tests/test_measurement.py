@@ -539,6 +539,39 @@ def test_tracks_seen_only_between_a_move_and_its_notice_are_not_vehicles(scene, 
                for m in out)
 
 
+def test_tracks_that_are_no_vehicle_passing_are_not_reported(scene, truth):
+    """Beside the simulated traffic: a piece of a vehicle tracked under an id of its own for 0.2 s, a parked
+    car (one vehicle's box held still for 6 s, its track on a passing vehicle for 0.6 s of them) and a second
+    track on a vehicle starting in the last 0.4 s.  The piece and the parked car are no vehicles passing — not
+    reported, counted by reason, their ids handed out once —; the track the end of the stream cut short is still a
+    vehicle, as is every simulated one."""
+    from gst_trafficcal.measurement import BRIEF, STATIONARY, not_a_vehicle
+
+    meter = SpeedMeter(calibration=cal_of(scene.camera))
+    still = next(s for f in scene.frames[200:] for s in sightings(f))  # a box somewhere on the road
+    end = scene.frames[-1].t
+    out = []
+    for f in scene.frames:
+        ss = sightings(f)
+        if 5.0 <= f.t < 5.2 and ss:  # a second track on the first vehicle in view, for five frames
+            s = ss[0]
+            ss.append(Sighting(70_001, s.label, s.t, s.box, s.confidence, corners_px=s.corners_px, hull=s.hull))
+        if 8.0 <= f.t < 14.0:  # parked; for 0.6 s its track is on a vehicle passing it (merged with it)
+            s = ss[0] if 10.0 <= f.t < 10.6 and ss else still
+            ss.append(Sighting(70_002, "car", f.t, s.box, 0.9, corners_px=s.corners_px, hull=s.hull))
+        if f.t > end - 0.4 and ss:  # a second track on the first vehicle in view, cut by the end
+            s = ss[0]
+            ss.append(Sighting(70_003, s.label, s.t, s.box, s.confidence, corners_px=s.corners_px, hull=s.hull))
+        out += meter.update(f.t, ss).finished
+    out += meter.flush()
+    ids = [m.event.id for m in out]
+    assert sorted(ids) == sorted([*truth, 70_003])
+    assert meter.not_counted == {BRIEF: 1, STATIONARY: 1}
+    assert sorted(meter.take_not_counted_ids()) == [70_001, 70_002] and meter.take_not_counted_ids() == []
+    assert not_a_vehicle(0.4, None) == BRIEF and not_a_vehicle(2.0, 2.9) == STATIONARY
+    assert not_a_vehicle(0.5, None) == not_a_vehicle(2.0, 3.0) == ""
+
+
 def test_remeasure_measures_the_early_vehicles_again_with_the_final_calibration(scene, truth):
     """keep_measured (a file): the scale moves by 10 % at 16 s; at the end remeasure() measures every vehicle that
     left under the first scale again with the final one (same ids, the final calibration's id, speeds 10 % up),

@@ -388,6 +388,12 @@ def test_vehicles_measured_after_they_left_are_counted_by_their_final_values() -
     assert c.left(8, "towards_vp1", 1, 88.0, "car", merged=[6, 99])  # 99: never counted here, nothing to undo
     assert c.total == 6 and c.speeding == 1 and c.by_direction() == {"towards_vp1": 4, "away_from_vp1": 1, None: 1}
     assert c.by_lane() == {0: 1, 1: 3, 2: 1} and 6 not in c._done_ids
+    # tracks speedometer found to be no vehicle passing (a piece of one, a parked car): out of the counts, whether
+    # already folded into the totals (vehicle 1: away, lane 1) or still remembered (track 9), once
+    c.update([VehicleMark((0, 0, 1, 1), 9, direction="away_from_vp1")])
+    assert c.total == 7
+    c.not_vehicles([1, 9, 9, 123])
+    assert c.total == 5 and c.by_direction() == {"towards_vp1": 4, None: 1} and c.by_lane() == {0: 1, 1: 2, 2: 1}
 
 
 def test_the_panel_says_when_no_speed_can_be_shown_yet() -> None:

@@ -434,9 +434,14 @@ def test_report_says_what_it_covers_and_where_the_horizon_is() -> None:
     assert (f"2 min 00 s of video watched (2026-12-06 08:00:00 – 08:02:00) · {len(events)} vehicles ({measured} "
             f"with a speed), {30 * len(events)} vehicles/h · gst-trafficcal {__version__}, report written ") in text
     assert "were measured again" not in text
-    short = "".join(_parse(render_report(ReportInputs(events, covered=[(0.0, 42.0)], remeasured=(9, 7)))).text)
+    assert "not counted" not in text
+    short = "".join(_parse(render_report(ReportInputs(events, covered=[(0.0, 42.0)], remeasured=(9, 7),
+                                                      not_counted=(5, 2)))).text)
     assert (f"{len(events)} vehicles, {measured} with a measured speed. 9 of them passed before the calibration "
             "settled and were measured again with the final one at the end (7 with a speed).") in short
+    assert ("Tracks not counted as vehicles: 5 seen for under 0.5 s (pieces of vehicles counted once, or a "
+            "detector's flicker) and 2 that did not move 3 m along the road (parked vehicles, or fixed objects "
+            "taken for one).") in short
     assert "42.0 s of video watched · 40 vehicles" in short and "vehicles/h" not in short  # no rate from 42 s
     cal = _calibration()
     assert horizon_in_view(cal.camera, cal.image_size)

@@ -16,7 +16,10 @@ leave before a calibration with scale exists are measured as soon as one arrives
 waiting are written unmeasured, with the reason.  When vpdetect says the camera moved (a calibration with
 ``moved_at``), the vehicles seen before are measured with the calibration they were seen under (cut at the move),
 and the scale is found anew for the new view; tracks seen only between the move and its notice are no vehicles
-(a ``trafficcal-discarded`` message counts them).
+(a ``trafficcal-discarded`` message counts them).  Nor is a track left unmeasured that was seen for under half a
+second or never covered 3 m of road (a fragment of a vehicle, a parked car: ``measurement.not_a_vehicle``; a
+``trafficcal-not-counted`` message, fields ``brief`` and ``stationary``, counts them): the files and counts hold
+the vehicles that passed.
 
 Output per frame: a ``"speed"`` {speed_kmh, label, model_name, confidence} structure on the ROI of every vehicle
 with a current estimate.  Per vehicle that leaves: a ``trafficcal-speed`` element message (the event's fields, and
@@ -132,6 +135,7 @@ class Speedometer(TrafficcalTransform):
         self._limit = None  # traffic_stats.SpeedLimit from speed-limit and class-limits
         self._posted = 0
         self._discarded = 0  # the meter's tracks seen only between a camera move and its notice, as last posted
+        self._not_counted: dict[str, int] = {}  # the meter's tracks that were no vehicle passing, as last posted
         self._results_t = None
         self._results_every = _RESULTS_EVERY  # grows with the file (outputs.checkpoint_interval)
         self._fps_fixed = False
@@ -500,6 +504,14 @@ class Speedometer(TrafficcalTransform):
             self._discarded = self._meter.discarded
             self.post_element_message("trafficcal-discarded", {
                 "tracks": self._discarded, "why": "seen only between a camera move and its notice"})
+        if self._meter is not None and dict(self._meter.not_counted) != self._not_counted:
+            from gst_trafficcal.gst.vehicle_event import not_vehicles_event
+            from gst_trafficcal.measurement import BRIEF, STATIONARY
+
+            self.srcpad.push_event(not_vehicles_event(self._meter.take_not_counted_ids()))
+            self._not_counted = dict(self._meter.not_counted)
+            self.post_element_message("trafficcal-not-counted", {
+                "brief": self._not_counted.get(BRIEF, 0), "stationary": self._not_counted.get(STATIONARY, 0)})
         ok = True
         for m in finished:
             event = self._stamped(m)
@@ -629,7 +641,11 @@ class Speedometer(TrafficcalTransform):
             return
         self._poster.post(fields)
         self._posted += 1
-        problem = self._poster.new_problem()
+        self._warn_posting(self._poster)
+
+    def _warn_posting(self, poster):
+        """A warning when posting to events-url met a problem not reported before."""
+        problem = poster.new_problem()
         if problem:
             self.post_warning(f"speedometer: cannot post vehicle events: {problem}; retrying with each vehicle, and "
                               "every vehicle is still written to the files")
@@ -640,6 +656,8 @@ class Speedometer(TrafficcalTransform):
         if self._poster is not None:
             poster, self._poster = self._poster, None
             stats = poster.close(timeout=10.0)
+            if report:  # the vehicles all left at the end: the problem shows only now
+                self._warn_posting(poster)
             self.post_element_message("trafficcal-events-url", {
                 "url": poster.shown_url, "events": self._posted, "sent": stats.sent, "failed": stats.failed,
                 "dropped": stats.dropped})

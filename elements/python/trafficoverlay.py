@@ -84,10 +84,14 @@ class TrafficOverlay(TrafficcalTransform):
 
     def on_custom_event(self, event):
         """speedometer's finished vehicles: one measured after it left (the calibration came later) is counted by
-        its final direction, lane and speed, not as "unknown"; earlier tracks measured with it are not counted."""
-        from gst_trafficcal.gst.vehicle_event import parse_vehicle_left_event
+        its final direction, lane and speed, not as "unknown"; earlier tracks measured with it, and tracks speedometer
+        found to be no vehicle passing, are not counted."""
+        from gst_trafficcal.gst.vehicle_event import parse_not_vehicles_event, parse_vehicle_left_event
         from gst_trafficcal.outputs import DIRECTIONS
 
+        ids = parse_not_vehicles_event(event)
+        if ids is not None and self._counter is not None:
+            self._counter.not_vehicles(ids)
         fields = parse_vehicle_left_event(event)
         if fields is not None and self._counter is not None and isinstance(fields.get("id"), int):
             direction, lane, speed = fields.get("direction"), fields.get("lane"), fields.get("speed_kmh")

@@ -175,7 +175,7 @@ def command(out_dir: Path, preset: str, duration: float, seed: int, calibration_
         events=events, calibration=calibration, frame=first_frame(video), evaluation=ev,
         ground_truth_name=str(scene_dir / "gt_data.pkl"), title=f"gst-trafficcal demo: {preset}",
         source=str(video), covered=[(0.0, measured.watched_s)] if measured.watched_s else None,
-        remeasured=(measured.remeasured, measured.remeasured_speeds)))
+        remeasured=(measured.remeasured, measured.remeasured_speeds), not_counted=measured.not_counted))
     wrote = ["overlay.mp4", "report.html", "vehicles.jsonl", "vehicles.csv", "system.json"]
     wrote += ["evaluation.json"] if ev is not None else []
     wrote += ["speed_errors.png"] if errors.size else []

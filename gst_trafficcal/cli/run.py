@@ -218,6 +218,7 @@ class RunSummary:
     position_s: float | None = None  # how far into the stream the run got
     moves: list = field(default_factory=list)  # gst.runner.Move: when the camera moved, the calibrations around it
     discarded: int = 0  # tracks seen only between a camera move and its notice (not vehicles, not reported)
+    not_counted: tuple[int, int] = (0, 0)  # tracks that were no vehicle passing, not reported: (brief, stationary)
     remeasured: int = 0  # vehicles measured under an earlier calibration, measured again with the final one at the end
     remeasured_speeds: int = 0  # of those, how many got a speed
     scaled: list = field(default_factory=list)  # every calibration with a scale and a view posted (one per view)
@@ -242,6 +243,12 @@ def _scaled_views(outcome) -> list:
         if c.camera is not None and c.camera.scale is not None and c.view is not None:
             out = latest_per_view(out, c)
     return out
+
+
+def _not_counted(outcome) -> tuple[int, int]:
+    """(brief, stationary): the tracks speedometer did not count as vehicles (its last running count)."""
+    last = (outcome.named("trafficcal-not-counted") or [{}])[-1]
+    return int(last.get("brief", 0)), int(last.get("stationary", 0))
 
 
 def _read_vehicle_events(paths: RunPaths) -> list:
@@ -414,6 +421,7 @@ def measure_video(video: Path | str, out_dir: Path, description: str, console, l
                          position_s=outcome.position_s,
                          moves=outcome.moves,
                          discarded=max((m["tracks"] for m in outcome.named("trafficcal-discarded")), default=0),
+                         not_counted=_not_counted(outcome),
                          remeasured=sum(m["vehicles"] for m in outcome.named("trafficcal-remeasured")),
                          remeasured_speeds=sum(m["measured"] for m in outcome.named("trafficcal-remeasured")),
                          scaled=_scaled_views(outcome))
@@ -887,6 +895,10 @@ def run_one(console, video: Path | str, out_dir: Path, calibration_path: Path | 
     print_moves(console, summary)
     print_remeasured(console, summary.remeasured, events_url, speeds=summary.remeasured_speeds)
     print_vehicles(console, summary.events, speed_limit)
+    if any(summary.not_counted):
+        from ..report import not_counted_text
+
+        console.print(not_counted_text(*summary.not_counted), highlight=False)
     for w in summary.warnings:
         console.print(f"[yellow]warning[/]: {w}", highlight=False)
 
@@ -908,7 +920,7 @@ def run_one(console, video: Path | str, out_dir: Path, calibration_path: Path | 
             source=shown_source(video),
             speed_limit_kmh=speed_limit, interval_s=60 * interval_min, start_time=start,
             covered=[(0.0, summary.watched_s)] if summary.watched_s else None,
-            remeasured=(summary.remeasured, summary.remeasured_speeds)))
+            remeasured=(summary.remeasured, summary.remeasured_speeds), not_counted=summary.not_counted))
     except InputError as exc:
         summary.errors.append(str(exc))
     written = [n for n in OUTPUTS if (out_dir / n).exists()]
