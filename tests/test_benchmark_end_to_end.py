@@ -84,3 +84,28 @@ def test_reported_labels_are_scored_against_the_rendered_classes(load_benchmark,
     assert np.isclose(b.pooled(rows)["class_accuracy"], 2 / 3)
     assert b.pooled(rows)["dimensions"] == {"vehicles": 1, "median": [0.095, 0.0, 0.0], "robust_std": [0.0, 0.0, 0.0]}
     assert "log(reported / rendered) length, width, height median [0.095, 0.0, 0.0]" in text
+
+
+def test_the_traffic_count_is_scored_against_the_vehicles_that_passed(load_benchmark, tmp_path):
+    """A rendered vehicle counts when it is at least half visible and as large as the detectors' smallest vehicle in
+    10 frames; the count table gives each group's reported against rendered total and the scenes' count errors."""
+    import json
+
+    b = load_benchmark("end_to_end")
+    size = (960, 540)
+    frames = tmp_path / "frames.jsonl"
+    with open(frames, "w") as fh:
+        for f in range(12):
+            for vid, box, visible in ((1, [0, 0, 40, 30], 1.0),  # 1200 px² >= 0.15 % of 960x540 (778 px²)
+                                      (2, [0, 0, 20, 20], 1.0),  # too small: far down the road
+                                      (3, [0, 0, 60, 40], 0.3)):  # mostly hidden
+                fh.write(json.dumps({"frame": f, "id": vid, "box": box, "visible": visible}) + "\n")
+            if f < 9:  # large and visible, but in nine frames only
+                fh.write(json.dumps({"frame": f, "id": 4, "box": [0, 0, 60, 40], "visible": 1.0}) + "\n")
+    assert b.passing_vehicles(frames, size) == 1
+    assert b.passing_vehicles(tmp_path / "none.jsonl", size) is None
+    rows = [b.Row("a", "replay", "auto", vehicles=22, rendered=20), b.Row("b", "replay", "auto", vehicles=9,
+                                                                             rendered=10),
+            b.Row("c", "replay", "auto", vehicles=5, rendered=None)]
+    line = b.count_table(rows).splitlines()[2]
+    assert line == "| replay (2) | auto | 31 | 30 | +3.3 % | 10.0 % (a +10 %) |"
