@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import html
 import json
 import os
 import re
@@ -490,6 +491,12 @@ def test_the_calibration_of_a_cameras_first_file_carries_over_to_the_next(tmp_pa
     events = read_events(out / "part2" / "vehicles.jsonl").events
     assert sum(e.measured for e in events) >= 3 and all(e.calibration_id == second.id for e in events if e.measured)
     assert "2 of 2 files" in proc.stdout and proc.stdout.count("│ ok ") == 2
+    # tracks that were no vehicle passing (pieces of vehicles, on this real clip): said by the command and the
+    # first file's report alike
+    said = " ".join(proc.stdout.split())
+    assert "Tracks not counted as vehicles: " in said
+    line = "Tracks not counted as vehicles: " + said.split("Tracks not counted as vehicles: ")[1].split(").")[0] + ")"
+    assert line in " ".join(html.unescape((out / "kraten_cars" / "report.html").read_text()).split())
     rows = (out / "parts.csv").read_text().splitlines()
     assert rows[0] == "part,folder,vehicles,measured,mean_kmh,v85_kmh,calibration,status,error"
     assert [r.split(",")[6] for r in rows[1:]] == [first.id, second.id]

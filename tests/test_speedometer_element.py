@@ -272,6 +272,22 @@ def test_the_overlay_counts_every_vehicle_as_the_files_do(clip, limit, tmp_path,
                          "over_limit": sum(e.speed_kmh is not None and e.speed_kmh > limit for e in events)}
 
 
+def test_tracks_that_are_no_vehicle_passing_are_counted_not_written(clip, tmp_path):
+    """Tracks left without a speed that were seen for an instant or never moved (``min-seen``, ``min-moved``) are not
+    written; a ``trafficcal-not-counted`` message says how many.  With both properties 0 every track is written:
+    the same vehicles plus exactly those, none of them with a speed."""
+    cal = f"calibration-file={clip / 'calibration.json'}"
+    run, events, _ = measure(clip, tmp_path / "default", detector(clip), cal)
+    run0, every, _ = measure(clip, tmp_path / "every", detector(clip), f"{cal} min-seen=0 min-moved=0")
+    counted = [m.fields for m in run.messages if m.name == "trafficcal-not-counted"]
+    assert counted and not [m for m in run0.messages if m.name == "trafficcal-not-counted"]
+    ids = {e.id for e in events}
+    extra = [e for e in every if e.id not in ids]
+    assert ids < {e.id for e in every} and len(extra) == counted[-1]["brief"] + counted[-1]["stationary"]
+    assert not any(e.measured for e in extra)
+    assert [(e.id, e.speed_kmh) for e in every if e.id in ids] == [(e.id, e.speed_kmh) for e in events]
+
+
 def test_no_calibration_reports_every_vehicle_unmeasured(clip, tmp_path):
     run, events, results = measure(clip, tmp_path, detector(clip))
     assert len(events) >= 15

@@ -17,9 +17,9 @@ waiting are written unmeasured, with the reason.  When vpdetect says the camera 
 ``moved_at``), the vehicles seen before are measured with the calibration they were seen under (cut at the move),
 and the scale is found anew for the new view; tracks seen only between the move and its notice are no vehicles
 (a ``trafficcal-discarded`` message counts them).  Nor is a track left unmeasured that was seen for under half a
-second or never covered 3 m of road (a fragment of a vehicle, a parked car: ``measurement.not_a_vehicle``; a
-``trafficcal-not-counted`` message, fields ``brief`` and ``stationary``, counts them): the files and counts hold
-the vehicles that passed.
+second or never moved 3 m along the road (``min-seen``, ``min-moved``; a fragment of a vehicle, a parked car:
+``measurement.not_a_vehicle``; a ``trafficcal-not-counted`` message, fields ``brief`` and ``stationary``, counts
+them): the files and counts hold the vehicles that passed.
 
 Output per frame: a ``"speed"`` {speed_kmh, label, model_name, confidence} structure on the ROI of every vehicle
 with a current estimate.  Per vehicle that leaves: a ``trafficcal-speed`` element message (the event's fields, and
@@ -117,6 +117,13 @@ class Speedometer(TrafficcalTransform):
                         "held to be measured once it comes, at most this many: beyond, the oldest is written "
                         "unmeasured with the reason (a live camera that never calibrates stays bounded in memory and "
                         "its vehicles reach the files)", 1, 1000000, 2000, _RW),
+        "min-seen": (float, "Minimum time seen", "Seconds a track left without a speed must have been seen to be "
+                     "reported and counted as a vehicle (shorter: a piece of a vehicle, a detector's flicker; a "
+                     "track cut by the end of the stream is always reported; 0: every track)", 0.0, 3600.0, 0.5,
+                     _RW),
+        "min-moved": (float, "Minimum distance moved", "Metres along the road a track left without a speed must "
+                      "have moved to be reported and counted as a vehicle (less: a parked vehicle, a fixed object "
+                      "taken for one; 0: every track)", 0.0, 1000.0, 3.0, _RW),
         "vehicle-timeout": (float, "Vehicle timeout", "Seconds without a sighting after which a vehicle has "
                             "left and is reported (0: the tracker's max-lost + 0.4 s; never less than that)", 0.0,
                             3600.0, 0.0, _RW),
@@ -174,7 +181,8 @@ class Speedometer(TrafficcalTransform):
                 raise ValueError(f"min-track-length must be at least tau + 1 = {self.tau + 1}, got "
                                  f"{self.min_track_length}")
             self._meter = SpeedMeter(tau=self.tau, min_track_length=self.min_track_length, max_waiting=self.max_waiting,
-                                     keep_measured=self.remeasure)
+                                     keep_measured=self.remeasure, min_seen_s=self.min_seen,
+                                     min_passing_m=self.min_moved)
             if self.start_datetime.strip().lower() != NOW:
                 self._start = parse_start_time(self.start_datetime, "start-datetime")
             if self.calibration_file:
