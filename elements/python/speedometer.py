@@ -23,7 +23,8 @@ them): the files and counts hold the vehicles that passed.
 
 Output per frame: a ``"speed"`` {speed_kmh, label, model_name, confidence} structure on the ROI of every vehicle
 with a current estimate.  Per vehicle that leaves: a ``trafficcal-speed`` element message (the event's fields, and
-with ``speed-limit`` or ``class-limits`` a boolean ``over_limit``: faster than its class's limit), the same as a JSON POST to ``events-url`` (a webhook;
+with ``speed-limit`` or ``class-limits`` a boolean ``over_limit``: faster than its class's limit; none without a
+speed), the same as a JSON POST to ``events-url`` (a webhook;
 ``gst_trafficcal.publish``: background thread, retries, a warning when it fails — never an error), and
 the same structure pushed downstream as a custom event (``gst_trafficcal.gst.vehicle_event``: trafficoverlay
 counts a vehicle measured after it left by its final direction, lane and speed), a line in ``events-file`` (JSON
@@ -496,12 +497,14 @@ class Speedometer(TrafficcalTransform):
         return replace(measured.event.with_clock(self._start), run=self._run)
 
     def _fields(self, event):
-        """A vehicle's event as messages and events-url carry it: its fields and, with a limit, ``over_limit``."""
+        """A vehicle's event as messages and events-url carry it: its fields and, with a limit, ``over_limit`` —
+        null (absent from the message) for a vehicle without a speed: not known, rather than "not over"."""
         from gst_trafficcal.traffic_stats import is_over_limit
 
         fields = event.to_dict()
         if self._limit:
-            fields["over_limit"] = is_over_limit(event.speed_kmh, self._limit, event.label)
+            fields["over_limit"] = (None if event.speed_kmh is None
+                                    else is_over_limit(event.speed_kmh, self._limit, event.label))
         return fields
 
     def _emit(self, finished):
