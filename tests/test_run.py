@@ -130,6 +130,7 @@ def test_run_writes_every_output(clip, with_truth):
     assert status.calibration["speed_sensitivity_pct"] == round(cal.conditioning().speed_pct, 3)
     assert status.position_s == pytest.approx(12.0, abs=0.2) and status.duration_s == pytest.approx(12.0, abs=0.2)
     assert status.camera_moves == 0 and (status.speed_x is None or status.speed_x > 0)
+    assert (status.frames, status.frames_dropped) == (150, 0)  # every frame of the file, none dropped
     shown = trafficcal("status", out)  # for people and health checks: ended as it should, exit 0
     assert shown.returncode == 0 and "status.json: finished since" in shown.stdout, shown.stdout + shown.stderr
     assert f"speeds {cal.conditioning().speed_pct:.1f} % per 0.1° of VP2" in shown.stdout

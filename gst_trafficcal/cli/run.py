@@ -404,6 +404,7 @@ def measure_video(video: Path | str, out_dir: Path, description: str, console, l
             outcome, failure = exc.outcome, str(exc)
         except PipelineError as exc:
             raise InputError(hidden(f"{video}: {exc}")) from None
+        on_frames(outcome.frames_dropped, outcome.frames_in)  # every frame, also those after the last poll
         if outcome.position_s is not None:  # where the stream really ended: a truncated file's last poll may have
             # said its header's end
             progress(outcome.position_s, outcome.duration_s if stop_after_s is None else

@@ -223,7 +223,7 @@ def run_pipeline_file(description: str, progress: Progress | None = None,
     most that much instead of without end (a live source does not wait: its packets pile up in memory, or are lost,
     and the measurements lag further and further behind the road).  Our elements measure from timestamps, so a
     dropped frame costs samples, not correctness.  ``outcome.frames_in`` / ``frames_dropped`` count the frames;
-    ``on_frames(dropped, in)`` is told a live stream's counts as they change.  A file is never dropped from: it
+    ``on_frames(dropped, in)`` is told the counts as they change.  A file is never dropped from: it
     waits for us.
 
     The run ends early, as ``gst-launch-1.0 -e`` does, by an end-of-stream sent into the pipeline — so every
@@ -339,7 +339,7 @@ def run_pipeline_file(description: str, progress: Progress | None = None,
                 decided = decide_live()
             if counted is not None:
                 frames_in, dropped = counted()
-                if out.live and on_frames is not None and (frames_in, dropped) != (out.frames_in, out.frames_dropped):
+                if on_frames is not None and (frames_in, dropped) != (out.frames_in, out.frames_dropped):
                     on_frames(dropped, frames_in)
                 out.frames_in, out.frames_dropped = frames_in, dropped
             if interrupts:
