@@ -29,8 +29,11 @@ def test_three_loops_play_through_and_each_loop_measures_alike(cuboid_clip, tmp_
     assert len(samples) >= 3
     events = read_events(tmp_path / "soak" / "vehicles.jsonl").events
     # the loops join in time (the speedometer carries the timestamps on), and every loop's traffic is tracked: the
-    # same video, though not the same tracks (MOG2's model and the calibration carry over; measured 15, 18, 14)
-    counts = [sum(k * duration <= e.first_timestamp_s < (k + 1) * duration for e in events) for k in range(3)]
+    # same video, though not the same tracks (MOG2's model carries over).  Counted: the vehicles seen for 0.5 s or
+    # more — the tracks the end of the stream cut are reported however short (measured 7, 9, 9; before stop 47,
+    # when tracks seen for an instant were reported too, 15, 18, 14)
+    counts = [sum(k * duration <= e.first_timestamp_s < (k + 1) * duration
+                  and e.last_timestamp_s - e.first_timestamp_s >= 0.5 for e in events) for k in range(3)]
     assert max(e.last_timestamp_s for e in events) > 2.5 * duration
     assert min(counts) >= 0.6 * max(counts) and min(counts) >= 5, counts
     assert (tmp_path / "soak" / "system.json").stat().st_size > 0 and (tmp_path / "soak" / "intervals.csv").exists()
