@@ -203,3 +203,46 @@ def draw_calibration(image: np.ndarray, camera: Camera, spacing_m: float = 3.0, 
         if seg is not None:
             draw_segments(image, seg[None], HORIZON_BGR, thickness + 1)
     return image
+
+
+LANE_BGR = ((0, 200, 255), (255, 160, 0), (80, 220, 80), (200, 80, 255), (0, 90, 255), (255, 255, 0),
+            (160, 160, 255), (255, 80, 160))
+"""Colours of lanes 0, 1, ... (repeating); vehicles without a lane are drawn grey."""
+NO_LANE_BGR = (150, 150, 150)
+
+
+def lane_bgr(lane: int | None) -> tuple[int, int, int]:
+    return NO_LANE_BGR if lane is None else LANE_BGR[lane % len(LANE_BGR)]
+
+
+def draw_lane_paths(image: np.ndarray, paths: list[tuple[int | None, np.ndarray]], thickness: int = 1) -> np.ndarray:
+    """Draw each vehicle's reference points (``(lane, (N, 2) pixels)``) as a line in its lane's colour, and name
+    each lane ("lane 2") where its vehicles came nearest to the camera (the lowest points, the labels kept apart):
+    which lane number is where, for the report's per-lane counts.  In place; returns the image."""
+    h, w = image.shape[:2]
+    nearest: dict[int, list[np.ndarray]] = {}
+    for lane, pts in paths:
+        p = np.asarray(pts, np.float64).reshape(-1, 2)
+        p = p[np.all(np.isfinite(p), axis=1)]
+        if len(p) < 2:
+            continue
+        cv2.polylines(image, [np.round(p).astype(np.int32)], False, lane_bgr(lane), thickness, cv2.LINE_AA)
+        if lane is not None:
+            nearest.setdefault(lane, []).append(p[np.argmax(p[:, 1])])
+    scale = max(0.4, h / 900)
+    font, weight = cv2.FONT_HERSHEY_SIMPLEX, max(1, int(round(scale * 2)))
+    placed: list[tuple[int, int, int, int]] = []
+    for lane in sorted(nearest, key=lambda k: -float(np.median(np.array(nearest[k])[:, 1]))):
+        x, y = np.median(np.array(nearest[lane]), axis=0)
+        text = f"lane {lane}"
+        (tw, th), base = cv2.getTextSize(text, font, scale, weight)
+        x0 = int(np.clip(x - tw / 2, 2, w - tw - 2))
+        y0 = int(np.clip(y + th + 6, th + 2, h - base - 2))
+        while any(x0 < bx1 and bx0 < x0 + tw and y0 - th < by1 and by0 < y0 + base for bx0, by0, bx1, by1 in placed):
+            y0 -= th + base + 4  # above the label already there
+        if y0 - th < 0:
+            continue
+        cv2.rectangle(image, (x0 - 2, y0 - th - 2), (x0 + tw + 2, y0 + base), (0, 0, 0), -1)
+        cv2.putText(image, text, (x0, y0), font, scale, lane_bgr(lane), weight, cv2.LINE_AA)
+        placed.append((x0 - 2, y0 - th - 2, x0 + tw + 2, y0 + base))
+    return image

@@ -22,7 +22,7 @@ import cv2
 import numpy as np
 
 from .calibration import Calibration
-from .drawing import draw_calibration
+from .drawing import draw_calibration, draw_lane_paths
 from .errors import InputError
 from .fileio import atomic_write_text
 from .geometry import Camera
@@ -110,6 +110,31 @@ def calibration_picture(calibration: Calibration | None, frame: np.ndarray | Non
         cam = Camera(c.vp1 * s, c.vp2 * s, c.pp * s, c.scale)
         draw_calibration(img, cam, grid_spacing_m, max(1, img.shape[0] // 700))
     return img
+
+
+def measured_paths(cars: Sequence, events: Sequence[VehicleEvent]) -> list[tuple[int | None, np.ndarray]]:
+    """(lane, reference points in pixels) of every measured vehicle: the BrnoCompSpeed results' cars
+    (``brnocompspeed.Track``) with the lanes of their events, for :func:`lanes_picture`."""
+    lanes = {e.id: e.lane for e in events if e.measured}
+    return [(lanes[c.id], c.pos) for c in cars if c.id in lanes]
+
+
+def lanes_picture(frame: np.ndarray | None, image_size: tuple[int, int] | None,
+                  paths: Sequence[tuple[int | None, np.ndarray]], max_width: int = 1100) -> np.ndarray | None:
+    """The frame, dimmed, with each measured vehicle's reference points coloured by its lane and the lanes named
+    (:func:`~gst_trafficcal.drawing.draw_lane_paths`); None without paths or anything to draw them on."""
+    if not paths or (frame is None and image_size is None):
+        return None
+    if frame is None:
+        frame = np.full((image_size[1], image_size[0], 3), 90, np.uint8)
+    img = frame if frame.ndim == 3 else cv2.cvtColor(frame, cv2.COLOR_GRAY2BGR)
+    s = min(1.0, max_width / img.shape[1])
+    size = (int(round(img.shape[1] * s)), int(round(img.shape[0] * s)))
+    img = (cv2.resize(img, size, interpolation=cv2.INTER_AREA) if s < 1.0 else img.copy()) // 2  # dimmed
+    if image_size is not None:  # the paths are in the calibration's (the video's) pixels
+        s = img.shape[1] / image_size[0]
+    return draw_lane_paths(img, [(lane, np.asarray(p, np.float64) * s) for lane, p in paths],
+                           max(1, img.shape[0] // 500))
 
 
 def _plt():
@@ -319,7 +344,8 @@ def not_counted_text(brief: int, stationary: int) -> str:
 
 
 def _vehicles_section(events: Sequence[VehicleEvent], limit_kmh: SpeedLimit = SpeedLimit(),
-                      remeasured: tuple[int, int] = (0, 0), not_counted: tuple[int, int] = (0, 0)) -> str:
+                      remeasured: tuple[int, int] = (0, 0), not_counted: tuple[int, int] = (0, 0),
+                      lanes_fig: str = "") -> str:
     out = ["<h2>Vehicles</h2>"]
     measured = [e for e in events if e.measured]
     speeds = np.array([e.speed_kmh for e in measured], float)
@@ -355,9 +381,9 @@ def _vehicles_section(events: Sequence[VehicleEvent], limit_kmh: SpeedLimit = Sp
         row = ["unknown" if lane is None else f"lane {lane}", _direction_label(d), lanes[lane, d],
                lane_meas[lane, d], _num(st.mean), _num(st.v85)]
         lane_rows.append(row + ([st.over_limit] if limit_kmh else []))
-    tables.append("<h3>Per lane</h3>" + _table(["lane", "direction", "vehicles", "measured", "mean speed [km/h]",
-                                                "V85 [km/h]"]
-                                               + ([f"over {limit_kmh.describe()}"] if limit_kmh else []), lane_rows))
+    lane_header = ["lane", "direction", "vehicles", "measured", "mean speed [km/h]", "V85 [km/h]"]
+    tables.append("<h3>Per lane</h3>" + _table(
+        lane_header + ([f"over {limit_kmh.describe()}"] if limit_kmh else []), lane_rows))
     classes = Counter(e.label or "unknown" for e in events)
     class_rows = []
     for label, n in classes.most_common():
@@ -382,6 +408,8 @@ def _vehicles_section(events: Sequence[VehicleEvent], limit_kmh: SpeedLimit = Sp
         tables.append("<h3>Not measured</h3>" + _table(["reason", "vehicles"], reasons))
     blocks.append("<div>" + "".join(tables) + "</div>")
     out.append('<div class="grid">' + "".join(blocks) + "</div>")
+    if lanes_fig:
+        out.append(lanes_fig)
     listed = events[:MAX_LISTED]
     dated = any(e.first_time for e in listed)
     several = len(runs) > 1
@@ -487,6 +515,7 @@ class ReportInputs:
     covered: Sequence[tuple[float, float]] | None = None  # stream time (s) the video spans: every interval it reaches
     remeasured: tuple[int, int] = (0, 0)  # vehicles measured again at the end with the final calibration (with speed)
     not_counted: tuple[int, int] = (0, 0)  # tracks that were no vehicle passing: (brief, stationary)
+    paths: Sequence[tuple[int | None, np.ndarray]] = ()  # (lane, reference points in pixels) of measured vehicles
 
 
 def render_report(inputs: ReportInputs) -> str:
@@ -498,7 +527,14 @@ def render_report(inputs: ReportInputs) -> str:
     parts.append(f'<p class="muted">{_esc(_run_line(inputs))}</p>')
     parts.append(_calibration_section(inputs.calibration, inputs.frame, inputs.grid_spacing_m))
     limit = as_limit(inputs.speed_limit_kmh)
-    parts.append(_vehicles_section(list(inputs.events), limit, inputs.remeasured, inputs.not_counted))
+    size = inputs.calibration.image_size if inputs.calibration is not None else None
+    lanes = lanes_picture(inputs.frame, size, inputs.paths)
+    lanes_fig = ("" if lanes is None else
+                 f"<figure>{_img(png_data_uri(lanes), 'where the lanes are')}<figcaption>Where the lanes are: each "
+                 "measured vehicle's reference points (the middle of its box's bottom front edge), in the colour of "
+                 "the lane it is counted in (grey: none), each lane named where its vehicles came nearest."
+                 "</figcaption></figure>")
+    parts.append(_vehicles_section(list(inputs.events), limit, inputs.remeasured, inputs.not_counted, lanes_fig))
     parts.append(_intervals_section(list(inputs.events), inputs.interval_s, inputs.start_time, limit,
                                     inputs.covered))
     if inputs.evaluation is not None:

@@ -63,6 +63,7 @@ def test_demo_with_the_manual_baseline_writes_every_output(tmp_path):
     cap.release()
     assert ok and frame.shape[:2] == (240, 320) and frames >= 90  # 8 s at 12.5 fps
     assert "data:image/png;base64," in (out / "report.html").read_text()
+    assert 'alt="where the lanes are"' in (out / "report.html").read_text()  # the lanes the counts are of
     assert "Against the ground truth" in proc.stdout
     assert "vehicle classes right" in proc.stdout  # the labels by size, against the render's classes
     auto = load_calibration(out / "calibration_auto.json")

@@ -112,3 +112,30 @@ def test_draw_calibration_blends_the_grid_with_opacity() -> None:
     d_half = np.abs(half.astype(int) - 128)
     assert d_full.max() > 100 and not (d_half > 0)[d_full == 0].any()
     assert np.all(np.abs(d_half - 0.5 * d_full) <= 1.0)
+
+
+def test_lane_paths_are_drawn_in_their_lanes_colours_and_named() -> None:
+    """Each vehicle's reference points in its lane's colour (grey without a lane); each lane named below where its
+    vehicles came nearest; two lanes ending side by side get labels that do not overlap; a path of one point or of
+    NaNs draws nothing."""
+    from gst_trafficcal.drawing import NO_LANE_BGR, draw_lane_paths, lane_bgr
+
+    img = np.zeros((360, 640, 3), np.uint8)
+    paths = [(0, np.array([[100.0, 50.0], [100.0, 200.0]])), (0, np.array([[104.0, 60.0], [104.0, 210.0]])),
+             (1, np.array([[130.0, 50.0], [130.0, 200.0]])), (None, np.array([[500.0, 50.0], [500.0, 300.0]])),
+             (2, np.array([[300.0, 100.0]])), (3, np.full((4, 2), np.nan))]
+    draw_lane_paths(img, paths)
+
+    def near(bgr, rows, cols=slice(None)):  # pixels of about that colour (lines and text are anti-aliased)
+        return np.argwhere(np.abs(img[rows, cols].astype(int) - bgr).max(axis=-1) < 40)
+
+    assert near(lane_bgr(0), slice(120, 121), slice(99, 102)).size
+    assert near(lane_bgr(1), slice(120, 121), slice(129, 132)).size
+    assert near(NO_LANE_BGR, slice(120, 121), slice(499, 502)).size and lane_bgr(0) != lane_bgr(1)
+    # the labels, off the paths' own columns: lane 0's under its lowest end (y 210), lane 1's — which would
+    # overlap it there — moved above it
+    zero = [(y, x) for y, x in near(lane_bgr(0), slice(None)) if y > 211]
+    one = [(y, x) for y, x in near(lane_bgr(1), slice(None)) if not 128 <= x <= 132]
+    assert len(zero) > 10 and len(one) > 10
+    assert max(y for y, _ in one) < min(y for y, _ in zero)
+    assert not near(lane_bgr(2), slice(None)).size and not near(lane_bgr(3), slice(None)).size

@@ -174,6 +174,31 @@ def test_report_without_ground_truth() -> None:
     assert not [a for tag, a in page.attrs if a.get("class") == "warn"]
 
 
+def test_report_shows_where_the_lanes_are() -> None:
+    """With the measured vehicles' reference points: a picture of the frame, dimmed, with each vehicle's points in
+    its lane's colour and the lanes named — placed after the per-lane counts it explains; none without points."""
+    from gst_trafficcal.drawing import NO_LANE_BGR, lane_bgr
+
+    frame = np.full((H, W, 3), 100, np.uint8)
+    events = _events()
+    x0 = {0: 100.0, 1: 160.0, None: 400.0}
+    paths = [(e.lane, np.array([[x0[e.lane], 80.0], [x0[e.lane] + 20, 300.0]])) for e in events if e.measured]
+    page = _parse(render_report(ReportInputs(events, _calibration(), frame, paths=paths)))
+    alts = [a.get("alt") for tag, a in page.attrs if tag == "img"]
+    pic = _decode(page.images[alts.index("where the lanes are")])
+    assert pic.shape == (H, W, 3) and pic[5, 5].tolist() == [50, 50, 50]  # the frame, dimmed
+    for lane, x in ((0, 110), (1, 170)):  # the middle of each lane's line: its brightest pixel is of its colour
+        window = pic[190, x - 3:x + 4].astype(int)
+        px = window[np.argmax(window.sum(axis=1))]
+        others = [lane_bgr(1 - lane), NO_LANE_BGR]  # the other colours in the picture
+        assert all(np.linalg.norm(px - lane_bgr(lane)) < np.linalg.norm(px - c) for c in others), (lane, px)
+    text = "".join(page.text)
+    assert "Where the lanes are: each measured vehicle's reference points" in text
+    assert text.index("Per lane") < text.index("Where the lanes are")
+    bare = _parse(render_report(ReportInputs(events, _calibration(), frame)))
+    assert "where the lanes are" not in [a.get("alt") for tag, a in bare.attrs if tag == "img"]
+
+
 def test_report_warns_about_a_view_along_the_road() -> None:
     """A camera looking along the road (pan 4°): VP2 far away, the speeds poorly pinned down — said in the table
     and in a paragraph that says what to do."""
@@ -377,7 +402,9 @@ def test_cli_report_with_ground_truth(tmp_path: Path) -> None:
                str(tmp_path / "r.html"))
     assert out.returncode == 0, out.stderr
     page = _parse((tmp_path / "r.html").read_text(encoding="utf-8"))
-    assert "Evaluation against the ground truth" in page.headings and len(page.images) == 4
+    assert "Evaluation against the ground truth" in page.headings and len(page.images) == 5
+    alts = [a.get("alt") for tag, a in page.attrs if tag == "img"]
+    assert "where the lanes are" in alts  # the results' reference points (these events name no lanes: grey)
     gt = load_gt_data(rec / "gt_data.pkl")
     cal = Calibration.from_brno_block(res.calibration.to_dict())
     ev = evaluate(gt, cal.camera, res)

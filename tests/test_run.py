@@ -89,6 +89,7 @@ def test_run_writes_every_output(clip, with_truth):
     report = (out / "report.html").read_text()
     assert report.count("data:image/png;base64,") >= 3  # calibration picture, histogram, cumulative errors
     assert "Per lane" in report and "gt_data.pkl" in report
+    assert report.count("data:image/png;base64,") >= 4 and 'alt="where the lanes are"' in report  # lanes pictured
     assert "measuring" in proc.stdout and "Against gt_data.pkl" in proc.stdout
     assert not [ln for ln in user_lines(proc.stderr) if "warning" in ln], proc.stderr
     cond = load_calibration(out / "calibration.json").conditioning()  # how firmly the view pins the speeds down

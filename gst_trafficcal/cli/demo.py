@@ -60,7 +60,7 @@ def command(out_dir: Path, preset: str, duration: float, seed: int, calibration_
     from ..synth.generate import generate
     from ..synth.truth_match import match_measured
     from ..vanishing.calibrator import CalibratorConfig, calibrate_video
-    from .run import RunPaths, first_frame, measure_video, pipeline_description, print_remeasured
+    from .run import RunPaths, first_frame, lane_paths, measure_video, pipeline_description, print_remeasured
 
     console = Console()
     check_detector(detector)  # before the render
@@ -175,7 +175,8 @@ def command(out_dir: Path, preset: str, duration: float, seed: int, calibration_
         events=events, calibration=calibration, frame=first_frame(video), evaluation=ev,
         ground_truth_name=str(scene_dir / "gt_data.pkl"), title=f"gst-trafficcal demo: {preset}",
         source=str(video), covered=[(0.0, measured.watched_s)] if measured.watched_s else None,
-        remeasured=(measured.remeasured, measured.remeasured_speeds), not_counted=measured.not_counted))
+        remeasured=(measured.remeasured, measured.remeasured_speeds), not_counted=measured.not_counted,
+        paths=lane_paths(out_dir / "system.json", events)))
     wrote = ["overlay.mp4", "report.html", "vehicles.jsonl", "vehicles.csv", "system.json"]
     wrote += ["evaluation.json"] if ev is not None else []
     wrote += ["speed_errors.png"] if errors.size else []

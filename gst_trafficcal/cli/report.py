@@ -55,7 +55,8 @@ def _frame(image: Path | None, video: Path | None, at_s: float):
 @click.option("--frame-time", default=0.0, show_default=True, help="Seconds into --video of that frame.")
 @click.option("--gt", "gt_path", type=click.Path(path_type=Path), help="Ground truth gt_data.pkl.")
 @click.option("--results", "results_path", type=click.Path(path_type=Path),
-              help="BrnoCompSpeed results JSON of the run (system.json); needed with --gt for speed errors.")
+              help="BrnoCompSpeed results JSON of the run (system.json): the picture of the lanes; needed with "
+                   "--gt for speed errors.")
 @click.option("--title", default="gst-trafficcal report", show_default=True, help="Page title.")
 @click.option("--speed-limit", default="", metavar="KMH[,CLASS=KMH...]",
               help="Posted speed limit in km/h, and classes with limits of their own (e.g. 80,truck=60,bus=60): "
@@ -72,7 +73,7 @@ def command(events_path: Path, calibration_path: Path | None, frame_path: Path |
     from ..brnocompspeed import load_gt_data, load_results
     from ..calibration import Calibration, load_calibration
     from ..outputs import on_one_clock, read_events
-    from ..report import ReportInputs, write_report
+    from ..report import ReportInputs, measured_paths, write_report
     from ..traffic_stats import interval_rows, parse_speed_limit, write_intervals_csv
 
     limit = parse_speed_limit(speed_limit, "--speed-limit")
@@ -97,7 +98,7 @@ def command(events_path: Path, calibration_path: Path | None, frame_path: Path |
     path = write_report(out_path, ReportInputs(
         events, cal, frame, evaluation, ground_truth_name=str(gt_path or ""), title=title,
         source=str(video_path or ""), speed_limit_kmh=limit, interval_s=60 * interval_min,
-        start_time=start))
+        start_time=start, paths=measured_paths(results.cars, events) if results is not None else ()))
     skipped = f" ({log.skipped} broken line(s) skipped)" if log.skipped else ""
     click.echo(f"{path}: {len(log.events)} vehicles{skipped}")
     if intervals_path is not None:

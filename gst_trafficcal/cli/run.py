@@ -456,6 +456,18 @@ def _same(a: Path, b: Path) -> bool:
         return False
 
 
+def lane_paths(results_path: Path, events: list) -> list:
+    """(lane, reference points in pixels) of every measured vehicle in the BrnoCompSpeed results file, for the
+    report's picture of the lanes; none when the file cannot be read."""
+    from ..brnocompspeed import load_results
+    from ..report import measured_paths
+
+    try:
+        return measured_paths(load_results(results_path).cars, events)
+    except (OSError, ValueError, InputError):
+        return []
+
+
 def first_frame(video: Path | str):
     """A BGR frame from the video or stream (for the calibration picture), or None (a stream that is gone gives
     up within seconds).  A file OpenCV's FFmpeg refuses (a truncated MP4 that GStreamer still plays) is read
@@ -921,7 +933,8 @@ def run_one(console, video: Path | str, out_dir: Path, calibration_path: Path | 
             source=shown_source(video),
             speed_limit_kmh=speed_limit, interval_s=60 * interval_min, start_time=start,
             covered=[(0.0, summary.watched_s)] if summary.watched_s else None,
-            remeasured=(summary.remeasured, summary.remeasured_speeds), not_counted=summary.not_counted))
+            remeasured=(summary.remeasured, summary.remeasured_speeds), not_counted=summary.not_counted,
+            paths=lane_paths(paths.results, summary.events)))
     except InputError as exc:
         summary.errors.append(str(exc))
     written = [n for n in OUTPUTS if (out_dir / n).exists()]
