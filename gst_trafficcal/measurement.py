@@ -208,7 +208,9 @@ class SpeedMeter:
         self.discarded = 0  # such tracks never seen after the notice: not reported
         self.min_seen_s, self.min_passing_m = float(min_seen_s), float(min_passing_m)
         self.not_counted: Counter[str] = Counter()  # unmeasured tracks that were no vehicle passing (BRIEF, STATIONARY)
-        self.not_counted_ids: list[int] = []  # their track ids (and of the tracks stitched into them), for the caller
+        # their track ids (and of the tracks stitched into them), and of the discarded ones, until the caller takes
+        # them (take_not_counted_ids; the element does at every frame)
+        self.not_counted_ids: list[int] = []
         # keep_measured: every vehicle measured (its reference points and size, _Kept: about 4 kB), with the calibration
         # it was measured with, for remeasure() (a file's early vehicles measured again with the one it ends with)
         self.keep_measured = bool(keep_measured)
@@ -320,6 +322,7 @@ class SpeedMeter:
             noticed = self._blind.pop(rec.id, None)
             if noticed is not None and rec.last_t <= noticed:  # seen only between a camera move and its notice
                 self.discarded += 1
+                self.not_counted_ids += rec.merged + [rec.id]
                 continue
             if self.can_measure and self.stitch_gap > 0 and self._stitch(rec):
                 continue  # continued by a later track of the same vehicle: measured with it
@@ -534,21 +537,23 @@ class SpeedMeter:
         vehicle passing; counted in :attr:`not_counted` by reason."""
         moved = None
         cam = self.camera
-        if len(px) >= 2 and cam is not None and cam.scale is not None:
+        seen_s = rec.observations[-1].t - rec.observations[0].t
+        if len(px) >= 2 and cam is not None and cam.scale is not None and seen_s >= self.min_seen_s:
             # metres along the road between where it was in its first and its last quarter (medians): a parked
-            # car's point jumps by its length when its front is not known, and back
-            along = cam.to_world(px)[:, 0] * cam.scale
+            # car's point jumps by its length when its front is not known, and back.  Only for a track seen long
+            # enough to tell (a vehicle the end of the stream cut after a moment has not gone far yet)
+            along = cam.to_world(px)[:, 0]
             q = max(1, len(along) // 4)
             moved = float(abs(np.median(along[-q:]) - np.median(along[:q])))
-        seen_s = np.inf if rec.cut else rec.observations[-1].t - rec.observations[0].t
-        why = not_a_vehicle(seen_s, moved, self.min_seen_s, self.min_passing_m)
+        why = not_a_vehicle(np.inf if rec.cut else seen_s, moved, self.min_seen_s, self.min_passing_m)
         if why:
             self.not_counted[why] += 1
             self.not_counted_ids += rec.merged + [rec.id]
         return bool(why)
 
     def take_not_counted_ids(self) -> list[int]:
-        """The track ids found to be no vehicle since the last call (a counter downstream takes them out)."""
+        """The track ids found to be no vehicle since the last call (not counted, discarded after a camera move):
+        a counter downstream takes them out."""
         ids, self.not_counted_ids = self.not_counted_ids, []
         return ids
 

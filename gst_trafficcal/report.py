@@ -90,20 +90,27 @@ def horizon_in_view(camera: Camera, image_size: tuple[int, int]) -> bool:
     return bool(side.min() <= 0.0 <= side.max())
 
 
+def _picture_base(frame: np.ndarray | None, image_size: tuple[int, int] | None,
+                  max_width: int) -> np.ndarray | None:
+    """A BGR copy of ``frame`` (or a grey canvas of ``image_size``) at most ``max_width`` wide, to draw on:
+    shrunk first, so that thin lines stay thin; None with neither."""
+    if frame is None:
+        if image_size is None:
+            return None
+        frame = np.full((image_size[1], image_size[0], 3), 90, np.uint8)
+    img = frame if frame.ndim == 3 else cv2.cvtColor(frame, cv2.COLOR_GRAY2BGR)
+    scale = min(1.0, max_width / img.shape[1])
+    if scale < 1.0:
+        return cv2.resize(img, (max_width, int(round(img.shape[0] * scale))), interpolation=cv2.INTER_AREA)
+    return img.copy()
+
+
 def calibration_picture(calibration: Calibration | None, frame: np.ndarray | None,
                         grid_spacing_m: float = 3.0, max_width: int = 1100) -> np.ndarray | None:
     """The frame (or a grey canvas of the calibration's image size) with the road grid and horizon."""
-    if frame is None:
-        if calibration is None:
-            return None
-        w, h = calibration.image_size
-        frame = np.full((h, w, 3), 90, np.uint8)
-    img = frame if frame.ndim == 3 else cv2.cvtColor(frame, cv2.COLOR_GRAY2BGR)
-    scale = min(1.0, max_width / img.shape[1])
-    if scale < 1.0:  # shrink first, then draw: thin lines stay thin
-        img = cv2.resize(img, (max_width, int(round(img.shape[0] * scale))), interpolation=cv2.INTER_AREA)
-    else:
-        img = img.copy()
+    img = _picture_base(frame, calibration.image_size if calibration is not None else None, max_width)
+    if img is None:
+        return None
     if calibration is not None and calibration.camera is not None:
         s = img.shape[1] / calibration.image_size[0]  # calibration pixels -> picture pixels
         c = calibration.camera
@@ -114,8 +121,10 @@ def calibration_picture(calibration: Calibration | None, frame: np.ndarray | Non
 
 def measured_paths(cars: Sequence, events: Sequence[VehicleEvent]) -> list[tuple[int | None, np.ndarray]]:
     """(lane, reference points in pixels) of every measured vehicle: the BrnoCompSpeed results' cars
-    (``brnocompspeed.Track``) with the lanes of their events, for :func:`lanes_picture`."""
-    lanes = {e.id: e.lane for e in events if e.measured}
+    (``brnocompspeed.Track``) with the lanes of their events, for :func:`lanes_picture`.  Of an events file that
+    several runs appended to (their track ids start again), the last run's: the results file is the last run's."""
+    last_run = events[-1].run if events else None
+    lanes = {e.id: e.lane for e in events if e.measured and e.run == last_run}
     return [(lanes[c.id], c.pos) for c in cars if c.id in lanes]
 
 
@@ -123,16 +132,12 @@ def lanes_picture(frame: np.ndarray | None, image_size: tuple[int, int] | None,
                   paths: Sequence[tuple[int | None, np.ndarray]], max_width: int = 1100) -> np.ndarray | None:
     """The frame, dimmed, with each measured vehicle's reference points coloured by its lane and the lanes named
     (:func:`~gst_trafficcal.drawing.draw_lane_paths`); None without paths or anything to draw them on."""
-    if not paths or (frame is None and image_size is None):
+    img = _picture_base(frame, image_size, max_width) if paths else None
+    if img is None:
         return None
-    if frame is None:
-        frame = np.full((image_size[1], image_size[0], 3), 90, np.uint8)
-    img = frame if frame.ndim == 3 else cv2.cvtColor(frame, cv2.COLOR_GRAY2BGR)
-    s = min(1.0, max_width / img.shape[1])
-    size = (int(round(img.shape[1] * s)), int(round(img.shape[0] * s)))
-    img = (cv2.resize(img, size, interpolation=cv2.INTER_AREA) if s < 1.0 else img.copy()) // 2  # dimmed
-    if image_size is not None:  # the paths are in the calibration's (the video's) pixels
-        s = img.shape[1] / image_size[0]
+    img //= 2  # dimmed
+    # the paths are in the video's pixels: the calibration's image size, or the frame's
+    s = img.shape[1] / (image_size[0] if image_size is not None else frame.shape[1])
     return draw_lane_paths(img, [(lane, np.asarray(p, np.float64) * s) for lane, p in paths],
                            max(1, img.shape[0] // 500))
 

@@ -541,10 +541,11 @@ def test_tracks_seen_only_between_a_move_and_its_notice_are_not_vehicles(scene, 
 
 def test_tracks_that_are_no_vehicle_passing_are_not_reported(scene, truth):
     """Beside the simulated traffic: a piece of a vehicle tracked under an id of its own for 0.2 s, a parked
-    car (one vehicle's box held still for 6 s, its track on a passing vehicle for 0.6 s of them) and a second
-    track on a vehicle starting in the last 0.4 s.  The piece and the parked car are no vehicles passing — not
-    reported, counted by reason, their ids handed out once —; the track the end of the stream cut short is still a
-    vehicle, as is every simulated one."""
+    car (one vehicle's box held still for 6 s, its track on a passing vehicle for 0.6 s of them), a box creeping
+    1.5 m along the road in 2 s, one going 6 m, and a second track on a vehicle starting in the last 0.4 s.  The
+    piece, the parked car and the 1.5 m one are no vehicles passing — not reported, counted by reason, their ids
+    handed out once —; the 6 m one and the track the end of the stream cut short are vehicles, as is every
+    simulated one."""
     from gst_trafficcal.measurement import BRIEF, STATIONARY, not_a_vehicle
 
     meter = SpeedMeter(calibration=cal_of(scene.camera))
@@ -559,15 +560,21 @@ def test_tracks_that_are_no_vehicle_passing_are_not_reported(scene, truth):
         if 8.0 <= f.t < 14.0:  # parked; for 0.6 s its track is on a vehicle passing it (merged with it)
             s = ss[0] if 10.0 <= f.t < 10.6 and ss else still
             ss.append(Sighting(70_002, "car", f.t, s.box, 0.9, corners_px=s.corners_px, hull=s.hull))
+        for vid, metres in ((70_004, 1.5), (70_005, 6.0)):  # creeping along the road for 2 s
+            if 15.0 <= f.t < 17.0:
+                X = scene.camera.to_world(still.corners_px[:4])
+                X[:, 0] += metres * (f.t - 15.0) / 2.0
+                corners = np.vstack([scene.camera.world_to_image(X), still.corners_px[4:]])
+                ss.append(Sighting(vid, "car", f.t, still.box, 0.9, corners_px=corners))
         if f.t > end - 0.4 and ss:  # a second track on the first vehicle in view, cut by the end
             s = ss[0]
             ss.append(Sighting(70_003, s.label, s.t, s.box, s.confidence, corners_px=s.corners_px, hull=s.hull))
         out += meter.update(f.t, ss).finished
     out += meter.flush()
     ids = [m.event.id for m in out]
-    assert sorted(ids) == sorted([*truth, 70_003])
-    assert meter.not_counted == {BRIEF: 1, STATIONARY: 1}
-    assert sorted(meter.take_not_counted_ids()) == [70_001, 70_002] and meter.take_not_counted_ids() == []
+    assert sorted(ids) == sorted([*truth, 70_003, 70_005])
+    assert meter.not_counted == {BRIEF: 1, STATIONARY: 2}
+    assert sorted(meter.take_not_counted_ids()) == [70_001, 70_002, 70_004] and meter.take_not_counted_ids() == []
     assert not_a_vehicle(0.4, None) == BRIEF and not_a_vehicle(2.0, 2.9) == STATIONARY
     assert not_a_vehicle(0.5, None) == not_a_vehicle(2.0, 3.0) == ""
 

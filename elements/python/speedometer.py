@@ -119,12 +119,13 @@ class Speedometer(TrafficcalTransform):
                         "unmeasured with the reason (a live camera that never calibrates stays bounded in memory and "
                         "its vehicles reach the files)", 1, 1000000, 2000, _RW),
         "min-seen": (float, "Minimum time seen", "Seconds a track left without a speed must have been seen to be "
-                     "reported and counted as a vehicle (shorter: a piece of a vehicle, a detector's flicker; a "
-                     "track cut by the end of the stream is always reported; 0: every track)", 0.0, 3600.0, 0.5,
-                     _RW),
-        "min-moved": (float, "Minimum distance moved", "Metres along the road a track left without a speed must "
-                      "have moved to be reported and counted as a vehicle (less: a parked vehicle, a fixed object "
-                      "taken for one; 0: every track)", 0.0, 1000.0, 3.0, _RW),
+                     "reported and counted as a vehicle (shorter: a piece of a vehicle, a detector's flicker; not "
+                     "for a track the end of the stream or a camera move cut short; 0: no such rule)", 0.0, 3600.0,
+                     0.5, _RW),
+        "min-moved": (float, "Minimum distance moved", "Metres along the road a track left without a speed and "
+                      "seen for min-seen or longer must have moved to be reported and counted as a vehicle (less: "
+                      "a parked vehicle, a fixed object taken for one; 0: no such rule; both 0: every track is "
+                      "reported)", 0.0, 1000.0, 3.0, _RW),
         "vehicle-timeout": (float, "Vehicle timeout", "Seconds without a sighting after which a vehicle has "
                             "left and is reported (0: the tracker's max-lost + 0.4 s; never less than that)", 0.0,
                             3600.0, 0.0, _RW),
@@ -515,14 +516,17 @@ class Speedometer(TrafficcalTransform):
             self._discarded = self._meter.discarded
             self.post_element_message("trafficcal-discarded", {
                 "tracks": self._discarded, "why": "seen only between a camera move and its notice"})
-        if self._meter is not None and dict(self._meter.not_counted) != self._not_counted:
+        if self._meter is not None and self._meter.not_counted_ids:  # the overlay's counters drop them
             from gst_trafficcal.gst.vehicle_event import not_vehicles_event
-            from gst_trafficcal.measurement import BRIEF, STATIONARY
 
             self.srcpad.push_event(not_vehicles_event(self._meter.take_not_counted_ids()))
+        if self._meter is not None and dict(self._meter.not_counted) != self._not_counted:
+            from gst_trafficcal.measurement import BRIEF, STATIONARY
+
             self._not_counted = dict(self._meter.not_counted)
             self.post_element_message("trafficcal-not-counted", {
-                "brief": self._not_counted.get(BRIEF, 0), "stationary": self._not_counted.get(STATIONARY, 0)})
+                "brief": self._not_counted.get(BRIEF, 0), "stationary": self._not_counted.get(STATIONARY, 0),
+                "min_seen_s": self.min_seen, "min_moved_m": self.min_moved})
         ok = True
         for m in finished:
             event = self._stamped(m)
@@ -652,11 +656,7 @@ class Speedometer(TrafficcalTransform):
             return
         self._poster.post(fields)
         self._posted += 1
-        self._warn_posting(self._poster)
-
-    def _warn_posting(self, poster):
-        """A warning when posting to events-url met a problem not reported before."""
-        problem = poster.new_problem()
+        problem = self._poster.new_problem()
         if problem:
             self.post_warning(f"speedometer: cannot post vehicle events: {problem}; retrying with each vehicle, and "
                               "every vehicle is still written to the files")
@@ -667,8 +667,6 @@ class Speedometer(TrafficcalTransform):
         if self._poster is not None:
             poster, self._poster = self._poster, None
             stats = poster.close(timeout=10.0)
-            if report:  # the vehicles all left at the end: the problem shows only now
-                self._warn_posting(poster)
             self.post_element_message("trafficcal-events-url", {
                 "url": poster.shown_url, "events": self._posted, "sent": stats.sent, "failed": stats.failed,
                 "dropped": stats.dropped})

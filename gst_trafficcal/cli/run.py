@@ -934,7 +934,7 @@ def run_one(console, video: Path | str, out_dir: Path, calibration_path: Path | 
             speed_limit_kmh=speed_limit, interval_s=60 * interval_min, start_time=start,
             covered=[(0.0, summary.watched_s)] if summary.watched_s else None,
             remeasured=(summary.remeasured, summary.remeasured_speeds), not_counted=summary.not_counted,
-            paths=lane_paths(paths.results, summary.events)))
+            paths=() if summary.moves else lane_paths(paths.results, summary.events)))  # moved: not on this frame
     except InputError as exc:
         summary.errors.append(str(exc))
     written = [n for n in OUTPUTS if (out_dir / n).exists()]
