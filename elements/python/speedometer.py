@@ -18,8 +18,8 @@ waiting are written unmeasured, with the reason.  When vpdetect says the camera 
 and the scale is found anew for the new view; tracks seen only between the move and its notice are no vehicles
 (a ``trafficcal-discarded`` message counts them).  Nor is a track left unmeasured that was seen for under half a
 second or never moved 3 m along the road (``min-seen``, ``min-moved``; a fragment of a vehicle, a parked car:
-``measurement.not_a_vehicle``; a ``trafficcal-not-counted`` message, fields ``brief`` and ``stationary``, counts
-them): the files and counts hold the vehicles that passed.
+``measurement.not_a_vehicle``; a ``trafficcal-not-counted`` message, fields ``brief`` and ``stationary`` and the
+two thresholds, counts them): the files and counts hold the vehicles that passed.
 
 Output per frame: a ``"speed"`` {speed_kmh, label, model_name, confidence} structure on the ROI of every vehicle
 with a current estimate.  Per vehicle that leaves: a ``trafficcal-speed`` element message (the event's fields, and
