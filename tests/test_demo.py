@@ -3,7 +3,9 @@ the manual baseline, and too short to calibrate."""
 
 from __future__ import annotations
 
+import html
 import json
+import re
 import subprocess
 import sys
 
@@ -43,6 +45,10 @@ def test_demo_measures_fully_automatically_by_default(tmp_path):
     assert evaluation["speed"]["abs_kmh"]["mean"] < 2.0, evaluation["speed"]
     assert (out / "speed_errors.png").is_file() and (out / "overlay.mp4").is_file()
     assert f"{cal.conditioning().vp2_widths:.1f} image widths away" in printed
+    # the tracks not counted as vehicles: printed as the report says (this 30 s scene: 4 seen for an instant)
+    report = " ".join(html.unescape((out / "report.html").read_text()).split())
+    said = re.search(r"Tracks not counted as vehicles: [^<]*\.", report)
+    assert (said.group(0) in printed) if said else ("Tracks not counted" not in printed)
 
 
 def test_demo_with_the_manual_baseline_writes_every_output(tmp_path):

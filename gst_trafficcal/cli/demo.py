@@ -123,6 +123,10 @@ def command(out_dir: Path, preset: str, duration: float, seed: int, calibration_
                       "-> calibration_manual.json (trafficcal demo --calibration manual measures with it)",
                       highlight=False)
         print_remeasured(console, measured.remeasured, indent="  ", speeds=measured.remeasured_speeds)
+    if any(measured.not_counted):
+        from ..report import not_counted_text
+
+        console.print("  " + not_counted_text(*measured.not_counted), highlight=False)
 
     # 4. evaluation -------------------------------------------------------------------------------------------
     events = measured.events
