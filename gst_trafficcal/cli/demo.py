@@ -60,7 +60,8 @@ def command(out_dir: Path, preset: str, duration: float, seed: int, calibration_
     from ..synth.generate import generate
     from ..synth.truth_match import match_measured
     from ..vanishing.calibrator import CalibratorConfig, calibrate_video
-    from .run import RunPaths, first_frame, lane_paths, measure_video, pipeline_description, print_remeasured
+    from .run import (RunPaths, first_frame, lane_paths, measure_video, pipeline_description, print_not_counted,
+                      print_remeasured)
 
     console = Console()
     check_detector(detector)  # before the render
@@ -123,10 +124,7 @@ def command(out_dir: Path, preset: str, duration: float, seed: int, calibration_
                       "-> calibration_manual.json (trafficcal demo --calibration manual measures with it)",
                       highlight=False)
         print_remeasured(console, measured.remeasured, indent="  ", speeds=measured.remeasured_speeds)
-    if any(measured.not_counted):
-        from ..report import not_counted_text
-
-        console.print("  " + not_counted_text(*measured.not_counted), highlight=False)
+    print_not_counted(console, measured.not_counted, indent="  ")
 
     # 4. evaluation -------------------------------------------------------------------------------------------
     events = measured.events

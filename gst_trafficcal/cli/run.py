@@ -532,6 +532,14 @@ def print_moves(console, summary: RunSummary) -> None:
                       highlight=False)
 
 
+def print_not_counted(console, not_counted: tuple[int, int], indent: str = "") -> None:
+    """The line on the tracks speedometer did not count as vehicles ((brief, stationary); nothing when none)."""
+    if any(not_counted):
+        from ..report import not_counted_text
+
+        console.print(indent + not_counted_text(*not_counted), highlight=False)
+
+
 def print_remeasured(console, n: int, events_url: str = "", indent: str = "", speeds: int | None = None) -> None:
     """The line on the vehicles speedometer's ``remeasure`` measured again at the end (nothing when none);
     ``speeds``: how many of them got a speed."""
@@ -908,10 +916,7 @@ def run_one(console, video: Path | str, out_dir: Path, calibration_path: Path | 
     print_moves(console, summary)
     print_remeasured(console, summary.remeasured, events_url, speeds=summary.remeasured_speeds)
     print_vehicles(console, summary.events, speed_limit)
-    if any(summary.not_counted):
-        from ..report import not_counted_text
-
-        console.print(not_counted_text(*summary.not_counted), highlight=False)
+    print_not_counted(console, summary.not_counted)
     for w in summary.warnings:
         console.print(f"[yellow]warning[/]: {w}", highlight=False)
 
