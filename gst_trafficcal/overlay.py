@@ -563,12 +563,126 @@ def wrap_lines(lines: Sequence[str], max_width: float, scale: float, thickness: 
     return out
 
 
+def mark_extent(mark: VehicleMark) -> tuple[float, float, float, float]:
+    """The pixel box a vehicle covers: its 3D box's extent, or its 2D box."""
+    if mark.corners is not None:
+        c = np.asarray(mark.corners, np.float64).reshape(-1, 2)
+        return float(c[:, 0].min()), float(c[:, 1].min()), float(c[:, 0].max()), float(c[:, 1].max())
+    return tuple(float(v) for v in mark.box)
+
+
+#: where the counters panel and the status line may go; "auto": the corner the traffic leaves freest
+CORNERS = ("top-left", "top-right", "bottom-left", "bottom-right")
+PANEL_POSITIONS = ("auto",) + CORNERS
+_MARGIN = 8  # pixels between the panel and the frame's edges
+
+
+def corner_origin(corner: str, box_size: tuple[float, float], size: tuple[int, int]) -> tuple[float, float]:
+    """Top-left pixel of a ``box_size`` (width, height) box in ``corner`` of a frame of ``size``, 8 px in."""
+    w, h = size
+    x = w - _MARGIN - box_size[0] if corner.endswith("right") else _MARGIN
+    y = h - _MARGIN - box_size[1] if corner.startswith("bottom") else _MARGIN
+    return float(max(0, x)), float(max(0, y))
+
+
+def _other_row(corner: str) -> str:
+    """The corner on the same side at the other edge (the status line's place beside a fixed panel)."""
+    top, side = corner.split("-")
+    return ("bottom" if top == "top" else "top") + "-" + side
+
+
+@dataclass
+class PanelPlacer:
+    """Keeps the counters panel and the status line off the traffic: where the vehicles and their labels have been
+    lately (a coarse grid of the frame, older frames fading out over ``memory_frames``) decides the corner each
+    goes to. Far traffic enters at the horizon, often under the top-left corner, and a panel there hides it.
+
+    A corner is left only when another carries less than ``move_ratio`` of its traffic, it has carried some
+    (``min_cover``: the mean share of its cells covered), and ``min_dwell`` frames have passed since the last move:
+    the panel settles instead of jumping after each vehicle. ``position`` other than "auto" fixes the panel's
+    corner (the status line then takes the other one on the same side)."""
+
+    position: str = "auto"
+    cells: tuple[int, int] = (48, 27)  # columns, rows
+    memory_frames: float = 750.0  # 30 s at 25 fps
+    move_ratio: float = 0.5
+    min_cover: float = 0.02
+    min_dwell: int = 250
+    panel: str = "top-left"
+    status: str = "bottom-left"
+    _heat: np.ndarray | None = field(default=None, repr=False)
+    _weight: float = field(default=0.0, repr=False)  # the decayed number of frames seen (the heat's full scale)
+    _since_move: list[int] = field(default_factory=lambda: [0, 0], repr=False)  # frames: panel, status line
+
+    def __post_init__(self) -> None:
+        if self.position not in PANEL_POSITIONS:
+            raise ValueError(f"panel position {self.position!r} is none of {', '.join(PANEL_POSITIONS)}")
+        if self.position != "auto":
+            self.panel, self.status = self.position, _other_row(self.position)
+
+    def observe(self, regions: np.ndarray, size: tuple[int, int]) -> None:
+        """Add one frame's vehicle regions (N x 4 pixel boxes x0, y0, x1, y1; a box counts the cells it touches)."""
+        nx, ny = self.cells
+        decay = 1.0 - 1.0 / self.memory_frames
+        if self._heat is None:
+            self._heat = np.zeros((ny, nx))
+        self._heat *= decay
+        self._weight = self._weight * decay + 1.0
+        self._since_move = [n + 1 for n in self._since_move]
+        r = np.asarray(regions, np.float64).reshape(-1, 4)
+        if not len(r):
+            return
+        scale = np.array([nx / size[0], ny / size[1]] * 2)
+        c = r * scale
+        x0, y0 = (np.clip(np.floor(c[:, k]), 0, n).astype(int) for k, n in ((0, nx), (1, ny)))
+        x1, y1 = (np.clip(np.ceil(c[:, k]), 0, n).astype(int) for k, n in ((2, nx), (3, ny)))
+        ok = (x1 > x0) & (y1 > y0)
+        diff = np.zeros((ny + 1, nx + 1))  # each box as four corner increments, summed up by two cumsums
+        for ys, xs, v in ((y0, x0, 1), (y0, x1, -1), (y1, x0, -1), (y1, x1, 1)):
+            np.add.at(diff, (ys[ok], xs[ok]), v)
+        self._heat += np.minimum(diff.cumsum(0).cumsum(1)[:ny, :nx], 1.0)
+
+    def _cover(self, corner: str, box_size: tuple[float, float], size: tuple[int, int]) -> float:
+        """Mean share of the frames seen in which the cells under a ``box_size`` box in ``corner`` held traffic."""
+        nx, ny = self.cells
+        x, y = corner_origin(corner, box_size, size)
+        i0, j0 = int(x * nx / size[0]), int(y * ny / size[1])
+        i1 = max(i0 + 1, int(np.ceil((x + box_size[0]) * nx / size[0])))
+        j1 = max(j0 + 1, int(np.ceil((y + box_size[1]) * ny / size[1])))
+        return float(self._heat[j0:j1, i0:i1].mean()) / self._weight
+
+    def _choose(self, current: str, choices: Sequence[str], box_size, size) -> str:
+        cover = {k: self._cover(k, box_size, size) for k in choices}
+        best = min(choices, key=lambda k: cover[k])  # ties: the order of CORNERS
+        here = cover.get(current, np.inf)
+        if current not in cover or (here >= self.min_cover and cover[best] < self.move_ratio * here):
+            return best
+        return current
+
+    def place(self, panel_size: tuple[float, float] | None, status_size: tuple[float, float] | None,
+              size: tuple[int, int]) -> tuple[str, str]:
+        """(panel corner, status corner) for boxes of these sizes (None: not drawn) in a frame of ``size``."""
+        if self.position == "auto" and self._heat is not None:
+            settled = [n >= self.min_dwell for n in self._since_move]
+            panel = self._choose(self.panel, CORNERS, panel_size, size) \
+                if panel_size is not None and settled[0] else self.panel
+            status = self.status
+            if status_size is not None and (settled[1] or status == panel):
+                status = self._choose(status, [k for k in CORNERS if k != panel], status_size, size)
+            for k, (old, new) in enumerate(((self.panel, panel), (self.status, status))):
+                if new != old:
+                    self._since_move[k] = 0
+            self.panel, self.status = panel, status
+        return self.panel, self.status
+
+
 def draw_overlay(canvas: Canvas, marks: Sequence[VehicleMark], camera: Camera | None = None,
                  options: OverlayOptions = OverlayOptions(), counter_lines: Sequence[str] = (),
-                 style: Style = Style(), grid_cache: GridCache | None = None, status: str | None = None) -> None:
+                 style: Style = Style(), grid_cache: GridCache | None = None, status: str | None = None,
+                 placer: PanelPlacer | None = None) -> None:
     """Draw everything ``options`` asks for; vehicles with 3D corners get their 3D box, others their 2D box.
-    ``status`` (:func:`calibration_status`): one line at the bottom left, out of the counters' and the far traffic's
-    way."""
+    ``status`` (:func:`calibration_status`): one line, at the bottom left unless ``placer`` (which sees this frame's
+    vehicles and labels) puts it and the counters panel (top left) in corners the traffic leaves freer."""
     th = options.thickness
     fs = options.font_scale or max(0.35, 0.6 * canvas.size[1] / 720)
     ft = 1 if fs < 1.0 else 2
@@ -602,33 +716,39 @@ def draw_overlay(canvas: Canvas, marks: Sequence[VehicleMark], camera: Camera | 
             cross = np.concatenate([np.stack([r - [d, 0], r + [d, 0]], 1), np.stack([r - [0, d], r + [0, d]], 1)])
             canvas.segments(cross, style.ref_point_bgr, th)
     panel = wrap_lines(counter_lines, 0.5 * canvas.size[0], fs, ft) if options.counters and counter_lines else []
+    panel_size = tuple(np.add(label_size(panel, fs, ft), 2)) if panel else None
+    status_size = tuple(np.add(label_size([status], fs, ft), 2)) if status else None
+    labelled = [(m, lines) for m in marks if (lines := mark_label(m, options))] \
+        if options.labels or options.speeds else []
+    # nearest vehicles (lowest in the picture) first: theirs stay at their boxes, farther ones give way
+    labelled.sort(key=lambda ml: -(np.max(ml[0].corners[:, 1]) if ml[0].corners is not None else ml[0].box[3]))
+    wanted = []
+    for m, lines in labelled:
+        top = np.min(m.corners[:, 1]) if m.corners is not None else m.box[1]
+        left = np.min(m.corners[:, 0]) if m.corners is not None else m.box[0]
+        bw, bh = label_size(lines, fs, ft)
+        wanted.append((left, top - 2 - bh, bw + 1, bh + 1))  # + 1: the even rounding of Canvas.label
+    corners = ("top-left", "bottom-left")
+    if placer is not None:
+        regions = [mark_extent(m) for m in marks] + [(x, y, x + w, y + h) for x, y, w, h in wanted]
+        placer.observe(np.array(regions).reshape(-1, 4), canvas.size)
+        corners = placer.place(panel_size, status_size, canvas.size)
     taken = []  # where the counters panel and the status line will be: labels keep off them
-    if panel:
-        taken.append((8, 8, *np.add(label_size(panel, fs, ft), 2)))
-    if status:
-        sw, sh = np.add(label_size([status], fs, ft), 2)
-        taken.append((8, canvas.size[1] - 8 - sh, sw, sh))
-    if options.labels or options.speeds:
-        labelled = [(m, lines) for m in marks if (lines := mark_label(m, options))]
-        # nearest vehicles (lowest in the picture) first: theirs stay at their boxes, farther ones give way
-        labelled.sort(key=lambda ml: -(np.max(ml[0].corners[:, 1]) if ml[0].corners is not None else ml[0].box[3]))
-        wanted = []
-        for m, lines in labelled:
-            top = np.min(m.corners[:, 1]) if m.corners is not None else m.box[1]
-            left = np.min(m.corners[:, 0]) if m.corners is not None else m.box[0]
-            bw, bh = label_size(lines, fs, ft)
-            wanted.append((left, top - 2 - bh, bw + 1, bh + 1))  # + 1: the even rounding of Canvas.label
+    for size, corner in ((panel_size, corners[0]), (status_size, corners[1])):
+        if size is not None:
+            taken.append((*corner_origin(corner, size, canvas.size), *size))
+    if labelled:
         spots = place_labels(np.array(wanted).reshape(-1, 4), canvas.size, np.array(taken).reshape(-1, 4))
         for (m, lines), (x, y) in zip(labelled, spots):
             bg = style.speeding_bgr if is_over_limit(m.speed_kmh, options.speed_limit_kmh, m.label) \
                 else style.text_bg_bgr
             canvas.label((x, y), lines, fs, ft, style.text_bgr, bg, above=False)
-    if panel:  # last, to stay readable; translucent: the traffic under it shows; at most half the frame wide
-        # (wrap_lines above), so a small frame's many lanes do not cover the road
-        canvas.label((8, 8), panel, fs, ft, style.text_bgr, style.text_bg_bgr, above=False, alpha=style.panel_alpha)
-    if status:
-        canvas.label((8, canvas.size[1] - 8), [status], fs, ft, style.text_bgr, style.text_bg_bgr,
-                     alpha=style.panel_alpha)
+    # last, to stay readable; translucent: the traffic under it shows; the panel at most half the frame wide
+    # (wrap_lines above), so a small frame's many lanes do not cover the road
+    for lines, size, corner in ((panel, panel_size, corners[0]), ([status] if status else [], status_size, corners[1])):
+        if lines:
+            canvas.label(corner_origin(corner, size, canvas.size), lines, fs, ft, style.text_bgr, style.text_bg_bgr,
+                         above=False, alpha=style.panel_alpha)
 
 
 def marks_from_params(box: Sequence[float], label: str, object_id: int | None,

@@ -8,8 +8,8 @@ import pytest
 
 from gst_trafficcal.geometry import Camera, rotation_matrix
 from gst_trafficcal.overlay import (
-    BOX_EDGES, GridCache, OverlayOptions, Style, VehicleCounter, VehicleMark, bgr_to_yuv, calibration_status,
-    canvas_for_bgr, canvas_for_planes, draw_overlay, mark_label, marks_from_params, wrap_lines,
+    BOX_EDGES, GridCache, OverlayOptions, PanelPlacer, Style, VehicleCounter, VehicleMark, bgr_to_yuv,
+    calibration_status, canvas_for_bgr, canvas_for_planes, draw_overlay, mark_label, marks_from_params, wrap_lines,
 )
 from gst_trafficcal.tracking.box3d import EDGES
 from gst_trafficcal.tracking.tracker import Observation, Track, TrackState
@@ -192,6 +192,50 @@ def test_labels_counters_and_toggles() -> None:
                  OverlayOptions(grid=False, horizon=False, boxes=False, labels=False, speeds=False, counters=False),
                  counter_lines=["x"])
     assert (img == GREY).all()
+
+
+def _panel_frames(placer: PanelPlacer, boxes_per_frame, status: str | None = None) -> np.ndarray:
+    """Draw frames with the vehicles of each item of ``boxes_per_frame`` (2D boxes) through ``placer``; the last
+    frame's mask of pixels the panel or the status line darkened (the boxes are drawn in their own colours)."""
+    for boxes in boxes_per_frame:
+        img = np.full((H, W, 3), GREY, np.uint8)
+        marks = [VehicleMark(tuple(b), k + 1, "car") for k, b in enumerate(boxes)]
+        draw_overlay(canvas_for_bgr(img), marks, None, OverlayOptions(boxes=False, labels=False, speeds=False),
+                     ["vehicles: 12", "in view: 1"], status=status, placer=placer)
+    return img.max(axis=2) < 60
+
+
+def test_the_counters_panel_moves_off_the_traffic() -> None:
+    """Vehicles keep passing under the top-left corner (the far traffic of a view along the road): after the first
+    ten seconds the panel goes to the top right, the status line stays at the bottom left, where nothing passes."""
+    placer = PanelPlacer()
+    far = [[(20 + 3 * (i % 30), 5, 70 + 3 * (i % 30), 40)] for i in range(300)]
+    dark = _panel_frames(placer, far[:100], status="calibrating: no speeds yet")
+    assert dark[8:30, 8:60].mean() > 0.3 and not dark[8:30, W - 60:W - 8].any()  # not yet: it settles first
+    dark = _panel_frames(placer, far[100:], status="calibrating: no speeds yet")
+    assert placer.panel == "top-right" and placer.status == "bottom-left"
+    assert dark[8:30, W - 60:W - 8].mean() > 0.3 and not dark[:40, :W // 2].any()
+    assert dark[H - 20:H - 10, 8:60].mean() > 0.3
+
+
+def test_the_counters_panel_stays_put_for_a_vehicle_now_and_then() -> None:
+    """One vehicle under the panel, then an empty road: no reason to move; traffic everywhere alike: none either."""
+    placer = PanelPlacer()
+    dark = _panel_frames(placer, [[(10, 5, 90, 45)]] + [[]] * 400)
+    assert placer.panel == "top-left" and dark[8:30, 8:60].mean() > 0.3
+    everywhere = [[(0, 0, W, H)]] * 400
+    _panel_frames(placer, everywhere)
+    assert placer.panel == "top-left"
+
+
+def test_a_fixed_panel_position_and_a_wrong_one() -> None:
+    placer = PanelPlacer("bottom-right")
+    dark = _panel_frames(placer, [[(200, 150, 300, 230)]] * 300, status="finding the scale: no speeds yet")
+    assert (placer.panel, placer.status) == ("bottom-right", "top-right")  # whatever the traffic
+    assert dark[H - 30:H - 10, W - 60:W - 10].mean() > 0.3 and dark[8:20, W - 60:W - 10].mean() > 0.3
+    assert not dark[:, :W // 3].any()
+    with pytest.raises(ValueError, match="'middle' is none of auto, top-left, top-right, bottom-left, bottom-right"):
+        PanelPlacer("middle")
 
 
 def test_counters_of_many_lanes_wrap_within_half_the_frame() -> None:

@@ -243,6 +243,27 @@ def test_speed_limit_draws_the_faster_vehicle_in_red() -> None:
     assert cars_only[y0:y1 + 1, x0:x1 + 1].sum() > 50 and not cars_only[int(c[1]):int(c[3]) + 1, int(c[0]):int(c[2]) + 1].any()
 
 
+def test_the_counters_panel_keeps_off_the_traffic() -> None:
+    """The panel's corner: fixed by panel-position, or (auto, the default) moved off a corner vehicles keep passing
+    under — 12 s of a car under the top left; a wrong corner name is an error at start naming the property."""
+    def panel(props: str, rois: list[dict], frames: int = 8) -> np.ndarray:
+        out = []
+        run_pipeline(f"{GREY_SRC.replace('num-buffers=8', f'num-buffers={frames}')},format=BGR ! tcroisource "
+                     f"{_rois_prop(rois)} ! trafficoverlay draw-boxes=false draw-labels=false draw-speeds=false "
+                     f"{props} ! appsink name=sink", on_buffer=lambda b, i: out.append(_bgr(b, i)))
+        return out[-1].max(axis=2) < 70  # the panel's translucent dark box
+
+    car = [{"box": [20.0, 5.0, 120.0, 50.0], "label": "car", "object_id": 4}]
+    assert panel("", car)[8:30, 8:60].mean() > 0.3
+    right = panel("panel-position=bottom-right", car)
+    assert right[H - 30:H - 10, W - 60:W - 10].mean() > 0.3 and not right[:, :W // 4].any()
+    assert right[8:20, W - 60:W - 10].mean() > 0.3  # no calibration: the status line, above the panel
+    moved = panel("", car, frames=300)
+    assert moved[8:30, W - 60:W - 10].mean() > 0.3 and not moved[:H // 2, :W // 2].any()
+    with pytest.raises(PipelineError, match=r"trafficoverlay: panel-position 'left' is none of auto, top-left"):
+        run_pipeline(f"{GREY_SRC} ! trafficoverlay panel-position=left ! fakesink")
+
+
 def test_plain_detections_without_ids() -> None:
     """ROIs straight from a detector (no object_id, no trafficcal-vehicle) get their 2D box and label."""
     frames = []

@@ -46,6 +46,9 @@ class TrafficOverlay(TrafficcalTransform):
                         "counters panel (0: none)", 0.0, 1000.0, 0.0, _RW),
         "class-limits": (str, "Class limits", "Classes with speed limits of their own, CLASS=KMH,... (e.g. "
                          "truck=60,bus=60): their vehicles are held to these instead of speed-limit", "", _RW),
+        "panel-position": (str, "Panel position", "Corner of the counters panel: auto (the corner the traffic "
+                           "leaves freest; the status line takes the next freest), top-left, top-right, bottom-left "
+                           "or bottom-right", "auto", _RW),
         "calibration-file": (str, "Calibration file", "Calibration JSON used for the grid until (or unless) a "
                              "calibration event arrives from upstream; empty: none", "", _RW),
     }
@@ -57,7 +60,7 @@ class TrafficOverlay(TrafficcalTransform):
         self._yuv = (0.299, 0.114, False)
 
     def do_start(self):
-        from gst_trafficcal.overlay import GridCache, VehicleCounter
+        from gst_trafficcal.overlay import PANEL_POSITIONS, GridCache, PanelPlacer, VehicleCounter
 
         from gst_trafficcal.errors import InputError
         from gst_trafficcal.traffic_stats import element_limit
@@ -67,6 +70,11 @@ class TrafficOverlay(TrafficcalTransform):
         except InputError as exc:
             self.post_error(f"trafficoverlay: {exc}")
             return False
+        if self.panel_position not in PANEL_POSITIONS:
+            self.post_error(f"trafficoverlay: panel-position {self.panel_position!r} is none of "
+                            f"{', '.join(PANEL_POSITIONS)}")
+            return False
+        self._placer = PanelPlacer(self.panel_position)
         self._counter = VehicleCounter(speed_limit_kmh=self._limit)
         self._grid_cache = GridCache()
         self._untracked = UntrackedWatch("trafficoverlay")
@@ -138,7 +146,7 @@ class TrafficOverlay(TrafficcalTransform):
         with self.planes(buffer, writable=True) as planes:
             canvas = canvas_for_planes(planes, format_name(self.video_info), *self._yuv)
             draw_overlay(canvas, marks, camera, options, counter_lines, grid_cache=self._grid_cache,
-                         status=calibration_status(camera) if self.draw_counters else None)
+                         status=calibration_status(camera) if self.draw_counters else None, placer=self._placer)
             del canvas
         return Gst.FlowReturn.OK
 
