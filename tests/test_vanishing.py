@@ -197,6 +197,30 @@ def test_calibrator_moves_vp1_along_the_lanes_only_when_asked(cuboid_frames):
     assert np.linalg.norm(with_speed.camera.vp1 - cam.vp1) < 1.0
 
 
+def test_calibrator_learns_only_inside_its_zone(cuboid_frames):
+    """A zone over the whole frame changes nothing; over the left half, fewer tracks and edgelets, still both
+    vanishing points; over a corner no vehicle crosses, nothing to learn from, and the reason says where; a zone
+    that covers no pixel of the frame is refused."""
+    from gst_trafficcal.zone import parse_zone
+
+    def run(zone: str):
+        cal = VPCalibrator((W, H), _fast_config(zone=parse_zone(zone)))
+        for i, f in enumerate(cuboid_frames):
+            cal.add(f, i / FPS)
+        return cal.finish(), cal
+
+    (plain, p), (whole, w), (half, h), (corner, c) = (run(z) for z in (
+        "", "0,0 1,0 1,1 0,1", "0,0 0.5,0 0.5,1 0,1", "0,0 40,0 40,30 0,30"))
+    assert whole.state == plain.state == "vps" and (w.n_tracks, w.n_edgelets) == (p.n_tracks, p.n_edgelets)
+    assert np.allclose(whole.camera.vp1, plain.camera.vp1) and np.allclose(whole.camera.vp2, plain.camera.vp2)
+    assert half.state == "vps" and 0 < h.n_tracks < 0.5 * p.n_tracks and 0 < h.n_edgelets < 0.6 * p.n_edgelets
+    assert angle_between(homogeneous(half.camera.vp1), homogeneous(plain.camera.vp1), p.pp, plain.camera.focal) < 0.5
+    assert corner.state == "failed" and c.n_tracks == 0
+    assert corner.reason.startswith("no traffic: only 0 straight vehicle tracks inside the zone"), corner.reason
+    with pytest.raises(InputError, match="zone 500,0 600,0 600,50: it covers no pixel of the 480x270 frame"):
+        VPCalibrator((W, H), _fast_config(zone=parse_zone("500,0 600,0 600,50")))
+
+
 def test_calibrator_on_static_and_tiny_inputs_says_why():
     static = render_scene(6.0, traffic=False)
     cal = VPCalibrator((W, H), _fast_config(min_duration=1.0))

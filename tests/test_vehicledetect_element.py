@@ -110,6 +110,32 @@ def test_tiles_property_reaches_the_detector(frames, nanodet):
         run_pipeline(f"appsrc name=src ! vehicledetect model={nanodet} tiles=3 ! appsink name=sink", sample, CAPS)
 
 
+def test_zone_keeps_the_vehicles_standing_in_it(frames, nanodet):
+    """zone = the left half of the frame (fractions): the ROIs are the library's vehicles whose box's bottom centre
+    lies there, the right half's are dropped; a zone that is not one is an error at start naming it."""
+    sample = frames[100:124]
+    run = run_pipeline(f"appsrc name=src ! vehicledetect model={nanodet} zone=\"0,0 0.5,0 0.5,1 0,1\" ! "
+                       "appsink name=sink", sample, CAPS)
+    lib = OnnxDetector(nanodet, threshold=0.4)
+    left = right = 0
+    for sf, frame in zip(run.frames, sample):
+        b = lib(frame).boxes
+        centre = (b[:, 0] + b[:, 2]) / 2
+        clear = np.abs(centre - 320) > 2  # not on the zone's edge
+        left += int((clear & (centre < 320)).sum())
+        right += int((clear & (centre > 320)).sum())
+        got = np.array([r.box for r in sf.rois], float).reshape(-1, 4)
+        assert ((got[:, 0] + got[:, 2]) / 2 <= 321).all()
+        assert len(got) == int((centre < 320).sum())
+    assert left >= len(sample) and right >= len(sample)  # vehicles on both sides all along
+    with pytest.raises(PipelineError, match=r"vehicledetect: zone '0,0 1,1': polygon 1 has 2 points"):
+        run_pipeline("appsrc name=src ! vehicledetect zone=\"0,0 1,1\" ! appsink name=sink", sample[:2], CAPS)
+    with pytest.raises(PipelineError, match=r"vehicledetect: zone 700,0 900,0 900,100: it covers no pixel of the "
+                                            r"640x360 frame"):
+        run_pipeline("appsrc name=src ! vehicledetect zone=\"700,0 900,0 900,100\" ! appsink name=sink",
+                     sample[:2], CAPS)
+
+
 def test_interval_leaves_frames_in_between_empty(frames, nanodet):
     sample = frames[100:112]
     run = run_pipeline(f"appsrc name=src ! vehicledetect model={nanodet} interval=3 ! appsink name=sink",

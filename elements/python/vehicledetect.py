@@ -43,22 +43,28 @@ class VehicleDetect(TrafficcalTransform):
         "background": (str, "Background method", "Model of the built-in detector (no model given): mog2 (default) or "
                        "average (moving average with shadow peeling: boxes without the cast shadow)", "mog2", _RW),
         "threads": (int, "Threads", "onnxruntime intra-op threads (0 = onnxruntime's default)", 0, 64, 1, _RW),
+        "zone": (str, "Zone", "Where vehicles are looked for: polygons 'x,y x,y x,y ...' separated by ';', in pixels "
+                 "or fractions 0..1 of the frame; a vehicle whose box's bottom centre lies outside is dropped (empty: "
+                 "the whole frame)", "", _RW),
     }
 
     def __init__(self):
         super().__init__()
         self._detector = None
+        self._zone = None
         self._frame = 0
 
     def do_start(self):
         from gst_trafficcal.detection.factory import create_detector, ignored_options
         from gst_trafficcal.errors import TrafficcalError
+        from gst_trafficcal.zone import parse_zone
 
         try:
             self._detector = create_detector(self.model, self.model_format, self.labels, self.threshold, self.threads,
                                              self.tiles, background=self.background)
             ignored = ignored_options(self._detector, self.model_format, self.labels, self.threshold, self.tiles,
                                       self.background)
+            self._zone = parse_zone(self.zone)
         except TrafficcalError as exc:
             self.post_error(f"vehicledetect: {exc}", code=Gst.CoreError.FAILED)
             return False
@@ -68,6 +74,14 @@ class VehicleDetect(TrafficcalTransform):
                               f"by {which}; ignored")
         self._frame = 0
         return True
+
+    def on_caps(self, info):
+        if self._zone is not None:
+            wrong, far = self._zone.check(self.frame_size), self._zone.beyond(self.frame_size)
+            if wrong:
+                self.post_error(f"vehicledetect: {wrong}")
+            elif far:
+                self.post_warning(f"vehicledetect: {far}")
 
     def on_calibration(self, cal):
         reset = getattr(self._detector, "reset", None)  # detectors with a background of their own
@@ -90,6 +104,8 @@ class VehicleDetect(TrafficcalTransform):
         size = reduced_size(self._detector, self.frame_size) if self.model else None
         with (self.bgr(buffer, size) if self.model else self.gray(buffer)) as image:
             detections = detect(self._detector, image, self.buffer_t, self.frame_size if size else None)
+        if self._zone is not None and len(detections):
+            detections = detections[self._zone.holds_boxes(detections.boxes, self.frame_size)]
         for d in detections:
             add_vehicle_roi(buffer, self.frame_size, d.box, d.label, d.score, d.class_id, params=hull_params(d.hull))
         return Gst.FlowReturn.OK

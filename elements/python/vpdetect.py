@@ -71,6 +71,9 @@ class VpDetect(TrafficcalTransform):
                            "two a point is tracked (the lane lines alone place VP1 poorly along the lanes, which "
                            "stretches the road with distance); off where traffic keeps braking and accelerating",
                            True, _RW),
+        "zone": (str, "Zone", "Learn only from the traffic inside: polygons 'x,y x,y x,y ...' separated by ';', in "
+                 "pixels or fractions 0..1 of the frame — the measured road, without a side road or a parking lot "
+                 "(empty: the whole frame)", "", _RW),
     }
     PASSTHROUGH = True
 
@@ -92,13 +95,20 @@ class VpDetect(TrafficcalTransform):
         self._return = None  # ReturnWatcher: while learning, a known view seen again
         self._views_loaded = False  # views-dir read
         self._size = None  # the frame size of the caps so far
+        self._zone = None  # gst_trafficcal.zone.Zone: where the traffic to learn from is
 
     def do_start(self):
         """A calibration file to be written (modes learn and auto) whose folder cannot be written is an error now,
         not after the minutes of video the calibration takes to learn."""
         from gst_trafficcal.errors import InputError
         from gst_trafficcal.fileio import writable_file
+        from gst_trafficcal.zone import parse_zone
 
+        try:
+            self._zone = parse_zone(self.zone)
+        except InputError as exc:
+            self.post_error(f"vpdetect: {exc}")
+            return False
         if self.calibration_file and self.mode in ("learn", "auto"):
             try:
                 writable_file(self.calibration_file, "calibration file")
@@ -119,6 +129,9 @@ class VpDetect(TrafficcalTransform):
             return
         size, before = tuple(self.frame_size), self._size
         self._size = size
+        far = self._zone.beyond(size) if self._zone is not None and size != before else None
+        if far:
+            self.post_warning(f"vpdetect: {far}")
         if before is not None and size != before and self._frames > 0:
             self._resized(before)
             return
@@ -200,7 +213,7 @@ class VpDetect(TrafficcalTransform):
                                       horizon_max_deg=self.horizon_max,
                                       vp1_constant_speed=self.constant_speed,
                                       track_width=round(width / d) if d else 960,
-                                      edgelet_width=round(width / d) if d else 960)
+                                      edgelet_width=round(width / d) if d else 960, zone=self._zone)
             self._learner = VPCalibrator(self.frame_size, config)
         except Exception as exc:  # bad property values or frame size: readable error at negotiation
             self.post_error(f"vpdetect: {exc}")

@@ -19,6 +19,7 @@ from ..errors import InputError
 from ..tracking.tracker import body_shape_name
 from .roll import derolled_fields
 from .streaming import ScaleEstimator, ScaleResult, Sighting, base_centre
+from ..zone import Zone
 
 
 #: which 2D box of a tracked vehicle is aligned: "hull" = the box of its foreground convex hull (the tracker's
@@ -62,7 +63,8 @@ class VideoScale:
 def scale_from_video(video: str | Path, calibration: Calibration, *, models=None, iou_threshold: float = 0.85,
                      min_vehicles: int = 5, regression=None, detector: str = "", max_duration: float | None = None,
                      progress: Callable[[float], None] | None = None, box: str = "detector",
-                     on_frame: Callable | None = None, colour: bool = False, background: str = "mog2") -> VideoScale:
+                     on_frame: Callable | None = None, colour: bool = False, background: str = "mog2",
+                     zone: Zone | None = None) -> VideoScale:
     """Run detection, tracking and the scale stage over ``video`` with ``calibration``'s vanishing points
     (``box``: which 2D box is aligned, see :data:`BOX_SOURCES`; ``colour``: the background model also uses the
     frame's U/V, as the ``tracker`` element does by default — off here: measured on six synth presets, the
@@ -70,7 +72,8 @@ def scale_from_video(video: str | Path, calibration: Calibration, *, models=None
     1.1 % with brightness-only hulls), so run ``tracker colour=false`` upstream of ``bbscale``;
     ``on_frame(index, t, result, detections)`` is called after each frame is tracked, e.g. for a benchmark's
     side estimators; ``background``: the background detector's method when ``detector`` is empty, "mog2" or
-    "average", see :func:`~gst_trafficcal.detection.factory.create_detector`)."""
+    "average", see :func:`~gst_trafficcal.detection.factory.create_detector`); ``zone``: only the vehicles standing
+    in it, as vehicledetect's ``zone``)."""
     import cv2
 
     from ..detection.factory import create_detector, detect
@@ -105,6 +108,8 @@ def scale_from_video(video: str | Path, calibration: Calibration, *, models=None
             # the elements see the decoder's Y plane (video range 16-235); OpenCV expands it to full range
             gray = cv2.convertScaleAbs(cv2.cvtColor(bgr, cv2.COLOR_BGR2GRAY), alpha=219 / 255, beta=16)
             detections = detect(det, bgr if detector else gray, t)
+            if zone is not None and len(detections):
+                detections = detections[zone.holds_boxes(detections.boxes, gray.shape[::-1])]
             result, detections = pipe.process(gray, t, detections, chroma=chroma_from_bgr(bgr) if colour else None)
             sightings = frame_sightings(result, detections, camera, box)
             est.update(t, sightings)

@@ -35,6 +35,7 @@ from .edgelets import Edgelets, detect_edgelets, detect_gradient_edgels, interio
 from .foreground import RunningForeground
 from .constant_speed import AlongLanes, LaneMotion, vp1_across_lines, vp1_along_lanes
 from .tracks import MotionLines, TrackParams
+from ..zone import Zone
 
 MAX_MOTION_CHUNKS = 20_000  # analysed frames whose finished tracks' motion fits are kept (bounded memory)
 
@@ -77,6 +78,7 @@ class CalibratorConfig:
                                     # (larger: the traffic brakes or accelerates as a whole; VP1 is left as is)
     vp1_across_lines: bool = True   # ... and then across the lanes to where the tracks' lines meet (docs, stop 39)
     track: TrackParams = field(default_factory=TrackParams)
+    zone: Zone | None = None        # learn only from the motion and edges inside it (gst_trafficcal.zone)
 
 
 @dataclass
@@ -111,6 +113,9 @@ class VPCalibrator:
         self.track_scale = min(1.0, self.cfg.track_width / w)
         self.edge_scale = min(1.0, self.cfg.edgelet_width / w)
         self.fg_scale = min(1.0, self.cfg.foreground_width / w)
+        if self.cfg.zone is not None and (wrong := self.cfg.zone.check(self.image_size)):
+            raise InputError(wrong)
+        self._zone_fg: np.ndarray | None = None  # the zone at the foreground model's size (made at the first frame)
         self.fg_model = RunningForeground()
         self.tracker = MotionLines(self.cfg.track)
         self.ds1 = DiamondSpace.for_image(w, h, self.cfg.accumulator_size)
@@ -182,6 +187,12 @@ class VPCalibrator:
         small = _resize(gray, self.track_scale)
         tiny = _resize(small, self.fg_scale / self.track_scale)
         self._fg = self.fg_model.apply(tiny)
+        if self.cfg.zone is not None:  # tracks and edgelets are searched on the foreground: the zone's only
+            if self._zone_fg is None or self._zone_fg.shape != self._fg.shape:
+                zone = cv2.resize(self.cfg.zone.mask(self.image_size), self._fg.shape[::-1],
+                                  interpolation=cv2.INTER_AREA)
+                self._zone_fg = np.where(zone > 0, 255, 0).astype(np.uint8)
+            self._fg &= self._zone_fg
         self.analysed += 1
         self.moving_fraction += (self.fg_model.fraction - self.moving_fraction) * 0.05
         lines, lengths, motion = self.tracker.update(small, self._fg, self.t)
@@ -370,7 +381,8 @@ class VPCalibrator:
         if self.n_tracks < cfg.min_tracks:
             if self.moving_fraction < 1e-3:
                 return f"no traffic: nothing moved in {t} of video"
-            return f"no traffic: only {self.n_tracks} straight vehicle tracks in {t} (need {cfg.min_tracks})"
+            inside = " inside the zone" if cfg.zone is not None else ""
+            return f"no traffic: only {self.n_tracks} straight vehicle tracks{inside} in {t} (need {cfg.min_tracks})"
         if self.vp1 is None or self.vp1.support < cfg.min_vp1_support:
             sup = 0.0 if self.vp1 is None else self.vp1.support
             return (f"no dominant direction of motion (curved road or intersection?): only {sup:.0%} of "

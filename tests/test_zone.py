@@ -1,0 +1,64 @@
+"""The detection zone (gst_trafficcal.zone): parsing, masks, which vehicles stand in it, errors."""
+
+from __future__ import annotations
+
+import re
+
+import numpy as np
+import pytest
+
+from gst_trafficcal.errors import InputError
+from gst_trafficcal.zone import parse_zone
+
+
+def test_a_zone_in_pixels_and_in_fractions() -> None:
+    px = parse_zone(" 10,20 110,20 110,70 10,70 ")
+    assert not px.relative and str(px) == "10,20 110,20 110,70 10,70"
+    m = px.mask((160, 90))
+    assert m.shape == (90, 160) and m.dtype == np.uint8 and set(np.unique(m)) == {0, 255}
+    assert (m > 0).sum() == 101 * 51  # the pixels whose centres lie in [10, 110] x [20, 70]
+    rel = parse_zone("0,0.5 1,0.5 1,1 0,1")  # the bottom half, at any resolution
+    assert rel.relative
+    for size in ((64, 36), (1920, 1080)):
+        inside = rel.mask(size) > 0
+        assert inside[size[1] // 2 + 1:].all() and not inside[:size[1] // 2].any()
+    assert np.allclose(rel.pixels((1920, 1080))[0], [[0, 540], [1920, 540], [1920, 1080], [0, 1080]])
+    assert parse_zone("") is None and parse_zone("   ") is None
+
+
+def test_which_points_and_boxes_lie_inside() -> None:
+    zone = parse_zone("0,0 100,0 100,100 0,100; 200,0 300,0 250,100")  # a square and a triangle
+    pts = np.array([[50, 50], [150, 50], [250, 20], [210, 90], [-5, 50], [50, 500], [np.nan, 3]])
+    assert zone.contains(pts, (320, 240)).tolist() == [True, False, True, False, False, False, False]
+    # a vehicle stands where its box's bottom centre is: one reaching out of the square but standing in it, one
+    # whose roof is in it but not its wheels
+    boxes = np.array([[60, 20, 140, 90], [20, 60, 80, 130]])
+    assert zone.holds_boxes(boxes, (320, 240)).tolist() == [True, False]
+    assert zone.holds_boxes(np.zeros((0, 4)), (320, 240)).tolist() == []
+
+
+def test_a_zone_that_does_not_fit_the_frame() -> None:
+    zone = parse_zone("100,100 700,100 700,500 100,500")
+    assert zone.check((1920, 1080)) is None and zone.beyond((1920, 1080)) is None
+    assert zone.check((640, 360)) is None  # part of it covers the frame
+    assert zone.beyond((640, 360)) == ("zone 100,100 700,100 700,500 100,500 reaches to 700,500, beyond the 640x360 "
+                                       "frame: written for another resolution? Fractions 0..1 of the width and "
+                                       "height fit any")
+    assert parse_zone("900,500 1000,500 1000,600").check((640, 360)) == \
+        "zone 900,500 1000,500 1000,600: it covers no pixel of the 640x360 frame"
+    assert parse_zone("0,0 1,0 1,1").beyond((2, 2)) is None  # fractions fit any frame
+
+
+@pytest.mark.parametrize("text,message", [
+    ("1,2 3,4", "polygon 1 has 2 points; a zone needs at least 3"),
+    ("0,0 10,0 10,10; 5,5 6,6", "polygon 2 has 2 points"),
+    ("a,b c,d e,f", "polygon 1 is not a list of x,y numbers; expected 'x,y x,y x,y ...'"),
+    ("1,2,3 4,5,6 7,8,9", "polygon 1 has a point without exactly two coordinates"),
+    ("0,0 inf,0 5,5", "polygon 1 has a coordinate that is not a finite number"),
+    ("0,0 10,10 20,20", "polygon 1 encloses no area"),
+    ("-1,0 5,0 5,5", "negative coordinates"),
+    (";;", "no polygon"),
+])
+def test_a_zone_that_is_not_one_names_what_is_wrong(text: str, message: str) -> None:
+    with pytest.raises(InputError, match=re.escape(f"zone '{text}': {message}")):
+        parse_zone(text)
