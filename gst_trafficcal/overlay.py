@@ -261,6 +261,7 @@ class Style:
     speeding_bgr: tuple[int, int, int] = (0, 0, 200)  # dark red (the reference point is bright red): box and label
     # background of a vehicle over the speed limit
     panel_alpha: float = 0.75  # opacity of the counters panel's background (the labels under it stay faint)
+    zone_bgr: tuple[int, int, int] = (255, 80, 160)  # violet: the outline of the detection zone
 
     def box_color(self, direction: str | None) -> tuple[int, int, int]:
         if direction == TOWARDS_VP1:
@@ -679,10 +680,11 @@ class PanelPlacer:
 def draw_overlay(canvas: Canvas, marks: Sequence[VehicleMark], camera: Camera | None = None,
                  options: OverlayOptions = OverlayOptions(), counter_lines: Sequence[str] = (),
                  style: Style = Style(), grid_cache: GridCache | None = None, status: str | None = None,
-                 placer: PanelPlacer | None = None) -> None:
+                 placer: PanelPlacer | None = None, zone: Sequence[np.ndarray] = ()) -> None:
     """Draw everything ``options`` asks for; vehicles with 3D corners get their 3D box, others their 2D box.
     ``status`` (:func:`calibration_status`): one line, at the bottom left unless ``placer`` (which sees this frame's
-    vehicles and labels) puts it and the counters panel (top left) in corners the traffic leaves freer."""
+    vehicles and labels) puts it and the counters panel (top left) in corners the traffic leaves freer. ``zone``: the
+    detection zone's polygons (pixels, :meth:`gst_trafficcal.zone.Zone.pixels`), outlined."""
     th = options.thickness
     fs = options.font_scale or max(0.35, 0.6 * canvas.size[1] / 720)
     ft = 1 if fs < 1.0 else 2
@@ -693,6 +695,10 @@ def draw_overlay(canvas: Canvas, marks: Sequence[VehicleMark], camera: Camera | 
             canvas.segments(grid.across, style.grid_across_bgr, 1)
         if options.horizon and horizon is not None:
             canvas.segments(horizon[None], style.horizon_bgr, th)
+
+    if len(zone):
+        canvas.segments(np.concatenate([np.stack([p, np.roll(p, -1, axis=0)], axis=1) for p in zone]),
+                        style.zone_bgr, max(1, th // 2))
 
     def box_color(m: VehicleMark) -> tuple[int, int, int]:
         if is_over_limit(m.speed_kmh, options.speed_limit_kmh, m.label):

@@ -341,6 +341,33 @@ def test_body_shapes_reach_the_tracker(clip, tmp_path):
     assert bad.returncode == 2 and "'round' is not one of" in bad.stderr and not (tmp_path / "bad").exists()
 
 
+def test_a_zone_leaves_out_the_other_carriageway(clip, with_truth, tmp_path):
+    """--zone around the near right carriageway (traffic towards VP1): the run plays it in vpdetect, vehicledetect
+    and trafficoverlay, measures only that carriageway's vehicles (the whole frame: both directions) and outlines
+    the zone on overlay.mp4; a zone that is not one is refused before anything runs."""
+    zone = "340,50 380,50 400,270 190,270"
+    proc = trafficcal("run", clip / "video.mp4", "--out", tmp_path / "out", "--zone", zone,
+                      "--calibration", clip / "calibration.json")
+    assert proc.returncode == 0, proc.stdout[-2000:] + proc.stderr[-2000:]
+    shown = " ".join(proc.stdout.split())
+    for element in ("vpdetect mode=fixed", "vehicledetect model=\"vehicleseg\"", "trafficoverlay"):
+        assert re.search(re.escape(element) + r'[^!]* zone="' + zone + '"', shown), element
+    inside = read_events(tmp_path / "out" / "vehicles.jsonl").events
+    everywhere = read_events(with_truth[0] / "vehicles.jsonl").events
+    assert {e.direction for e in everywhere} == {"towards_vp1", "away_from_vp1"}
+    assert inside and {e.direction for e in inside} == {"towards_vp1"} and len(inside) < len(everywhere)
+    cap = cv2.VideoCapture(str(tmp_path / "out" / "overlay.mp4"))
+    cap.set(cv2.CAP_PROP_POS_FRAMES, 60)
+    ok, frame = cap.read()
+    assert ok
+    violet = np.abs(frame.astype(int) - (255, 80, 160)).max(axis=2) < 60  # Style.zone_bgr
+    ys = np.arange(120, 260, 10)  # down the zone's right edge, from (380, 50) to (400, 270)
+    assert all(violet[y, x - 2:x + 3].any() for y, x in zip(ys, np.round(380 + (ys - 50) * 20 / 220).astype(int)))
+    line = one_line_error(trafficcal("run", clip / "video.mp4", "--out", tmp_path / "bad", "--zone", "10,10 20,20"))
+    assert line == "trafficcal: error: --zone: zone '10,10 20,20': polygon 1 has 2 points; a zone needs at least 3"
+    assert not (tmp_path / "bad").exists()
+
+
 @pytest.fixture
 def rtsp_clip(clip):
     """The clip served live over RTSP by a server in this process (needs gir1.2-gst-rtsp-server-1.0)."""

@@ -331,7 +331,8 @@ def test_gst_inspect_documents_every_property(tmp_path: Path) -> None:
     out = subprocess.run(["gst-inspect-1.0", "trafficoverlay"], env=env, capture_output=True, text=True, timeout=120)
     assert out.returncode == 0, out.stderr
     for prop in ("draw-grid", "draw-horizon", "draw-boxes", "draw-labels", "draw-speeds", "draw-counters",
-                 "grid-spacing", "line-thickness", "font-scale", "calibration-file", "speed-limit", "class-limits"):
+                 "grid-spacing", "line-thickness", "font-scale", "calibration-file", "speed-limit", "class-limits",
+                 "panel-position", "zone"):
         assert prop in out.stdout
     assert "Draws the road grid, horizon, 3D vehicle boxes" in out.stdout
 

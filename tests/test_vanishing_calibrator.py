@@ -196,6 +196,8 @@ def test_cli_errors_are_one_line(tmp_path):
     assert r.returncode == 2 and r.stderr.strip().startswith("trafficcal: error:") and "Traceback" not in r.stderr
     r = _cli("calibrate", str(tmp_path / "nope.mp4"), "-o", str(tmp_path / "c.json"), "--focal-range", "9,1")
     assert r.returncode == 2 and "focal range" in r.stderr
+    r = _cli("calibrate", str(tmp_path / "nope.mp4"), "-o", str(tmp_path / "c.json"), "--zone", "1,1 2,2")
+    assert r.returncode == 2 and "--zone: zone '1,1 2,2': polygon 1 has 2 points" in r.stderr
     static = _write_video(tmp_path / "static.avi", [_scene()] * 60)
     r = _cli("calibrate", str(static), "-o", str(tmp_path / "s.json"), "--no-progress", "--min-duration", "1")
     assert r.returncode == 1 and "no traffic" in r.stdout

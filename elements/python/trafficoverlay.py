@@ -49,6 +49,9 @@ class TrafficOverlay(TrafficcalTransform):
         "panel-position": (str, "Panel position", "Corner of the counters panel: auto (the corner the traffic "
                            "leaves freest; the status line takes the next freest), top-left, top-right, bottom-left "
                            "or bottom-right", "auto", _RW),
+        "zone": (str, "Zone", "Detection zone to outline (as given to vpdetect and vehicledetect): polygons "
+                 "'x,y x,y x,y ...' separated by ';', in pixels or fractions 0..1 of the frame; empty: none", "",
+                 _RW),
         "calibration-file": (str, "Calibration file", "Calibration JSON used for the grid until (or unless) a "
                              "calibration event arrives from upstream; empty: none", "", _RW),
     }
@@ -56,6 +59,7 @@ class TrafficOverlay(TrafficcalTransform):
     def __init__(self):
         super().__init__()
         self._counter = None
+        self._zone = None
         self._grid_cache = None
         self._yuv = (0.299, 0.114, False)
 
@@ -64,9 +68,11 @@ class TrafficOverlay(TrafficcalTransform):
 
         from gst_trafficcal.errors import InputError
         from gst_trafficcal.traffic_stats import element_limit
+        from gst_trafficcal.zone import parse_zone
 
         try:
             self._limit = element_limit(self.speed_limit, self.class_limits)
+            self._zone = parse_zone(self.zone)
         except InputError as exc:
             self.post_error(f"trafficoverlay: {exc}")
             return False
@@ -146,7 +152,8 @@ class TrafficOverlay(TrafficcalTransform):
         with self.planes(buffer, writable=True) as planes:
             canvas = canvas_for_planes(planes, format_name(self.video_info), *self._yuv)
             draw_overlay(canvas, marks, camera, options, counter_lines, grid_cache=self._grid_cache,
-                         status=calibration_status(camera) if self.draw_counters else None, placer=self._placer)
+                         status=calibration_status(camera) if self.draw_counters else None, placer=self._placer,
+                         zone=self._zone.pixels(self.frame_size) if self._zone is not None else ())
             del canvas
         return Gst.FlowReturn.OK
 

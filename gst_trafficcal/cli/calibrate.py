@@ -60,10 +60,14 @@ def parse_focal_range(text: str | None) -> tuple[float, float] | None:
 @click.option("--regression-file", default=None, type=click.Path(path_type=Path),
               help="BBScale: scale-correction regression from trafficcal fit-scale.")
 @detector_option(" for BBScale")
+@click.option("--zone", default="", metavar="'x,y x,y x,y ...'",
+              help="Learn only from the traffic inside this polygon of the frame (pixels, or fractions 0..1 of its "
+                   "width and height; several: separated by ';'), e.g. the measured road without a side road or a "
+                   "parking lot; as trafficcal run --zone. Default: the whole frame.")
 def command(video: Path, out_path: Path, png_path: Path | None, method: str, min_duration: float,
             max_duration: float, focal_range: str, horizon_max: float, whole: bool, progress: bool,
             with_scale: bool, scale_models: str, iou_threshold: float, min_vehicles: int,
-            regression_file: Path | None, detector: str, constant_speed: bool = True) -> None:
+            regression_file: Path | None, detector: str, constant_speed: bool = True, zone: str = "") -> None:
     import cv2
     from rich.console import Console
     from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
@@ -72,9 +76,14 @@ def command(video: Path, out_path: Path, png_path: Path | None, method: str, min
     from ..drawing import draw_calibration
     from ..errors import InputError
     from ..vanishing.calibrator import CalibratorConfig, calibrate_video
+    from ..zone import parse_zone
 
     if min_duration < 0 or max_duration <= 0:
         raise InputError("durations must be positive")
+    try:
+        where = parse_zone(zone)
+    except InputError as exc:
+        raise InputError(f"--zone: {exc}") from None
     if with_scale:  # bad scale inputs are one-line errors now, not after the vanishing points were found
         from ..scale.regression import load_regression
         from ..scale.streaming import load_align_models
@@ -84,7 +93,7 @@ def command(video: Path, out_path: Path, png_path: Path | None, method: str, min
         model = check_detector(detector)
     cfg = CalibratorConfig(method=method, min_duration=min_duration, max_duration=max_duration,
                            focal_range=parse_focal_range(focal_range), horizon_max_deg=horizon_max,
-                           vp1_constant_speed=constant_speed)
+                           vp1_constant_speed=constant_speed, zone=where)
     from ..fileio import open_video, writable_dir
 
     open_video(video).release()  # a missing or unreadable video: its one line before anything is created
@@ -105,7 +114,7 @@ def command(video: Path, out_path: Path, png_path: Path | None, method: str, min
     cal = result.calibration
     out = Console()
     if with_scale and cal.camera is not None:
-        cal = _add_scale(video, cal, align_models, iou_threshold, min_vehicles, regression, out, model)
+        cal = _add_scale(video, cal, align_models, iou_threshold, min_vehicles, regression, out, model, where)
     save_calibration(cal, out_path)
     fps = result.frames_read / max(result.seconds_processing, 1e-9)
     if cal.camera is None:
@@ -143,14 +152,15 @@ def print_conditioning(console, cal, warned: bool = False) -> None:
                   highlight=False)
 
 
-def _add_scale(video: Path, cal, models, iou_threshold: float, min_vehicles: int, regression, out, model: str = ""):
+def _add_scale(video: Path, cal, models, iou_threshold: float, min_vehicles: int, regression, out, model: str = "",
+               zone=None):
     """The calibration with BBScale's λ from ``video`` (gst_trafficcal.scale.video), or with the reason
     (``models``: loaded align models; ``regression``: a loaded ScaleRegression or None; ``model``: vehicledetect's,
-    "" for the background detector)."""
+    "" for the background detector; ``zone``: only the vehicles standing in it)."""
     from ..scale.video import scale_from_video
 
     res = scale_from_video(video, cal, models=models, iou_threshold=iou_threshold, min_vehicles=min_vehicles,
-                           regression=regression, detector=model)
+                           regression=regression, detector=model, zone=zone)
     r = res.result
     if r.converged:
         out.print(f"scale λ {r.scale:.3f} m (λ* {r.raw_scale:.3f}, confidence {r.confidence:.2f}, "

@@ -161,7 +161,7 @@ def pipeline_description(video: Path | str, paths: RunPaths, calibration: Path |
                          scale_regression: Path | None = None, body_shapes: str = "auto",
                          speed_limit: "SpeedLimit | float" = 0.0, start_time: str = "", events_url: str = "",
                          calibration_mode: str = "fixed", interval_min: float = 15.0,
-                         views_dir: Path | None = None) -> str:
+                         views_dir: Path | None = None, zone: str = "") -> str:
     """The gst-launch description ``trafficcal run`` plays (also printed, so it can be re-run by hand).
 
     With ``queues`` two ``queue`` elements split the chain into three streaming threads (decoding; vpdetect and
@@ -174,7 +174,8 @@ def pipeline_description(video: Path | str, paths: RunPaths, calibration: Path |
     the vehicles measured under an earlier calibration again with the final one at the end (``remeasure``).
     ``calibration_mode``: vpdetect's mode
     with ``calibration`` — fixed (a calibration the user gave) or auto (one carried over from an earlier file:
-    learnt anew if the camera moved); ``views_dir``: vpdetect's folder of the camera's views.
+    learnt anew if the camera moved); ``views_dir``: vpdetect's folder of the camera's views; ``zone``
+    (:mod:`gst_trafficcal.zone`) to vpdetect, vehicledetect and trafficoverlay, which draws it.
     """
     from ..traffic_stats import as_limit
 
@@ -187,6 +188,8 @@ def pipeline_description(video: Path | str, paths: RunPaths, calibration: Path |
         vp += f" views-dir={quote(views_dir)}"
     model = model_of(detector)
     det = f"vehicledetect model={quote(model)}" if model else "vehicledetect"
+    where = f" zone={quote(zone)}" if zone else ""
+    vp, det = vp + where, det + where
     chain = [*source_elements(video), f"videoconvert name={STOP_ELEMENT}", "video/x-raw,format=I420",
              *([f"{QUEUE} name={LIVE_QUEUE}"] if queues else []), vp, det, *([QUEUE] if queues else []),
              "tracker" if body_shapes == "auto" else f"tracker body-shapes={body_shapes}"]
@@ -196,7 +199,8 @@ def pipeline_description(video: Path | str, paths: RunPaths, calibration: Path |
                  f"results-file={quote(paths.results)} intervals-file={quote(paths.intervals)} "
                  f"interval={interval_min:g}{limit}{clock}{'' if is_uri(video) else ' remeasure=true'}")
     if overlay:
-        chain += [f"trafficoverlay{limit}", "videoconvert", "video/x-raw,format=I420", "queue max-size-buffers=8",
+        chain += [f"trafficoverlay{limit}{where}", "videoconvert", "video/x-raw,format=I420",
+                  "queue max-size-buffers=8",
                   "x264enc speed-preset=veryfast tune=zerolatency", "mp4mux",
                   f"filesink location={quote(paths.overlay)}"]
     else:
@@ -642,6 +646,12 @@ def print_vehicles(console, events: list, speed_limit: "SpeedLimit | float | Non
                    "midnight; also 1h, 15m, 90s) and connect again at once, so every day (or hour) has its own "
                    "folder, outputs and report.html, and a connection up for weeks holds one period's vehicles in "
                    "memory.")
+@click.option("--zone", default="", metavar="'x,y x,y x,y ...'",
+              help="Where vehicles are looked for: a polygon of the frame in pixels, or in fractions 0..1 of its "
+                   "width and height (several: separated by ';'). Vehicles whose box's bottom centre lies outside "
+                   "are neither counted nor measured, and the calibration learns only from the traffic inside — "
+                   "leave out a side road, a parking lot or a footpath. Drawn on overlay.mp4. Default: the whole "
+                   "frame.")
 @click.option("--no-overlay", is_flag=True, help="Do not encode overlay.mp4 (faster).")
 @click.option("--status-interval", "status_s", type=click.FloatRange(min=0.1), default=5.0, show_default=True,
               metavar="SECONDS",
@@ -652,7 +662,7 @@ def print_vehicles(console, events: list, speed_limit: "SpeedLimit | float | Non
 def command(videos: tuple[str, ...], out_dir: Path, calibration_path: Path | None, gt_path: Path | None,
             detector: str | None, regression_path: Path | None, body_shapes: str, speed_limit: str,
             start_time: str, interval_min: float, duration_s: float | None, events_url: str,
-            reconnect: bool, no_overlay: bool, status_s: float = 5.0, split_every: str = "") -> None:
+            reconnect: bool, no_overlay: bool, status_s: float = 5.0, split_every: str = "", zone: str = "") -> None:
     """Calibrate and measure every vehicle of VIDEO (a file, or the URI of a stream: rtsp://, http://, file://)
     in one pass through the GStreamer elements. Ctrl-C (or --duration, or SIGTERM: a service stopped) ends the
     run as the end of the stream would, with every output complete; a second Ctrl-C stops at once.
@@ -716,6 +726,12 @@ def command(videos: tuple[str, ...], out_dir: Path, calibration_path: Path | Non
     from ..traffic_stats import parse_speed_limit
 
     limit = parse_speed_limit(speed_limit, "--speed-limit")  # a bad one: one line, before any work
+    from ..zone import parse_zone
+
+    try:
+        parse_zone(zone)  # a bad one: one line now, not an element error after the pipeline started
+    except InputError as exc:
+        raise InputError(f"--zone: {exc}") from None
     if reconnect and not is_uri(inputs[0]):
         raise InputError("--reconnect is for a live stream (a URI): a file is read to its end once")
     split_s = None
@@ -740,7 +756,7 @@ def command(videos: tuple[str, ...], out_dir: Path, calibration_path: Path | Non
                         f"{len(inputs)} files: {', '.join(shown_source(v) for v in inputs)}", every_s=status_s,
                         warn=lambda text: console.print(f"[yellow]warning[/]: {text}", highlight=False))
     options = RunOptions(detector, regression_path, body_shapes, limit, interval_min, duration_s, events_url,
-                         no_overlay, gt_path, live_clock, start, status=status, split_every_s=split_s)
+                         no_overlay, gt_path, live_clock, start, status=status, split_every_s=split_s, zone=zone)
     with sigterm_as_ctrl_c():  # a service stopped (systemctl/docker stop, Kubernetes) loses nothing either
         failed = _run_inputs(console, inputs, out_dir, calibration_path, options, starts, reconnect, status)
     status.update(state="interrupted" if failed == "interrupted" else "failed" if failed else "finished",
@@ -861,6 +877,7 @@ class RunOptions:
     views_dir: Path | None = None  # vpdetect views-dir: the camera's views kept across parts (files, connections)
     status: Any = None  # run_status.StatusFile of --out/status.json, or None
     split_every_s: float | None = None  # --split-every: a live stream's connections end on this grid of the clock
+    zone: str = ""  # --zone: where vehicles are looked for (gst_trafficcal.zone)
 
 
 def run_one(console, video: Path | str, out_dir: Path, calibration_path: Path | None, options: RunOptions,
@@ -882,7 +899,7 @@ def run_one(console, video: Path | str, out_dir: Path, calibration_path: Path | 
                                        speed_limit=speed_limit,
                                        start_time=NOW if live_clock else start.isoformat() if start else "",
                                        events_url=events_url, calibration_mode=calibration_mode,
-                                       interval_min=interval_min, views_dir=options.views_dir)
+                                       interval_min=interval_min, views_dir=options.views_dir, zone=options.zone)
     shown = description.replace(str(video), shown_source(video))  # no password on the screen
     if events_url:
         from ..publish import redacted
