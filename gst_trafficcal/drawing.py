@@ -12,6 +12,7 @@ are ``spacing_m`` metres; without one the grid is drawn in plane units assuming 
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import cv2
@@ -172,6 +173,7 @@ def line_segment(line: np.ndarray, image_size: tuple[int, int]) -> np.ndarray | 
 GRID_ALONG_BGR = (0, 220, 255)  # lines towards VP1: amber
 GRID_ACROSS_BGR = (255, 200, 0)  # lines towards VP2: azure
 HORIZON_BGR = (60, 60, 255)  # red
+ZONE_BGR = (211, 0, 148)  # violet: the detection zone's outline
 
 
 def draw_segments(image: np.ndarray, segments: np.ndarray, color: tuple[int, ...], thickness: int = 1,
@@ -181,6 +183,14 @@ def draw_segments(image: np.ndarray, segments: np.ndarray, color: tuple[int, ...
         return
     pts = np.round(np.asarray(segments, np.float64) * 16).astype(np.int32)
     cv2.polylines(image, pts, False, color, thickness, line_type, 4)
+
+
+def zone_segments(polygons: Sequence[np.ndarray]) -> np.ndarray:
+    """(N, 2, 2) segments outlining closed pixel polygons (each Kx2): the detection zone
+    (:meth:`gst_trafficcal.zone.Zone.pixels`)."""
+    if not len(polygons):
+        return np.zeros((0, 2, 2))
+    return np.concatenate([np.stack([p, np.roll(p, -1, axis=0)], axis=1) for p in map(np.asarray, polygons)])
 
 
 def draw_calibration(image: np.ndarray, camera: Camera, spacing_m: float = 3.0, thickness: int = 1,

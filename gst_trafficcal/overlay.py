@@ -19,8 +19,8 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
-from .drawing import (GRID_ACROSS_BGR, GRID_ALONG_BGR, HORIZON_BGR, RoadGrid, clip_segments, grid_min_cell_px,
-                      horizon_segment, road_grid_segments)
+from .drawing import (GRID_ACROSS_BGR, GRID_ALONG_BGR, HORIZON_BGR, ZONE_BGR, RoadGrid, clip_segments,
+                      grid_min_cell_px, horizon_segment, road_grid_segments, zone_segments)
 from .geometry import Camera
 from .lanes import DEFAULT_LANE_WIDTH_M, lane_centres
 from .outputs import AWAY_FROM_VP1, TOWARDS_VP1, direction_name
@@ -261,7 +261,7 @@ class Style:
     speeding_bgr: tuple[int, int, int] = (0, 0, 200)  # dark red (the reference point is bright red): box and label
     # background of a vehicle over the speed limit
     panel_alpha: float = 0.75  # opacity of the counters panel's background (the labels under it stay faint)
-    zone_bgr: tuple[int, int, int] = (255, 80, 160)  # violet: the outline of the detection zone
+    zone_bgr: tuple[int, int, int] = ZONE_BGR  # the outline of the detection zone
 
     def box_color(self, direction: str | None) -> tuple[int, int, int]:
         if direction == TOWARDS_VP1:
@@ -697,8 +697,7 @@ def draw_overlay(canvas: Canvas, marks: Sequence[VehicleMark], camera: Camera | 
             canvas.segments(horizon[None], style.horizon_bgr, th)
 
     if len(zone):
-        canvas.segments(np.concatenate([np.stack([p, np.roll(p, -1, axis=0)], axis=1) for p in zone]),
-                        style.zone_bgr, max(1, th // 2))
+        canvas.segments(zone_segments(zone), style.zone_bgr, max(1, th // 2))
 
     def box_color(m: VehicleMark) -> tuple[int, int, int]:
         if is_over_limit(m.speed_kmh, options.speed_limit_kmh, m.label):

@@ -22,13 +22,14 @@ import cv2
 import numpy as np
 
 from .calibration import Calibration
-from .drawing import draw_calibration, draw_lane_paths
+from .drawing import ZONE_BGR, draw_calibration, draw_lane_paths, draw_segments, zone_segments
 from .errors import InputError
 from .fileio import atomic_write_text
 from .geometry import Camera
 from .evaluation import ErrorStats, Evaluation, plot_cumulative_errors
 from .outputs import AWAY_FROM_VP1, TOWARDS_VP1, VehicleEvent, unmeasured_by_kind
 from .traffic_stats import SpeedLimit, as_limit, event_stats, interval_rows
+from .zone import Zone
 
 MAX_LISTED = 1000
 """At most this many vehicles are listed one per row (all are counted)."""
@@ -106,16 +107,23 @@ def _picture_base(frame: np.ndarray | None, image_size: tuple[int, int] | None,
 
 
 def calibration_picture(calibration: Calibration | None, frame: np.ndarray | None,
-                        grid_spacing_m: float = 3.0, max_width: int = 1100) -> np.ndarray | None:
-    """The frame (or a grey canvas of the calibration's image size) with the road grid and horizon."""
-    img = _picture_base(frame, calibration.image_size if calibration is not None else None, max_width)
+                        grid_spacing_m: float = 3.0, max_width: int = 1100,
+                        zone: Zone | None = None) -> np.ndarray | None:
+    """The frame (or a grey canvas of the calibration's image size) with the road grid and horizon, and the
+    detection ``zone`` outlined."""
+    size = calibration.image_size if calibration is not None else None
+    img = _picture_base(frame, size, max_width)
     if img is None:
         return None
+    size = size or frame.shape[1::-1]
+    s = img.shape[1] / size[0]  # video pixels -> picture pixels
+    thickness = max(1, img.shape[0] // 700)
     if calibration is not None and calibration.camera is not None:
-        s = img.shape[1] / calibration.image_size[0]  # calibration pixels -> picture pixels
         c = calibration.camera
         cam = Camera(c.vp1 * s, c.vp2 * s, c.pp * s, c.scale)
-        draw_calibration(img, cam, grid_spacing_m, max(1, img.shape[0] // 700))
+        draw_calibration(img, cam, grid_spacing_m, thickness)
+    if zone is not None:
+        draw_segments(img, zone_segments(zone.pixels(size)) * s, ZONE_BGR, thickness + 1)
     return img
 
 
@@ -275,7 +283,8 @@ CONFIDENCE_LABELS: dict[str, tuple[str, str]] = {
 }
 
 
-def _calibration_section(cal: Calibration | None, frame: np.ndarray | None, spacing: float) -> str:
+def _calibration_section(cal: Calibration | None, frame: np.ndarray | None, spacing: float,
+                         zone: Zone | None = None) -> str:
     out = ["<h2>Calibration</h2>"]
     if cal is None:
         out.append('<p class="muted">No calibration was obtained.</p>')
@@ -301,10 +310,12 @@ def _calibration_section(cal: Calibration | None, frame: np.ndarray | None, spac
         for k, v in cal.confidence.items():
             label, fmt = CONFIDENCE_LABELS.get(k, (f"confidence: {k}", "{:.3g}"))
             rows.append((label, fmt.format(v)))
+        if zone is not None:
+            rows.append(("detection zone" + (" [fractions of the frame]" if zone.relative else " [px]"), str(zone)))
         out.append(_table(["", "value"], rows))
         if c is not None and cond.poor:
             out.append(f'<p class="warn">{_esc(cond.describe())}.</p>')
-    pic = calibration_picture(cal, frame, spacing)
+    pic = calibration_picture(cal, frame, spacing, zone=zone)
     if pic is not None:
         if cal is not None and cal.camera is not None:
             horizon = (" and the horizon (red)" if horizon_in_view(cal.camera, cal.image_size)
@@ -312,6 +323,8 @@ def _calibration_section(cal: Calibration | None, frame: np.ndarray | None, spac
             caption = (f"Road grid ({spacing:g} m cells; amber lines run towards VP1, blue towards VP2){horizon}.")
         else:
             caption = "A frame of the video."
+        if zone is not None:
+            caption += " Violet: the detection zone (vehicles standing outside it are neither counted nor measured)."
         out.append(f"<figure>{_img(png_data_uri(pic), 'calibration picture')}<figcaption>{_esc(caption)}"
                    "</figcaption></figure>")
     return "\n".join(out)
@@ -521,6 +534,7 @@ class ReportInputs:
     remeasured: tuple[int, int] = (0, 0)  # vehicles measured again at the end with the final calibration (with speed)
     not_counted: tuple[int, int] = (0, 0)  # tracks that were no vehicle passing: (brief, stationary)
     paths: Sequence[tuple[int | None, np.ndarray]] = ()  # (lane, reference points in pixels) of measured vehicles
+    zone: Zone | None = None  # the detection zone the run used (outlined in the calibration picture)
 
 
 def render_report(inputs: ReportInputs) -> str:
@@ -530,7 +544,7 @@ def render_report(inputs: ReportInputs) -> str:
     if inputs.source:
         parts.append(f'<p class="muted">Video: {_esc(inputs.source)}</p>')
     parts.append(f'<p class="muted">{_esc(_run_line(inputs))}</p>')
-    parts.append(_calibration_section(inputs.calibration, inputs.frame, inputs.grid_spacing_m))
+    parts.append(_calibration_section(inputs.calibration, inputs.frame, inputs.grid_spacing_m, inputs.zone))
     limit = as_limit(inputs.speed_limit_kmh)
     size = inputs.calibration.image_size if inputs.calibration is not None else None
     lanes = lanes_picture(inputs.frame, size, inputs.paths)

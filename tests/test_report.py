@@ -303,6 +303,28 @@ def test_calibration_picture_shrinks_large_frames_and_keeps_geometry() -> None:
     assert overlap > 0.8
 
 
+def test_report_outlines_the_detection_zone() -> None:
+    """A run's zone: a row in the calibration table and a violet outline in its picture, at the picture's scale
+    (a frame twice the calibrated size shrunk to it); a zone in fractions fits any frame."""
+    from gst_trafficcal.drawing import ZONE_BGR
+    from gst_trafficcal.zone import parse_zone
+
+    zone = parse_zone("40,60 200,60 200,200 40,200")
+    page = _parse(render_report(ReportInputs(_events(), _calibration(), np.full((H, W, 3), 60, np.uint8),
+                                             zone=zone)))
+    text = " ".join("".join(page.text).split())
+    assert "detection zone [px]40,60 200,60 200,200 40,200" in text and "Violet: the detection zone" in text
+    for pic in (calibration_picture(_calibration(), np.full((2 * H, 2 * W, 3), 60, np.uint8), max_width=W, zone=zone),
+                calibration_picture(_calibration(), np.full((H, W, 3), 60, np.uint8),
+                                    zone=parse_zone(f"{40 / W},{60 / H} {200 / W},{60 / H} {200 / W},{200 / H} "
+                                                    f"{40 / W},{200 / H}"))):
+        violet = np.abs(pic.astype(int) - ZONE_BGR).max(axis=2) < 40
+        assert violet[100:160, 38:43].any(axis=1).all() and violet[100:160, 198:203].any(axis=1).all()  # its sides
+        assert not violet[100:160, 60:180].any()  # inside it, nothing
+    bare = _parse(render_report(ReportInputs(_events(), _calibration(), np.full((H, W, 3), 60, np.uint8))))
+    assert "detection zone" not in "".join(bare.text)
+
+
 def test_report_with_brnocompspeed_ground_truth(tmp_path: Path) -> None:
     rec = require_shared(BRNO / "session0_left")
     gt = load_gt_data(rec / "gt_data.pkl")
@@ -389,6 +411,13 @@ def test_cli_report_from_run_files(tmp_path: Path) -> None:
     bad = _cli("--events", str(tmp_path / "vehicles.jsonl"), "--speed-limit", "85,lorry", "--out",
                str(tmp_path / "r2.html"))
     assert bad.returncode == 2 and "--speed-limit: '85,lorry' is not KMH or KMH,CLASS=KMH" in bad.stderr
+    zoned = _cli("--events", str(tmp_path / "vehicles.jsonl"), "--calibration", str(tmp_path / "calibration.json"),
+                 "--frame", str(tmp_path / "frame.png"), "--zone", "0,0 0.5,0 0.5,1", "--out", str(tmp_path / "z.html"))
+    assert zoned.returncode == 0, zoned.stderr
+    text = " ".join("".join(_parse((tmp_path / "z.html").read_text(encoding="utf-8")).text).split())
+    assert "detection zone [fractions of the frame]0,0 0.5,0 0.5,1" in text
+    bad = _cli("--events", str(tmp_path / "vehicles.jsonl"), "--zone", "0,0 1,1", "--out", str(tmp_path / "r3.html"))
+    assert bad.returncode == 2 and "--zone: zone '0,0 1,1': polygon 1 has 2 points" in bad.stderr
 
 
 def test_cli_report_with_ground_truth(tmp_path: Path) -> None:

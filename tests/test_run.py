@@ -16,6 +16,7 @@ import pytest
 
 from gst_trafficcal.brnocompspeed import load_results
 from gst_trafficcal.calibration import load_calibration
+from gst_trafficcal.drawing import ZONE_BGR
 from gst_trafficcal.outputs import read_events, read_events_csv
 from gst_trafficcal.run_status import read_status
 
@@ -360,7 +361,7 @@ def test_a_zone_leaves_out_the_other_carriageway(clip, with_truth, tmp_path):
     cap.set(cv2.CAP_PROP_POS_FRAMES, 60)
     ok, frame = cap.read()
     assert ok
-    violet = np.abs(frame.astype(int) - (255, 80, 160)).max(axis=2) < 60  # Style.zone_bgr
+    violet = np.abs(frame.astype(int) - ZONE_BGR).max(axis=2) < 60
     ys = np.arange(120, 260, 10)  # down the zone's right edge, from (380, 50) to (400, 270)
     assert all(violet[y, x - 2:x + 3].any() for y, x in zip(ys, np.round(380 + (ys - 50) * 20 / 220).astype(int)))
     line = one_line_error(trafficcal("run", clip / "video.mp4", "--out", tmp_path / "bad", "--zone", "10,10 20,20"))

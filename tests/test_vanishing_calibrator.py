@@ -230,6 +230,30 @@ def test_cli_constant_speed_switch(tmp_path):
     assert np.linalg.norm(on.camera.vp1 - off.camera.vp1) == pytest.approx(moved, abs=0.05)
 
 
+def test_cli_zone_is_outlined_on_the_grid_png(tmp_path):
+    """`trafficcal calibrate --zone`: learnt inside the zone (here nearly the whole frame: the same traffic), and the
+    grid picture outlines it so the user sees the polygon they wrote."""
+    from gst_trafficcal.drawing import ZONE_BGR
+
+    from .test_vanishing import FPS, H, W, cached_scene
+
+    clip = tmp_path / "cuboids.mp4"
+    writer = cv2.VideoWriter(str(clip), cv2.VideoWriter_fourcc(*"mp4v"), FPS, (W, H))
+    for f in cached_scene(24.0):
+        writer.write(cv2.cvtColor(f, cv2.COLOR_GRAY2BGR))
+    writer.release()
+    out = tmp_path / "cal.json"
+    r = _cli("calibrate", str(clip), "-o", str(out), "--min-duration", "8", "--no-progress", "--zone",
+             "0.1,0.1 0.9,0.1 0.9,0.9 0.1,0.9")
+    assert r.returncode == 0, r.stdout + r.stderr
+    png = cv2.imread(str(out.with_suffix(".png")))
+    violet = np.abs(png.astype(int) - ZONE_BGR).max(axis=2) < 60
+    x0, x1, y0, y1 = round(0.1 * W), round(0.9 * W), round(0.1 * H), round(0.9 * H)
+    assert violet[y0 - 1:y0 + 2, x0 + 10:x1 - 10].any(axis=0).mean() > 0.9  # its top edge
+    assert violet[y0 + 10:y1 - 10, x1 - 1:x1 + 2].any(axis=1).mean() > 0.9  # its right edge
+    assert not violet[:y0 - 3].any()
+
+
 def test_a_file_that_is_no_video_is_one_line_without_ffmpegs_complaints(tmp_path):
     """OpenCV's FFmpeg prints its own lines ("moov atom not found") before our error; only ours is left."""
     text = tmp_path / "notes.mp4"

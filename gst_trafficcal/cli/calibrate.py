@@ -73,7 +73,7 @@ def command(video: Path, out_path: Path, png_path: Path | None, method: str, min
     from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 
     from ..calibration import save_calibration
-    from ..drawing import draw_calibration
+    from ..drawing import ZONE_BGR, draw_calibration, draw_segments, zone_segments
     from ..errors import InputError
     from ..vanishing.calibrator import CalibratorConfig, calibrate_video
     from ..zone import parse_zone
@@ -125,6 +125,9 @@ def command(video: Path, out_path: Path, png_path: Path | None, method: str, min
     if result.frame is not None:
         image = result.frame.copy() if result.frame.ndim == 3 else cv2.cvtColor(result.frame, cv2.COLOR_GRAY2BGR)
         draw_calibration(image, cal.camera, thickness=1 if image.shape[1] < 1280 else 2)
+        if where is not None:
+            draw_segments(image, zone_segments(where.pixels(image.shape[1::-1])), ZONE_BGR,
+                          2 if image.shape[1] < 1280 else 3)
         if not cv2.imwrite(str(png), image):
             raise InputError(f"{png}: cannot write the grid image")
     c = cal.camera

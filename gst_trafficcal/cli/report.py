@@ -66,17 +66,25 @@ def _frame(image: Path | None, video: Path | None, at_s: float):
                                       "events carry dates: speedometer start-datetime=, trafficcal run --start-time).")
 @click.option("--intervals-csv", "intervals_path", type=click.Path(path_type=Path),
               help="Also write the traffic count per interval, lane and direction as CSV.")
+@click.option("--zone", default="", metavar="'x,y x,y x,y ...'",
+              help="The detection zone the run used (trafficcal run --zone): outlined in the calibration picture.")
 @click.option("--out", "out_path", required=True, type=click.Path(path_type=Path), help="The report.html to write.")
 def command(events_path: Path, calibration_path: Path | None, frame_path: Path | None, video_path: Path | None,
             frame_time: float, gt_path: Path | None, results_path: Path | None, title: str, speed_limit: str,
-            interval_min: float, intervals_path: Path | None, out_path: Path) -> None:
+            interval_min: float, intervals_path: Path | None, out_path: Path, zone: str = "") -> None:
     from ..brnocompspeed import load_gt_data, load_results
     from ..calibration import Calibration, load_calibration
     from ..outputs import on_one_clock, read_events
     from ..report import ReportInputs, measured_paths, write_report
     from ..traffic_stats import interval_rows, parse_speed_limit, write_intervals_csv
 
+    from ..zone import parse_zone
+
     limit = parse_speed_limit(speed_limit, "--speed-limit")
+    try:
+        where = parse_zone(zone)
+    except InputError as exc:
+        raise InputError(f"--zone: {exc}") from None
     log = read_events(events_path)
     cal = load_calibration(calibration_path) if calibration_path is not None else None
     results = load_results(results_path) if results_path is not None else None
@@ -98,7 +106,7 @@ def command(events_path: Path, calibration_path: Path | None, frame_path: Path |
     path = write_report(out_path, ReportInputs(
         events, cal, frame, evaluation, ground_truth_name=str(gt_path or ""), title=title,
         source=str(video_path or ""), speed_limit_kmh=limit, interval_s=60 * interval_min,
-        start_time=start, paths=measured_paths(results.cars, events) if results is not None else ()))
+        start_time=start, paths=measured_paths(results.cars, events) if results is not None else (), zone=where))
     skipped = f" ({log.skipped} broken line(s) skipped)" if log.skipped else ""
     click.echo(f"{path}: {len(log.events)} vehicles{skipped}")
     if intervals_path is not None:

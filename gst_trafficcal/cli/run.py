@@ -888,6 +888,7 @@ def run_one(console, video: Path | str, out_dir: Path, calibration_path: Path | 
     from ..gst.env import elements_dir
     from ..outputs import stream_start
     from ..report import ReportInputs, write_report
+    from ..zone import parse_zone
     detector, regression_path, body_shapes = options.detector, options.regression_path, options.body_shapes
     speed_limit, interval_min, duration_s = options.speed_limit, options.interval_min, options.duration_s
     events_url, no_overlay, gt_path = options.events_url, options.no_overlay, options.gt_path
@@ -956,7 +957,8 @@ def run_one(console, video: Path | str, out_dir: Path, calibration_path: Path | 
             speed_limit_kmh=speed_limit, interval_s=60 * interval_min, start_time=start,
             covered=[(0.0, summary.watched_s)] if summary.watched_s else None,
             remeasured=(summary.remeasured, summary.remeasured_speeds), not_counted=summary.not_counted,
-            paths=() if summary.moves else lane_paths(paths.results, summary.events)))  # moved: not on this frame
+            paths=() if summary.moves else lane_paths(paths.results, summary.events),  # moved: not on this frame
+            zone=parse_zone(options.zone)))
     except InputError as exc:
         summary.errors.append(str(exc))
     written = [n for n in OUTPUTS if (out_dir / n).exists()]
