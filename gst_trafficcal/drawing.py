@@ -185,12 +185,14 @@ def draw_segments(image: np.ndarray, segments: np.ndarray, color: tuple[int, ...
     cv2.polylines(image, pts, False, color, thickness, line_type, 4)
 
 
-def zone_segments(polygons: Sequence[np.ndarray]) -> np.ndarray:
+def zone_segments(polygons: Sequence[np.ndarray], size: tuple[int, int] | None = None) -> np.ndarray:
     """(N, 2, 2) segments outlining closed pixel polygons (each Kx2): the detection zone
-    (:meth:`gst_trafficcal.zone.Zone.pixels`)."""
+    (:meth:`gst_trafficcal.zone.Zone.pixels`); with the frame's ``size`` its edges along the frame's right and
+    bottom borders (x = width, y = height) are moved onto the last column and row, to be seen."""
     if not len(polygons):
         return np.zeros((0, 2, 2))
-    return np.concatenate([np.stack([p, np.roll(p, -1, axis=0)], axis=1) for p in map(np.asarray, polygons)])
+    seg = np.concatenate([np.stack([p, np.roll(p, -1, axis=0)], axis=1) for p in map(np.asarray, polygons)])
+    return seg if size is None else np.minimum(seg, np.asarray(size, np.float64) - 1)
 
 
 def draw_calibration(image: np.ndarray, camera: Camera, spacing_m: float = 3.0, thickness: int = 1,

@@ -586,6 +586,11 @@ def corner_origin(corner: str, box_size: tuple[float, float], size: tuple[int, i
     return float(max(0, x)), float(max(0, y))
 
 
+def _overlap(a: Sequence[float], b: Sequence[float]) -> bool:
+    """Whether two boxes (x, y, width, height) share any area."""
+    return a[0] < b[0] + b[2] and b[0] < a[0] + a[2] and a[1] < b[1] + b[3] and b[1] < a[1] + a[3]
+
+
 def _other_row(corner: str) -> str:
     """The corner on the same side at the other edge (the status line's place beside a fixed panel)."""
     top, side = corner.split("-")
@@ -617,7 +622,7 @@ class PanelPlacer:
 
     def __post_init__(self) -> None:
         if self.position not in PANEL_POSITIONS:
-            raise ValueError(f"panel position {self.position!r} is none of {', '.join(PANEL_POSITIONS)}")
+            raise ValueError(f"panel-position {self.position!r} is none of {', '.join(PANEL_POSITIONS)}")
         if self.position != "auto":
             self.panel, self.status = self.position, _other_row(self.position)
 
@@ -631,17 +636,13 @@ class PanelPlacer:
         self._weight = self._weight * decay + 1.0
         self._since_move = [n + 1 for n in self._since_move]
         r = np.asarray(regions, np.float64).reshape(-1, 4)
-        if not len(r):
-            return
-        scale = np.array([nx / size[0], ny / size[1]] * 2)
-        c = r * scale
-        x0, y0 = (np.clip(np.floor(c[:, k]), 0, n).astype(int) for k, n in ((0, nx), (1, ny)))
-        x1, y1 = (np.clip(np.ceil(c[:, k]), 0, n).astype(int) for k, n in ((2, nx), (3, ny)))
-        ok = (x1 > x0) & (y1 > y0)
-        diff = np.zeros((ny + 1, nx + 1))  # each box as four corner increments, summed up by two cumsums
-        for ys, xs, v in ((y0, x0, 1), (y0, x1, -1), (y1, x0, -1), (y1, x1, 1)):
-            np.add.at(diff, (ys[ok], xs[ok]), v)
-        self._heat += np.minimum(diff.cumsum(0).cumsum(1)[:ny, :nx], 1.0)
+        r = r[np.isfinite(r).all(axis=1)] * np.array([nx / size[0], ny / size[1]] * 2)  # in cells
+        lo = np.clip(np.floor(r[:, :2]), 0, [nx, ny]).astype(int)
+        hi = np.clip(np.ceil(r[:, 2:]), 0, [nx, ny]).astype(int)
+        frame = np.zeros((ny, nx))
+        for (x0, y0), (x1, y1) in zip(lo, hi):  # a few boxes a frame
+            frame[y0:y1, x0:x1] = 1.0
+        self._heat += frame
 
     def _cover(self, corner: str, box_size: tuple[float, float], size: tuple[int, int]) -> float:
         """Mean share of the frames seen in which the cells under a ``box_size`` box in ``corner`` held traffic."""
@@ -668,8 +669,12 @@ class PanelPlacer:
             panel = self._choose(self.panel, CORNERS, panel_size, size) \
                 if panel_size is not None and settled[0] else self.panel
             status = self.status
-            if status_size is not None and (settled[1] or status == panel):
-                status = self._choose(status, [k for k in CORNERS if k != panel], status_size, size)
+            if status_size is not None:
+                free = [k for k in CORNERS if k != panel and not (panel_size is not None and _overlap(
+                    (*corner_origin(k, status_size, size), *status_size),
+                    (*corner_origin(panel, panel_size, size), *panel_size)))] or [_other_row(panel)]
+                if settled[1] or status not in free:
+                    status = self._choose(status, free, status_size, size)
             for k, (old, new) in enumerate(((self.panel, panel), (self.status, status))):
                 if new != old:
                     self._since_move[k] = 0
@@ -697,7 +702,7 @@ def draw_overlay(canvas: Canvas, marks: Sequence[VehicleMark], camera: Camera | 
             canvas.segments(horizon[None], style.horizon_bgr, th)
 
     if len(zone):
-        canvas.segments(zone_segments(zone), style.zone_bgr, max(1, th // 2))
+        canvas.segments(zone_segments(zone, canvas.size), style.zone_bgr, max(1, th // 2))
 
     def box_color(m: VehicleMark) -> tuple[int, int, int]:
         if is_over_limit(m.speed_kmh, options.speed_limit_kmh, m.label):
@@ -725,17 +730,17 @@ def draw_overlay(canvas: Canvas, marks: Sequence[VehicleMark], camera: Camera | 
     status_size = tuple(np.add(label_size([status], fs, ft), 2)) if status else None
     labelled = [(m, lines) for m in marks if (lines := mark_label(m, options))] \
         if options.labels or options.speeds else []
+    extents = {id(m): mark_extent(m) for m in marks}
     # nearest vehicles (lowest in the picture) first: theirs stay at their boxes, farther ones give way
-    labelled.sort(key=lambda ml: -(np.max(ml[0].corners[:, 1]) if ml[0].corners is not None else ml[0].box[3]))
+    labelled.sort(key=lambda ml: -extents[id(ml[0])][3])
     wanted = []
     for m, lines in labelled:
-        top = np.min(m.corners[:, 1]) if m.corners is not None else m.box[1]
-        left = np.min(m.corners[:, 0]) if m.corners is not None else m.box[0]
+        left, top = extents[id(m)][:2]
         bw, bh = label_size(lines, fs, ft)
         wanted.append((left, top - 2 - bh, bw + 1, bh + 1))  # + 1: the even rounding of Canvas.label
     corners = ("top-left", "bottom-left")
     if placer is not None:
-        regions = [mark_extent(m) for m in marks] + [(x, y, x + w, y + h) for x, y, w, h in wanted]
+        regions = list(extents.values()) + [(x, y, x + w, y + h) for x, y, w, h in wanted]
         placer.observe(np.array(regions).reshape(-1, 4), canvas.size)
         corners = placer.place(panel_size, status_size, canvas.size)
     taken = []  # where the counters panel and the status line will be: labels keep off them

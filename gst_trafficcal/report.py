@@ -123,7 +123,7 @@ def calibration_picture(calibration: Calibration | None, frame: np.ndarray | Non
         cam = Camera(c.vp1 * s, c.vp2 * s, c.pp * s, c.scale)
         draw_calibration(img, cam, grid_spacing_m, thickness)
     if zone is not None:
-        draw_segments(img, zone_segments(zone.pixels(size)) * s, ZONE_BGR, thickness + 1)
+        draw_segments(img, zone_segments(zone.pixels(size), size) * s, ZONE_BGR, thickness + 1)
     return img
 
 

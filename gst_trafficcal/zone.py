@@ -17,6 +17,7 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
+from .detection.records import Detections
 from .errors import InputError
 
 SYNTAX = "'x,y x,y x,y ...' (pixels, or fractions 0..1 of the width and height), polygons separated by ';'"
@@ -24,7 +25,10 @@ SYNTAX = "'x,y x,y x,y ...' (pixels, or fractions 0..1 of the width and height),
 
 @dataclass(frozen=True)
 class Zone:
-    """One or more polygons (each Kx2, K ≥ 3) in pixels, or in fractions of the frame when ``relative``."""
+    """One or more polygons (each Kx2, K ≥ 3) in pixels, or in fractions of the frame when ``relative``.
+
+    Coordinates follow the boxes' convention: pixel (i, j) is the square [i, i + 1) x [j, j + 1), so a box whose
+    bottom is the frame's (y1 = height) stands on its last row, and "0,0 1,0 1,1 0,1" covers every pixel."""
 
     polygons: tuple[np.ndarray, ...]
     relative: bool
@@ -36,28 +40,30 @@ class Zone:
         return [p * scale for p in self.polygons]
 
     def mask(self, size: tuple[int, int]) -> np.ndarray:
-        """HxW uint8 mask of a ``size`` (width, height) frame: 255 on the pixels whose centre (at integer
-        coordinates) the zone covers, 0 elsewhere; made once per size."""
+        """HxW uint8 mask of a ``size`` (width, height) frame: 255 on the pixels whose centre the zone covers and on
+        those its outline passes through (cv2.fillPoly), 0 elsewhere; made once per size."""
         m = self._masks.get(tuple(size))
         if m is None:
             m = np.zeros((size[1], size[0]), np.uint8)
-            cv2.fillPoly(m, [np.round(p * 16).astype(np.int32) for p in self.pixels(size)], 255, cv2.LINE_8, 4)
+            # cv2 puts pixel centres at integer coordinates; ours lie at i + 0.5
+            cv2.fillPoly(m, [np.round((p - 0.5) * 16).astype(np.int32) for p in self.pixels(size)], 255,
+                         cv2.LINE_8, 4)
             self._masks[tuple(size)] = m
         return m
 
     def contains(self, points: np.ndarray, size: tuple[int, int]) -> np.ndarray:
-        """Which of the Nx2 pixel ``points`` lie inside the zone (points outside the frame do not)."""
-        p = np.round(np.asarray(points, np.float64).reshape(-1, 2))
-        ok = np.isfinite(p).all(axis=1) & (p[:, 0] >= 0) & (p[:, 1] >= 0) & (p[:, 0] < size[0]) & (p[:, 1] < size[1])
+        """Which of the Nx2 pixel ``points`` lie inside the zone (points outside the frame, whose right and bottom
+        edges still count as in it, do not)."""
+        p = np.asarray(points, np.float64).reshape(-1, 2)
+        ok = np.isfinite(p).all(axis=1) & (p >= 0).all(axis=1) & (p <= np.asarray(size)).all(axis=1)
         out = np.zeros(len(p), bool)
-        i = p[ok].astype(int)
+        i = np.minimum(np.floor(p[ok]).astype(int), np.asarray(size) - 1)
         out[ok] = self.mask(size)[i[:, 1], i[:, 0]] > 0
         return out
 
-    def holds_boxes(self, boxes: np.ndarray, size: tuple[int, int]) -> np.ndarray:
-        """Which of the Nx4 pixel boxes (x0, y0, x1, y1) stand in the zone: their bottom centre, where a vehicle
-        touches the road, lies inside it."""
-        return self.contains(box_anchors(boxes), size)
+    def keep(self, detections: Detections, size: tuple[int, int]) -> Detections:
+        """The vehicles that stand in the zone: their box's bottom centre, where they touch the road, lies inside."""
+        return detections[self.contains(detections.bottom_centers, size)] if len(detections) else detections
 
     def check(self, size: tuple[int, int]) -> str | None:
         """Why this zone cannot be used on a ``size`` (width, height) frame, or None: it covers none of its pixels."""
@@ -65,26 +71,23 @@ class Zone:
             return f"zone {self}: it covers no pixel of the {size[0]}x{size[1]} frame"
         return None
 
-    def beyond(self, size: tuple[int, int]) -> str | None:
-        """A warning when a zone in pixels reaches past a ``size`` frame (written for another resolution?), or
-        None."""
+    def doubt(self, size: tuple[int, int]) -> str | None:
+        """A warning when a zone in pixels looks written for another frame than a ``size`` one (it reaches past it,
+        or covers under 0.5 % of it), or None."""
         if self.relative:
             return None
         far = np.concatenate(self.polygons).max(axis=0)
+        hint = "written for another resolution? Fractions 0..1 of the width and height fit any"
         if (far > np.array(size) + 1).any():
-            return (f"zone {self} reaches to {far[0]:g},{far[1]:g}, beyond the {size[0]}x{size[1]} frame: written for "
-                    f"another resolution? Fractions 0..1 of the width and height fit any")
+            return f"zone {self} reaches to {far[0]:g},{far[1]:g}, beyond the {size[0]}x{size[1]} frame: {hint}"
+        share = np.count_nonzero(self.mask(size)) / (size[0] * size[1])
+        if share < 0.005:
+            return f"zone {self} covers only {100 * share:.2g} % of the {size[0]}x{size[1]} frame: {hint}"
         return None
 
     def __str__(self) -> str:
         fmt = "{:g},{:g}"
         return "; ".join(" ".join(fmt.format(*xy) for xy in p) for p in self.polygons)
-
-
-def box_anchors(boxes: np.ndarray) -> np.ndarray:
-    """Nx2 bottom centres of Nx4 boxes (x0, y0, x1, y1): where a vehicle touches the road in the image."""
-    b = np.asarray(boxes, np.float64).reshape(-1, 4)
-    return np.stack([(b[:, 0] + b[:, 2]) / 2, b[:, 3]], axis=1)
 
 
 def parse_zone(text: str) -> Zone | None:
@@ -94,21 +97,23 @@ def parse_zone(text: str) -> Zone | None:
     if not text:
         return None
     polygons = []
-    for k, part in enumerate(p for p in text.split(";") if p.strip()):
+    for k, part in enumerate(text.split(";")):
+        if not part.strip():
+            continue
+        what = f"zone {text!r}: polygon {k + 1}"
+        pairs = [pair.split(",") for pair in part.split()]
+        if any(len(xy) != 2 for xy in pairs):
+            raise InputError(f"{what} has a point without exactly two coordinates; expected {SYNTAX}")
         try:
-            pts = np.array([[float(v) for v in pair.split(",")] for pair in part.split()], np.float64)
+            pts = np.array([[float(x), float(y)] for x, y in pairs], np.float64)
         except ValueError:
-            raise InputError(f"zone {text!r}: polygon {k + 1} is not a list of x,y numbers; expected {SYNTAX}") \
-                from None
-        if pts.ndim != 2 or pts.shape[1] != 2:
-            raise InputError(f"zone {text!r}: polygon {k + 1} has a point without exactly two coordinates; "
-                             f"expected {SYNTAX}")
+            raise InputError(f"{what} is not a list of x,y numbers; expected {SYNTAX}") from None
         if not np.isfinite(pts).all():
-            raise InputError(f"zone {text!r}: polygon {k + 1} has a coordinate that is not a finite number")
+            raise InputError(f"{what} has a coordinate that is not a finite number")
         if len(pts) < 3:
-            raise InputError(f"zone {text!r}: polygon {k + 1} has {len(pts)} points; a zone needs at least 3")
+            raise InputError(f"{what} has {len(pts)} points; a zone needs at least 3")
         if abs(cv2.contourArea(pts.astype(np.float32))) <= 0:
-            raise InputError(f"zone {text!r}: polygon {k + 1} encloses no area (its points lie on a line)")
+            raise InputError(f"{what} encloses no area (its points lie on a line)")
         polygons.append(pts)
     if not polygons:
         raise InputError(f"zone {text!r}: no polygon; expected {SYNTAX}")
@@ -116,4 +121,7 @@ def parse_zone(text: str) -> Zone | None:
     if (every < 0).any():
         raise InputError(f"zone {text!r}: negative coordinates; expected {SYNTAX}")
     relative = bool((every <= 1.0).all())
+    if not relative and ((every > 0) & (every < 1)).any():
+        raise InputError(f"zone {text!r}: mixes fractions of the frame (between 0 and 1) with pixels (above 1): "
+                         "give every coordinate one way")
     return Zone(tuple(polygons), relative)

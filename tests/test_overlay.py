@@ -228,6 +228,27 @@ def test_the_counters_panel_stays_put_for_a_vehicle_now_and_then() -> None:
     assert placer.panel == "top-left"
 
 
+def test_the_status_line_keeps_off_a_wide_panel_on_a_small_frame() -> None:
+    """A 320x180 stream with eight lanes and class speed limits (the panel's limits line, one item, is wider than
+    half the frame; the panel stays top left, its corner free) and traffic at both bottom corners: the status line
+    would go to the free top right, but there it would cover the panel, so it takes the quieter bottom corner
+    instead; a vehicle box with NaNs is left out of the map."""
+    w, h = 320, 180
+    placer = PanelPlacer()
+    lanes = "  ".join(f"lane {k}: {k + 10}" for k in range(8))
+    for i in range(300):
+        img = np.full((h, w, 3), GREY, np.uint8)
+        marks = [VehicleMark((10.0, 120.0, 110.0, 175.0), 1, "car"),
+                 VehicleMark((200.0, 150.0, 230.0, 175.0), 2, "car"), VehicleMark((np.nan, 0.0, 5.0, 5.0), 3, "car")]
+        draw_overlay(canvas_for_bgr(img), marks, None, OverlayOptions(boxes=False, labels=False, speeds=False),
+                     ["vehicles: 12", "over 80 km/h (truck 60, bus 60): 3", lanes], status="calibrating: no speeds yet",
+                     placer=placer)
+    assert placer.panel == "top-left" and placer.status == "bottom-right"
+    dark = img.max(axis=2) < 60
+    rows = np.flatnonzero(dark[:, :w // 4].any(axis=1))  # the panel, top left
+    assert rows.min() == 8 and not dark[rows.max() + 2:h // 2, w // 2:].any()  # nothing beside it on the right
+
+
 def test_a_fixed_panel_position_and_a_wrong_one() -> None:
     placer = PanelPlacer("bottom-right")
     dark = _panel_frames(placer, [[(200, 150, 300, 230)]] * 300, status="finding the scale: no speeds yet")

@@ -64,7 +64,7 @@ class TrafficOverlay(TrafficcalTransform):
         self._yuv = (0.299, 0.114, False)
 
     def do_start(self):
-        from gst_trafficcal.overlay import PANEL_POSITIONS, GridCache, PanelPlacer, VehicleCounter
+        from gst_trafficcal.overlay import GridCache, PanelPlacer, VehicleCounter
 
         from gst_trafficcal.errors import InputError
         from gst_trafficcal.traffic_stats import element_limit
@@ -76,11 +76,11 @@ class TrafficOverlay(TrafficcalTransform):
         except InputError as exc:
             self.post_error(f"trafficoverlay: {exc}")
             return False
-        if self.panel_position not in PANEL_POSITIONS:
-            self.post_error(f"trafficoverlay: panel-position {self.panel_position!r} is none of "
-                            f"{', '.join(PANEL_POSITIONS)}")
+        try:
+            self._placer = PanelPlacer(self.panel_position)
+        except ValueError as exc:
+            self.post_error(f"trafficoverlay: {exc}")
             return False
-        self._placer = PanelPlacer(self.panel_position)
         self._counter = VehicleCounter(speed_limit_kmh=self._limit)
         self._grid_cache = GridCache()
         self._untracked = UntrackedWatch("trafficoverlay")

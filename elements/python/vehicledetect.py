@@ -77,11 +77,11 @@ class VehicleDetect(TrafficcalTransform):
 
     def on_caps(self, info):
         if self._zone is not None:
-            wrong, far = self._zone.check(self.frame_size), self._zone.beyond(self.frame_size)
+            wrong, doubt = self._zone.check(self.frame_size), self._zone.doubt(self.frame_size)
             if wrong:
                 self.post_error(f"vehicledetect: {wrong}")
-            elif far:
-                self.post_warning(f"vehicledetect: {far}")
+            elif doubt:
+                self.post_warning(f"vehicledetect: {doubt}")
 
     def on_calibration(self, cal):
         reset = getattr(self._detector, "reset", None)  # detectors with a background of their own
@@ -104,8 +104,8 @@ class VehicleDetect(TrafficcalTransform):
         size = reduced_size(self._detector, self.frame_size) if self.model else None
         with (self.bgr(buffer, size) if self.model else self.gray(buffer)) as image:
             detections = detect(self._detector, image, self.buffer_t, self.frame_size if size else None)
-        if self._zone is not None and len(detections):
-            detections = detections[self._zone.holds_boxes(detections.boxes, self.frame_size)]
+        if self._zone is not None:
+            detections = self._zone.keep(detections, self.frame_size)
         for d in detections:
             add_vehicle_roi(buffer, self.frame_size, d.box, d.label, d.score, d.class_id, params=hull_params(d.hull))
         return Gst.FlowReturn.OK

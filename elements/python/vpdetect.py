@@ -129,9 +129,13 @@ class VpDetect(TrafficcalTransform):
             return
         size, before = tuple(self.frame_size), self._size
         self._size = size
-        far = self._zone.beyond(size) if self._zone is not None and size != before else None
-        if far:
-            self.post_warning(f"vpdetect: {far}")
+        if self._zone is not None and size != before:  # checked here in every mode, also with a loaded calibration
+            wrong, doubt = self._zone.check(size), self._zone.doubt(size)
+            if wrong:
+                self.post_error(f"vpdetect: {wrong}")
+                return
+            if doubt:
+                self.post_warning(f"vpdetect: {doubt}")
         if before is not None and size != before and self._frames > 0:
             self._resized(before)
             return

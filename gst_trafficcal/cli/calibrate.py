@@ -126,7 +126,7 @@ def command(video: Path, out_path: Path, png_path: Path | None, method: str, min
         image = result.frame.copy() if result.frame.ndim == 3 else cv2.cvtColor(result.frame, cv2.COLOR_GRAY2BGR)
         draw_calibration(image, cal.camera, thickness=1 if image.shape[1] < 1280 else 2)
         if where is not None:
-            draw_segments(image, zone_segments(where.pixels(image.shape[1::-1])), ZONE_BGR,
+            draw_segments(image, zone_segments(where.pixels(image.shape[1::-1]), image.shape[1::-1]), ZONE_BGR,
                           2 if image.shape[1] < 1280 else 3)
         if not cv2.imwrite(str(png), image):
             raise InputError(f"{png}: cannot write the grid image")

@@ -108,8 +108,8 @@ def scale_from_video(video: str | Path, calibration: Calibration, *, models=None
             # the elements see the decoder's Y plane (video range 16-235); OpenCV expands it to full range
             gray = cv2.convertScaleAbs(cv2.cvtColor(bgr, cv2.COLOR_BGR2GRAY), alpha=219 / 255, beta=16)
             detections = detect(det, bgr if detector else gray, t)
-            if zone is not None and len(detections):
-                detections = detections[zone.holds_boxes(detections.boxes, gray.shape[::-1])]
+            if zone is not None:
+                detections = zone.keep(detections, gray.shape[::-1])
             result, detections = pipe.process(gray, t, detections, chroma=chroma_from_bgr(bgr) if colour else None)
             sightings = frame_sightings(result, detections, camera, box)
             est.update(t, sightings)
