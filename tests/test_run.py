@@ -673,7 +673,8 @@ def test_reconnecting_to_a_stream_that_is_not_there_goes_on_until_ctrl_c(clip, t
         time.sleep(0.2)
         if (out / "status.json").is_file() and (st := read_status(out / "status.json")).state == "reconnecting" \
                 and st.parts_done >= 2:
-            waiting = st
+            waiting = st  # two attempts failed: waiting 2 s for the third
+            break
     assert proc.poll() is None, proc.communicate()
     proc.send_signal(getattr(signal, stop))
     stdout, stderr = proc.communicate(timeout=60)
