@@ -90,9 +90,18 @@ class Zone:
         return "; ".join(" ".join(fmt.format(*xy) for xy in p) for p in self.polygons)
 
 
-def parse_zone(text: str) -> Zone | None:
+def parse_zone(text: str, option: str = "") -> Zone | None:
     """The zone ``text`` describes (see the module docstring), None for an empty text; InputError naming what is
-    wrong otherwise."""
+    wrong otherwise (after ``option``, e.g. "--zone", when it came from a command-line option)."""
+    try:
+        return _parse_zone(text)
+    except InputError as exc:
+        if not option:
+            raise
+        raise InputError(f"{option}: {exc}") from None
+
+
+def _parse_zone(text: str) -> Zone | None:
     text = (text or "").strip()
     if not text:
         return None

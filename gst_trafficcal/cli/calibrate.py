@@ -80,10 +80,7 @@ def command(video: Path, out_path: Path, png_path: Path | None, method: str, min
 
     if min_duration < 0 or max_duration <= 0:
         raise InputError("durations must be positive")
-    try:
-        where = parse_zone(zone)
-    except InputError as exc:
-        raise InputError(f"--zone: {exc}") from None
+    where = parse_zone(zone, "--zone")
     if with_scale:  # bad scale inputs are one-line errors now, not after the vanishing points were found
         from ..scale.regression import load_regression
         from ..scale.streaming import load_align_models

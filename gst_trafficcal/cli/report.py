@@ -77,14 +77,10 @@ def command(events_path: Path, calibration_path: Path | None, frame_path: Path |
     from ..outputs import on_one_clock, read_events
     from ..report import ReportInputs, measured_paths, write_report
     from ..traffic_stats import interval_rows, parse_speed_limit, write_intervals_csv
-
     from ..zone import parse_zone
 
     limit = parse_speed_limit(speed_limit, "--speed-limit")
-    try:
-        where = parse_zone(zone)
-    except InputError as exc:
-        raise InputError(f"--zone: {exc}") from None
+    where = parse_zone(zone, "--zone")
     log = read_events(events_path)
     cal = load_calibration(calibration_path) if calibration_path is not None else None
     results = load_results(results_path) if results_path is not None else None

@@ -728,10 +728,7 @@ def command(videos: tuple[str, ...], out_dir: Path, calibration_path: Path | Non
     limit = parse_speed_limit(speed_limit, "--speed-limit")  # a bad one: one line, before any work
     from ..zone import parse_zone
 
-    try:
-        parse_zone(zone)  # a bad one: one line now, not an element error after the pipeline started
-    except InputError as exc:
-        raise InputError(f"--zone: {exc}") from None
+    parse_zone(zone, "--zone")  # a bad one: one line now, not an element error after the pipeline started
     if reconnect and not is_uri(inputs[0]):
         raise InputError("--reconnect is for a live stream (a URI): a file is read to its end once")
     split_s = None
