@@ -15,11 +15,14 @@ Example::
       "confidence": {"vp1": 0.98, ...},
       "camera": {"K": [[...]], "R": [[...]], "t": [...]},       # present when the scale is known
       "camera_calibration": {"vp1": [...], "vp2": [...], "pp": [...], "scale": s},  # BrnoCompSpeed convention
-      "conditioning": {"vp2_image_widths": 3.1, "turn_deg": 0.1, "speed_pct": 0.7, "poor": false}
+      "conditioning": {"vp2_image_widths": 3.1, "turn_deg": 0.1, "speed_pct": 0.7, "poor": false},
+      "zone": "0.1,0.4 0.9,0.4 1,1 0,1"  # the detection zone it was learnt in (gst_trafficcal.zone), when one was
     }
 
 ``conditioning`` (derived, written for readers, ignored when loading): how much the speeds change when the lines
 towards VP2 turn by ``turn_deg`` (:mod:`gst_trafficcal.vanishing.conditioning`); ``poor`` for a view along the road.
+
+``zone`` (optional) is read by :func:`gst_trafficcal.zone.zone_of_file`, not by :func:`load_calibration`.
 
 ``state`` is one of :data:`STATES`.  Loading validates everything and raises :class:`InputError` with a
 one-line message naming the file for anything that is not our format or is corrupt.
@@ -210,9 +213,14 @@ def load_calibration(path: str | Path) -> Calibration:
     return Calibration.from_dict(read_json(path, "calibration file"), where=str(path))
 
 
-def save_calibration(cal: Calibration, path: str | Path) -> Path:
-    """Write the calibration atomically (a crash never leaves half a file)."""
-    return atomic_write_text(path, json.dumps(cal.to_dict(), indent=2) + "\n", "calibration")
+def save_calibration(cal: Calibration, path: str | Path, zone: object | None = None) -> Path:
+    """Write the calibration atomically (a crash never leaves half a file); with the detection ``zone``
+    (:class:`gst_trafficcal.zone.Zone`) it was learnt and measured in as field ``zone``, so that a report made again
+    from the file, or a run given it, keeps to the same road (:func:`gst_trafficcal.zone.zone_of_file`)."""
+    d = cal.to_dict()
+    if zone is not None:
+        d["zone"] = str(zone)
+    return atomic_write_text(path, json.dumps(d, indent=2) + "\n", "calibration")
 
 
 # --------------------------------------------------------------------------- a camera's views (PTZ presets)

@@ -8,18 +8,25 @@ and ``vpdetect`` learns only from the motion and the edges inside it.
 
 Written as ``"x,y x,y x,y ..."`` with polygons separated by ``;``: in pixels of the frame, or, when every
 coordinate lies in 0..1, in fractions of its width and height (the same zone for any resolution of a stream).
+
+A calibration file learnt or measured in a zone keeps it as its field ``zone`` (``trafficcal calibrate --zone``,
+``trafficcal run --zone``); :func:`zone_of_file` reads it back for a report made again or a run given the file.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import cv2
 import numpy as np
 
 from .detection.records import Detections
 from .errors import InputError
+from .fileio import read_json
 
+WHOLE_FRAME = "all"
+"""The zone text for the whole frame: as no zone, but said explicitly (over the zone a calibration file keeps)."""
 SYNTAX = "'x,y x,y x,y ...' (pixels, or fractions 0..1 of the width and height), polygons separated by ';'"
 
 
@@ -91,7 +98,8 @@ class Zone:
 
 
 def parse_zone(text: str, option: str = "") -> Zone | None:
-    """The zone ``text`` describes (see the module docstring), None for an empty text; InputError naming what is
+    """The zone ``text`` describes (see the module docstring), None for an empty text or ``all`` (the whole frame);
+    InputError naming what is
     wrong otherwise (after ``option``, e.g. "--zone", when it came from a command-line option)."""
     try:
         return _parse_zone(text)
@@ -103,7 +111,7 @@ def parse_zone(text: str, option: str = "") -> Zone | None:
 
 def _parse_zone(text: str) -> Zone | None:
     text = (text or "").strip()
-    if not text:
+    if not text or text.lower() == WHOLE_FRAME:
         return None
     polygons = []
     for k, part in enumerate(text.split(";")):
@@ -134,3 +142,15 @@ def _parse_zone(text: str) -> Zone | None:
         raise InputError(f"zone {text!r}: mixes fractions of the frame (between 0 and 1) with pixels (above 1): "
                          "give every coordinate one way")
     return Zone(tuple(polygons), relative)
+
+
+def zone_of_file(path: str | Path) -> Zone | None:
+    """The detection zone a calibration file was learnt or measured in (its field ``zone``), None when it has none;
+    InputError naming the file when it cannot be read or the zone is not one."""
+    d = read_json(path, "calibration file")
+    text = d.get("zone") if isinstance(d, dict) else None
+    if text is None:
+        return None
+    if not isinstance(text, str):
+        raise InputError(f"{path}: field 'zone' must be a text {SYNTAX}")
+    return parse_zone(text, f"{path}: field 'zone'")

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import re
 
 import numpy as np
 import pytest
@@ -119,3 +120,21 @@ def test_a_cameras_views_are_kept_one_file_per_view(tmp_path):
     (tmp_path / "file").write_text("")
     with pytest.raises(InputError, match="cannot create the views folder"):
         save_view(bare, tmp_path / "file" / "views")
+
+
+def test_a_calibration_file_keeps_the_zone_it_was_learnt_in(tmp_path) -> None:
+    """save_calibration(zone=) writes the zone's text; zone_of_file reads it back (None for a file without one);
+    the calibration itself loads as before; a broken zone in a file is an error naming the file; 'all' is none."""
+    from gst_trafficcal.zone import parse_zone, zone_of_file
+
+    cal = _calibration()
+    zone = parse_zone("0.1,0.4 0.9,0.4 1,1 0,1; 0,0 0.05,0 0.05,0.05")
+    kept = zone_of_file(save_calibration(cal, tmp_path / "zone.json", zone=zone))
+    assert kept.relative and str(kept) == str(zone) and np.array_equal(kept.mask((96, 54)), zone.mask((96, 54)))
+    assert load_calibration(tmp_path / "zone.json").id == cal.id
+    assert zone_of_file(save_calibration(cal, tmp_path / "bare.json")) is None
+    assert parse_zone("all") is None and parse_zone(" ALL ") is None
+    text = (tmp_path / "zone.json").read_text().replace('"0.1,0.4', '"0.1,0.4 7')
+    (tmp_path / "broken.json").write_text(text)
+    with pytest.raises(InputError, match=re.escape(f"{tmp_path / 'broken.json'}: field 'zone': zone '0.1,0.4 7")):
+        zone_of_file(tmp_path / "broken.json")

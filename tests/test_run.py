@@ -364,6 +364,20 @@ def test_a_zone_leaves_out_the_other_carriageway(clip, with_truth, tmp_path):
     violet = np.abs(frame.astype(int) - ZONE_BGR).max(axis=2) < 60
     ys = np.arange(120, 260, 10)  # down the zone's right edge, from (380, 50) to (400, 270)
     assert all(violet[y, x - 2:x + 3].any() for y, x in zip(ys, np.round(380 + (ys - 50) * 20 / 220).astype(int)))
+    # calibration.json keeps the zone: a report made again outlines it, a run given the file measures in it
+    assert json.loads((tmp_path / "out" / "calibration.json").read_text())["zone"] == zone
+    again = trafficcal("report", "--events", tmp_path / "out" / "vehicles.jsonl", "--calibration",
+                       tmp_path / "out" / "calibration.json", "--out", tmp_path / "again.html")
+    assert again.returncode == 0, again.stderr[-2000:]
+    page = " ".join(re.sub(r"<[^>]+>", " ", (tmp_path / "again.html").read_text()).split())
+    assert f"detection zone [px] {zone}" in page
+    for given, kept in (((), True), (("--zone", "all"), False)):
+        rerun = trafficcal("run", clip / "video.mp4", "--out", tmp_path / "rerun", "--no-overlay", "--duration", "1",
+                           "--calibration", tmp_path / "out" / "calibration.json", *given)
+        assert rerun.returncode == 0, rerun.stdout[-2000:] + rerun.stderr[-2000:]
+        printed = " ".join(rerun.stdout.split())
+        assert bool(re.search(r'vehicledetect model="vehicleseg"[^!]* zone="' + zone + '"', printed)) is kept
+        assert ("Zone kept in" in printed) is kept and ("zone=" in printed) is kept
     line = one_line_error(trafficcal("run", clip / "video.mp4", "--out", tmp_path / "bad", "--zone", "10,10 20,20"))
     assert line == "trafficcal: error: --zone: zone '10,10 20,20': polygon 1 has 2 points; a zone needs at least 3"
     assert not (tmp_path / "bad").exists()

@@ -231,8 +231,8 @@ def test_cli_constant_speed_switch(tmp_path):
 
 
 def test_cli_zone_is_outlined_on_the_grid_png(tmp_path):
-    """`trafficcal calibrate --zone`: learnt inside the zone (here nearly the whole frame: the same traffic), and the
-    grid picture outlines it so the user sees the polygon they wrote."""
+    """`trafficcal calibrate --zone`: learnt inside the zone (here nearly the whole frame: the same traffic), the
+    grid picture outlines it so the user sees the polygon they wrote, and the calibration file keeps it."""
     from gst_trafficcal.drawing import ZONE_BGR
 
     from .test_vanishing import FPS, H, W, cached_scene
@@ -252,6 +252,9 @@ def test_cli_zone_is_outlined_on_the_grid_png(tmp_path):
     assert violet[y0 - 1:y0 + 2, x0 + 10:x1 - 10].any(axis=0).mean() > 0.9  # its top edge
     assert violet[y0 + 10:y1 - 10, x1 - 1:x1 + 2].any(axis=1).mean() > 0.9  # its right edge
     assert not violet[:y0 - 3].any()
+    from gst_trafficcal.zone import zone_of_file
+
+    assert str(zone_of_file(out)) == "0.1,0.1 0.9,0.1 0.9,0.9 0.1,0.9"  # kept for trafficcal run --calibration
 
 
 def test_a_file_that_is_no_video_is_one_line_without_ffmpegs_complaints(tmp_path):

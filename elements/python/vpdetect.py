@@ -73,7 +73,7 @@ class VpDetect(TrafficcalTransform):
                            True, _RW),
         "zone": (str, "Zone", "Learn only from the traffic inside: polygons 'x,y x,y x,y ...' separated by ';', in "
                  "pixels or fractions 0..1 of the frame — the measured road, without a side road or a parking lot "
-                 "(empty: the whole frame)", "", _RW),
+                 "(empty: the whole frame); kept in calibration-file", "", _RW),
     }
     PASSTHROUGH = True
 
@@ -460,7 +460,7 @@ class VpDetect(TrafficcalTransform):
         from gst_trafficcal.errors import InputError
 
         try:
-            save_calibration(cal, self.calibration_file)
+            save_calibration(cal, self.calibration_file, zone=self._zone)
         except InputError as exc:
             self.post_warning(f"vpdetect: the calibration is in force but not saved: {exc}")
 

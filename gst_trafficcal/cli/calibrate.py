@@ -63,7 +63,8 @@ def parse_focal_range(text: str | None) -> tuple[float, float] | None:
 @click.option("--zone", default="", metavar="'x,y x,y x,y ...'",
               help="Learn only from the traffic inside this polygon of the frame (pixels, or fractions 0..1 of its "
                    "width and height; several: separated by ';'), e.g. the measured road without a side road or a "
-                   "parking lot; as trafficcal run --zone. Default: the whole frame.")
+                   "parking lot; as trafficcal run --zone. Kept in the calibration file, so that trafficcal run "
+                   "--calibration measures in it too. Default: the whole frame.")
 def command(video: Path, out_path: Path, png_path: Path | None, method: str, min_duration: float,
             max_duration: float, focal_range: str, horizon_max: float, whole: bool, progress: bool,
             with_scale: bool, scale_models: str, iou_threshold: float, min_vehicles: int,
@@ -112,7 +113,7 @@ def command(video: Path, out_path: Path, png_path: Path | None, method: str, min
     out = Console()
     if with_scale and cal.camera is not None:
         cal = _add_scale(video, cal, align_models, iou_threshold, min_vehicles, regression, out, model, where)
-    save_calibration(cal, out_path)
+    save_calibration(cal, out_path, zone=where)  # trafficcal run --calibration keeps to the same road
     fps = result.frames_read / max(result.seconds_processing, 1e-9)
     if cal.camera is None:
         out.print(f"{video}: not calibrated after {result.calibrator.t:.1f} s of video: {cal.reason} -> {out_path}",

@@ -67,7 +67,8 @@ def _frame(image: Path | None, video: Path | None, at_s: float):
 @click.option("--intervals-csv", "intervals_path", type=click.Path(path_type=Path),
               help="Also write the traffic count per interval, lane and direction as CSV.")
 @click.option("--zone", default="", metavar="'x,y x,y x,y ...'",
-              help="The detection zone the run used (trafficcal run --zone): outlined in the calibration picture.")
+              help="The detection zone the run used (trafficcal run --zone): outlined in the calibration picture. "
+                   "Default: the zone the --calibration file keeps (a run's calibration.json does); 'all': none.")
 @click.option("--out", "out_path", required=True, type=click.Path(path_type=Path), help="The report.html to write.")
 def command(events_path: Path, calibration_path: Path | None, frame_path: Path | None, video_path: Path | None,
             frame_time: float, gt_path: Path | None, results_path: Path | None, title: str, speed_limit: str,
@@ -77,10 +78,12 @@ def command(events_path: Path, calibration_path: Path | None, frame_path: Path |
     from ..outputs import on_one_clock, read_events
     from ..report import ReportInputs, measured_paths, write_report
     from ..traffic_stats import interval_rows, parse_speed_limit, write_intervals_csv
-    from ..zone import parse_zone
+    from ..zone import parse_zone, zone_of_file
 
     limit = parse_speed_limit(speed_limit, "--speed-limit")
     where = parse_zone(zone, "--zone")
+    if where is None and not zone.strip() and calibration_path is not None:
+        where = zone_of_file(calibration_path)  # the run's calibration.json keeps the zone it measured in
     log = read_events(events_path)
     cal = load_calibration(calibration_path) if calibration_path is not None else None
     results = load_results(results_path) if results_path is not None else None

@@ -334,12 +334,13 @@ def set_aside_earlier_live_run(out_dir: Path, live: bool, earlier=None,
 
 
 def measure_video(video: Path | str, out_dir: Path, description: str, console, label: str = "measuring",
-                  keep: tuple[Path, ...] = (), stop_after_s: float | None = None, status=None) -> RunSummary:
+                  keep: tuple[Path, ...] = (), stop_after_s: float | None = None, status=None,
+                  zone=None) -> RunSummary:
     """Play ``description`` (see :func:`pipeline_description`) with a progress bar; read back what it wrote.
 
     ``stop_after_s``: end the run there (an end-of-stream, as Ctrl-C does: every output is completed).
     ``status``: a :class:`~gst_trafficcal.run_status.StatusFile` kept up to date with the position, the vehicles and
-    the calibration.
+    the calibration.  ``zone``: the detection zone of the run (gst_trafficcal.zone.Zone), kept in calibration.json.
 
     Earlier outputs in ``out_dir`` are removed first, except the files in ``keep`` (inputs of this run, such as a
     calibration file given inside ``out_dir``).
@@ -437,7 +438,7 @@ def measure_video(video: Path | str, out_dir: Path, description: str, console, l
             status.update(error=failure)
     if summary.calibration is not None:
         try:
-            save_calibration(summary.calibration, paths.calibration)
+            save_calibration(summary.calibration, paths.calibration, zone=zone)
         except InputError as exc:
             summary.errors.append(str(exc))
     if failure is not None:
@@ -650,8 +651,9 @@ def print_vehicles(console, events: list, speed_limit: "SpeedLimit | float | Non
               help="Where vehicles are looked for: a polygon of the frame in pixels, or in fractions 0..1 of its "
                    "width and height (several: separated by ';'). Vehicles whose box's bottom centre lies outside "
                    "are neither counted nor measured, and the calibration learns only from the traffic inside — "
-                   "leave out a side road, a parking lot or a footpath. Drawn on overlay.mp4. Default: the whole "
-                   "frame.")
+                   "leave out a side road, a parking lot or a footpath. Drawn on overlay.mp4, kept in "
+                   "calibration.json. Default: the zone the --calibration file keeps (trafficcal calibrate --zone), "
+                   "else the whole frame; 'all': the whole frame.")
 @click.option("--no-overlay", is_flag=True, help="Do not encode overlay.mp4 (faster).")
 @click.option("--status-interval", "status_s", type=click.FloatRange(min=0.1), default=5.0, show_default=True,
               metavar="SECONDS",
@@ -726,9 +728,15 @@ def command(videos: tuple[str, ...], out_dir: Path, calibration_path: Path | Non
     from ..traffic_stats import parse_speed_limit
 
     limit = parse_speed_limit(speed_limit, "--speed-limit")  # a bad one: one line, before any work
-    from ..zone import parse_zone
+    from ..zone import parse_zone, zone_of_file
 
-    parse_zone(zone, "--zone")  # a bad one: one line now, not an element error after the pipeline started
+    where = parse_zone(zone, "--zone")  # a bad one: one line now, not an element error after the pipeline started
+    if where is None and not zone.strip() and calibration_path is not None:
+        where = zone_of_file(calibration_path)  # the zone the camera's calibration was learnt in
+        if where is not None:
+            console.print(f"[bold]Zone[/] kept in {calibration_path}: {where} (--zone all: the whole frame)",
+                          highlight=False)
+    zone = "" if where is None else str(where)
     if reconnect and not is_uri(inputs[0]):
         raise InputError("--reconnect is for a live stream (a URI): a file is read to its end once")
     split_s = None
@@ -906,7 +914,7 @@ def run_one(console, video: Path | str, out_dir: Path, calibration_path: Path | 
     console.print(f"[bold]Pipeline[/] {shown}", highlight=False, soft_wrap=True)
     summary = measure_video(video, out_dir, description, console,
                             keep=(calibration_path,) if calibration_path is not None else (), stop_after_s=duration_s,
-                            status=options.status)
+                            status=options.status, zone=parse_zone(options.zone))
     if live_clock:  # the speedometer took the clock at the first frame: the events say when that was
         start = stream_start(summary.events)
     if summary.stopped:

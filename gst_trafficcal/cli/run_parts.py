@@ -62,6 +62,7 @@ def run_parts(console, parts, total: int | None, out_dir: Path, calibration_path
 
     from ..calibration import load_calibration, save_calibration, save_view
     from ..traffic_stats import speed_stats
+    from ..zone import parse_zone
 
     options = dc_replace(options, views_dir=out_dir / "views")  # the camera's views, kept from part to part
     combined = _AllVehicles(console, out_dir, min(starts) if starts else None)
@@ -82,7 +83,8 @@ def run_parts(console, parts, total: int | None, out_dir: Path, calibration_path
             given, mode = sub / "calibration.json", "auto"
             cal, origin = carried
             # not bbscale's own any more: a scale from a file, which bbscale passes on as it is
-            save_calibration(dc_replace(cal, source=f"{cal.source}, carried over from {origin}"), given)
+            save_calibration(dc_replace(cal, source=f"{cal.source}, carried over from {origin}"), given,
+                             zone=parse_zone(options.zone))
         opts = options if starts is None else dc_replace(options, start=starts[k - 1])
         if live and options.duration_s is not None:
             opts = dc_replace(options, duration_s=max(options.duration_s - used_s, 1e-3))
