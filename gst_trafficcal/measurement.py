@@ -126,6 +126,15 @@ class LiveSpeed:
     label: str = ""  # the class its 3D boxes give so far (vehicles.classify.refined_label of the detector's)
 
 
+def steady_label(shown: str, next_: str, new: str) -> tuple[str, str]:
+    """The class to show for a vehicle in view, and the one waiting, after its size gave ``new``: a change is shown
+    only when two refreshes in a row give it, so a vehicle whose size lies between two classes (half hidden, or
+    far) does not flip its label on the video every second; the first class is shown at once."""
+    if not shown or new == shown:
+        return new, ""
+    return (new, "") if new == next_ else (shown, new)
+
+
 @dataclass(frozen=True)
 class MeasuredVehicle:
     """A vehicle that left: its event and the reference points behind it (for the BrnoCompSpeed results)."""
@@ -156,6 +165,7 @@ class _Record:
     last_t: float = 0.0
     unboxed: list[int] = field(default_factory=list)  # observations that came without a 3D box but could have one
     live_label: str = ""  # the class given to the vehicle in view (refreshed every LIVE_LABEL_EVERY observations)
+    live_label_next: str = ""  # another class its size gave at the last refresh, shown if the next one agrees
     live_label_at: int = -1  # how many observations it had then
     live: LiveSpeed | None = None  # the current estimate of the vehicle in view (refreshed every LIVE_EVERY)
     live_at: int = -1  # how many observations it had then
@@ -415,7 +425,9 @@ class SpeedMeter:
             return None
         n = len(rec.observations)
         if rec.live_label_at < 0 or n - rec.live_label_at >= LIVE_LABEL_EVERY:  # the size settles slowly: not
-            rec.live_label, rec.live_label_at = self._label(track)[0], n   # every frame (0.5 ms per vehicle)
+            rec.live_label, rec.live_label_next = steady_label(  # every frame (0.5 ms per vehicle)
+                rec.live_label, rec.live_label_next, self._label(track)[0])
+            rec.live_label_at = n
         return LiveSpeed(m.speed_kmh, m.agreement, m.n_pairs, rec.live_label)
 
     def _speed(self, px: np.ndarray, times: np.ndarray) -> VehicleSpeed:

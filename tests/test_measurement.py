@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from gst_trafficcal.calibration import Calibration
-from gst_trafficcal.measurement import MeasuredVehicle, Sighting, SpeedMeter, speed_params
+from gst_trafficcal.measurement import MeasuredVehicle, Sighting, SpeedMeter, speed_params, steady_label
 from gst_trafficcal.outputs import AWAY_FROM_VP1, TOWARDS_VP1
 from gst_trafficcal.tracking.pipeline import TrackingPipeline
 from gst_trafficcal.tracking.simulate import default_camera, simulate
@@ -625,3 +625,19 @@ def test_remeasure_leaves_the_vehicles_of_a_view_before_a_camera_move(scene, tru
         meter.update(f.t, sightings(f))
     meter.flush()
     assert all(m.event.first_timestamp_s >= 12.0 for m in meter.remeasure())
+
+
+def test_a_live_class_changes_only_when_two_refreshes_in_a_row_give_it() -> None:
+    """A vehicle whose size lies between two classes gets car, van, car, van from its refreshes: it keeps showing
+    the first; one that keeps giving van switches at the second."""
+    def shown(sizes: list[str]) -> list[str]:
+        out, state = [], ("", "")
+        for new in sizes:
+            state = steady_label(*state, new)
+            out.append(state[0])
+        return out
+
+    assert shown(["car", "van", "car", "van", "car"]) == ["car"] * 5
+    assert shown(["car", "van", "van", "van", "car", "truck", "truck"]) == ["car", "car", "van", "van", "van", "van",
+                                                                            "truck"]
+    assert shown(["motorcycle"]) == ["motorcycle"]
