@@ -761,14 +761,39 @@ def draw_overlay(canvas: Canvas, marks: Sequence[VehicleMark], camera: Camera | 
                          above=False, alpha=style.panel_alpha)
 
 
+class GivenClasses:
+    """The class the speedometer last gave each vehicle in view, kept for the frames in which it gives none (it
+    withholds the live speed, with its class, while the speed samples disagree): without it the label would flip
+    between its class and the detector's ("van", "car", "van") as the speed comes and goes."""
+
+    LIMIT = 4096  # vehicles remembered (the oldest forgotten first)
+
+    def __init__(self) -> None:
+        self._given: OrderedDict[int, str] = OrderedDict()
+
+    def label(self, track_id: int | None, given: object, detector_label: str) -> str:
+        """The label to show: ``given`` (the "speed" structure's class) when there is one, else the class given
+        earlier to ``track_id``, else the detector's."""
+        if track_id is None:
+            return str(given or detector_label)
+        if given:
+            self._given[track_id] = str(given)
+            self._given.move_to_end(track_id)
+            while len(self._given) > self.LIMIT:
+                self._given.popitem(last=False)
+            return str(given)
+        return self._given.get(track_id, detector_label)
+
+
 def marks_from_params(box: Sequence[float], label: str, object_id: int | None,
-                      params: dict[str, dict]) -> VehicleMark:
+                      params: dict[str, dict], given: GivenClasses | None = None) -> VehicleMark:
     """A :class:`VehicleMark` from one ROI's parameter structures (see ``trafficoverlay``).
 
     Reads, all optional: ``"trafficcal-vehicle"`` as the tracker writes it (``box3d``: 8 corner pairs in pixels,
     ``ref_x``/``ref_y`` the reference point, ``direction`` +1/-1/0, see ``tracking.vehicle_meta``; also accepted:
     ``ref_point`` [x, y], ``lane``) and ``"speed"`` {``speed_kmh``, optional ``lane``, optional ``label``: the
-    class the speedometer gives the vehicle, shown instead of the detector's ``label``}.
+    class the speedometer gives the vehicle, shown instead of the detector's ``label``, and with ``given`` also
+    in the frames without one}.
     """
     tv = params.get("trafficcal-vehicle", {})
     sp = params.get("speed", {})
@@ -791,7 +816,7 @@ def marks_from_params(box: Sequence[float], label: str, object_id: int | None,
     speed = sp.get("speed_kmh")
     if speed is not None and not (isinstance(speed, (int, float)) and np.isfinite(speed)):
         speed = None
-    label = sp.get("label") or label
+    label = given.label(object_id, sp.get("label"), label) if given is not None else sp.get("label") or label
     return VehicleMark(box=tuple(float(v) for v in box), track_id=object_id, label=str(label),
                        speed_kmh=None if speed is None else float(speed), corners=corners, ref_point=ref,
                        direction=direction,

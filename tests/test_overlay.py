@@ -357,6 +357,22 @@ def test_marks_from_the_tracker_structure() -> None:
     assert m.corners is None and m.ref_point is None and m.track_id == 5
 
 
+def test_a_vehicle_keeps_its_class_while_the_speedometer_withholds_its_speed() -> None:
+    """The speedometer's class of a vehicle stays on it in the frames where its live speed (and class) is withheld,
+    instead of flipping back to the detector's; other vehicles keep the detector's; the memory is bounded."""
+    from gst_trafficcal.overlay import GivenClasses
+
+    given = GivenClasses()
+    frames = [{"speed": {"speed_kmh": 40.0, "label": "van"}}, {}, {"speed": {"speed_kmh": 41.0, "label": "van"}}, {}]
+    assert [marks_from_params((1, 2, 30, 40), "car", 7, p, given).label for p in frames] == ["van"] * 4
+    assert [marks_from_params((1, 2, 30, 40), "car", 7, p).label for p in frames] == ["van", "car", "van", "car"]
+    assert marks_from_params((1, 2, 30, 40), "car", 8, {}, given).label == "car"
+    assert marks_from_params((1, 2, 30, 40), "bus", None, {}, given).label == "bus"  # no track: nothing to keep
+    for i in range(100, 100 + GivenClasses.LIMIT):
+        given.label(i, "truck", "car")
+    assert given.label(7, None, "car") == "car" and given.label(100 + GivenClasses.LIMIT - 1, "", "car") == "truck"
+
+
 @pytest.mark.parametrize("fmt", ["I420", "NV12"])
 def test_text_is_drawn_in_luma_on_a_neutral_box(fmt: str) -> None:
     """Label text: white luma on a black box whose chroma is neutral (no colour fringes under 4:2:0)."""

@@ -64,7 +64,7 @@ class TrafficOverlay(TrafficcalTransform):
         self._yuv = (0.299, 0.114, False)
 
     def do_start(self):
-        from gst_trafficcal.overlay import GridCache, PanelPlacer, VehicleCounter
+        from gst_trafficcal.overlay import GivenClasses, GridCache, PanelPlacer, VehicleCounter
 
         from gst_trafficcal.errors import InputError
         from gst_trafficcal.traffic_stats import element_limit
@@ -83,6 +83,7 @@ class TrafficOverlay(TrafficcalTransform):
             return False
         self._counter = VehicleCounter(speed_limit_kmh=self._limit)
         self._grid_cache = GridCache()
+        self._given = GivenClasses()  # the speedometer's class of each vehicle, also while it gives no live speed
         self._untracked = UntrackedWatch("trafficoverlay")
         self._tracked_upstream = None  # a tracker or speedometer upstream (decided at the first frame)
         self._file_cal = None
@@ -138,7 +139,7 @@ class TrafficOverlay(TrafficcalTransform):
                                             marks_from_params)
         from gst_trafficcal.tracking.vehicle_meta import STRUCTURE as VEHICLE
 
-        marks = [marks_from_params(r.box, r.label, r.object_id, r.params)
+        marks = [marks_from_params(r.box, r.label, r.object_id, r.params, self._given)
                  for r in read_vehicle_rois(buffer, self.frame_size, only=(VEHICLE, "speed"))]
         self._check_tracked(marks)
         cal = self.calibration
