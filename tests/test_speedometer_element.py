@@ -684,13 +684,17 @@ def test_a_camera_moved_mid_stream_keeps_what_was_measured_before(kraten_moved, 
     shutil.copy(stored, cal)
     events_file = tmp_path / "events.jsonl"
     middle = "tracker ! " if chain == "tracker" else ""
-    run = run_pipeline(f"filesrc location={clip} ! decodebin ! videoconvert ! vpdetect calibration-file={cal} ! "
-                       f"vehicledetect model=vehicleseg ! {middle}speedometer events-file={events_file} ! appsink name=sink")
+    zone = " zone=\"0,0 1,0 1,1 0,1\"" if chain == "tracker" else ""  # the whole frame: a zone that changes nothing
+    run = run_pipeline(f"filesrc location={clip} ! decodebin ! videoconvert ! vpdetect calibration-file={cal}{zone} "
+                       f"! vehicledetect model=vehicleseg ! {middle}speedometer events-file={events_file} ! "
+                       "appsink name=sink")
     moved = [c for c in run.calibrations if c.moved_at is not None]
     assert len(moved) == 1 and 13.5 <= moved[0].moved_at <= 14.0, [(c.state, c.moved_at) for c in run.calibrations]
     warned = [w for w in run.warnings if "the camera moved at" in w]
     assert len(warned) == 2 and "learning a new calibration" in warned[0] and "shifted by (+13" in warned[0]
     assert "calibration failed: the camera moved at" in warned[1]  # at the end: 10 s of the new view are too few
+    zoned = [w for w in run.warnings if "detection zone" in w]  # a zone does not follow the view: the user is told
+    assert len(zoned) == (chain == "tracker") and all("drawn for the view before the move at 13." in w for w in zoned)
     assert load_calibration(cal).id == load_calibration(stored).id  # the new one never converged: file kept
     file_id = load_calibration(stored).id
     events = read_events(events_file).events

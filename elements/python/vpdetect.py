@@ -392,6 +392,10 @@ class VpDetect(TrafficcalTransform):
         current = self._monitor.current()
         self._monitor = None
         what = f"the camera moved at {event.t:.1f} s ({event.match.describe()})"
+        if self._zone is not None:  # polygons of the frame: they do not follow the view
+            self.post_warning(f"vpdetect: the detection zone ({self._zone}) was drawn for the view before the move at "
+                              f"{event.t:.1f} s and stays where it was in the frame: check it against the new view "
+                              "(vehicles and calibration are still taken from inside it only)")
         if self.mode == "fixed":
             self.post_warning(f"vpdetect: {what}: speeds from here on are wrong; recalibrate (mode=auto or learn)")
             return
