@@ -133,6 +133,10 @@ def test_zone_keeps_the_vehicles_standing_in_it(frames, nanodet):
                                             r"640x360 frame"):
         run_pipeline("appsrc name=src ! vehicledetect zone=\"700,0 900,0 900,100\" ! appsink name=sink",
                      sample[:2], CAPS)
+    tiny = run_pipeline("appsrc name=src ! vehicledetect zone=\"10,10 30,10 30,20\" ! appsink name=sink", sample[:2],
+                        CAPS)  # a zone in pixels written for a larger frame, perhaps: a warning, the run goes on
+    assert len(tiny.frames) == 2 and [w for w in tiny.warnings if "vehicledetect: zone 10,10 30,10 30,20 covers only"
+                                      in w and "written for another resolution?" in w]
 
 
 def test_interval_leaves_frames_in_between_empty(frames, nanodet):

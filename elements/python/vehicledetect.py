@@ -77,11 +77,7 @@ class VehicleDetect(TrafficcalTransform):
 
     def on_caps(self, info):
         if self._zone is not None:
-            wrong, doubt = self._zone.check(self.frame_size), self._zone.doubt(self.frame_size)
-            if wrong:
-                self.post_error(f"vehicledetect: {wrong}")
-            elif doubt:
-                self.post_warning(f"vehicledetect: {doubt}")
+            self.zone_fits(self._zone, tuple(self.frame_size), "vehicledetect")
 
     def on_calibration(self, cal):
         reset = getattr(self._detector, "reset", None)  # detectors with a background of their own

@@ -129,13 +129,9 @@ class VpDetect(TrafficcalTransform):
             return
         size, before = tuple(self.frame_size), self._size
         self._size = size
-        if self._zone is not None and size != before:  # checked here in every mode, also with a loaded calibration
-            wrong, doubt = self._zone.check(size), self._zone.doubt(size)
-            if wrong:
-                self.post_error(f"vpdetect: {wrong}")
-                return
-            if doubt:
-                self.post_warning(f"vpdetect: {doubt}")
+        # checked here in every mode, also with a loaded calibration
+        if self._zone is not None and size != before and not self.zone_fits(self._zone, size, "vpdetect"):
+            return
         if before is not None and size != before and self._frames > 0:
             self._resized(before)
             return

@@ -207,6 +207,19 @@ class TrafficcalTransform(GstBase.BaseTransform):
         err = GLib.Error.new_literal(Gst.CoreError.quark(), text, int(Gst.CoreError.FAILED))
         self.post_message(Gst.Message.new_warning(self, err, debug or ""))
 
+    def zone_fits(self, zone: Any, size: tuple[int, int], name: str) -> bool:
+        """Check a detection ``zone`` (gst_trafficcal.zone.Zone) against frames of ``size``: an ERROR (False) when it
+        covers none of their pixels, a WARNING when it looks written for another resolution; ``name`` starts the
+        text."""
+        wrong = zone.check(size)
+        if wrong:
+            self.post_error(f"{name}: {wrong}")
+            return False
+        doubt = zone.doubt(size)
+        if doubt:
+            self.post_warning(f"{name}: {doubt}")
+        return True
+
     def post_info(self, text: str) -> None:
         """Post a GStreamer INFO message: something a user should know, not wrong (``gst-launch-1.0`` prints an
         INFO's debug text, so that is the text too)."""
