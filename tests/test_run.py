@@ -176,11 +176,28 @@ def test_without_a_scale_vehicles_are_written_and_the_command_says_so(clip, tmp_
         assert "speeds need a scale" not in proc.stderr
 
 
-def test_not_a_video(tmp_path):
+def test_not_a_video(clip, tmp_path):
+    """A file that is not a video, and a zone that covers none of a video's frame, are refused before anything in
+    --out is replaced: an earlier run's outputs there stay as they were (its vehicles are not passed off as this
+    run's)."""
     bad = tmp_path / "notes.mp4"
     bad.write_text("this is not a video\n" * 50)
-    line = one_line_error(trafficcal("run", bad, "--out", tmp_path / "out", "--no-overlay"))
-    assert str(bad) in line and "not a video" in line
+    out = tmp_path / "out"
+    out.mkdir()
+    earlier = {name: f"the earlier run's {name}\n" for name in ("vehicles.jsonl", "vehicles.csv", "calibration.json",
+                                                                 "system.json", "report.html")}
+    for name, text in earlier.items():
+        (out / name).write_text(text)
+    line = one_line_error(trafficcal("run", bad, "--out", out, "--no-overlay"))
+    assert str(bad) in line and "not a video" in line and f"nothing in {out} was changed" in line
+    assert {name: (out / name).read_text() for name in earlier} == earlier
+    (tmp_path / "empty.mp4").write_bytes(b"")
+    line = one_line_error(trafficcal("run", tmp_path / "empty.mp4", "--out", out, "--no-overlay"))
+    assert "no frame could be decoded" in line and {name: (out / name).read_text() for name in earlier} == earlier
+    line = one_line_error(trafficcal("run", clip / "video.mp4", "--out", out, "--no-overlay", "--zone",
+                                     "5000,5000 6000,5000 6000,6000"))
+    assert "--zone: zone 5000,5000 6000,5000 6000,6000: it covers no pixel of the" in line
+    assert {name: (out / name).read_text() for name in earlier} == earlier
 
 
 @pytest.mark.parametrize("command", ["run", "demo", "calibrate", "fit-scale"])

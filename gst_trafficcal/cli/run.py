@@ -354,9 +354,9 @@ def measure_video(video: Path | str, out_dir: Path, description: str, console, l
 
     paths = RunPaths(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
-    for name in OUTPUTS:  # nothing stale from an earlier run (speedometer truncates the event files itself)
-        stale = out_dir / name
-        if name not in (paths.events.name, paths.csv.name) and not any(_same(stale, k) for k in keep):
+    for name in OUTPUTS:  # nothing stale from an earlier run: not even its vehicles, which a run that fails before
+        stale = out_dir / name  # the speedometer replaces them would otherwise report as its own
+        if not any(_same(stale, k) for k in keep):
             stale.unlink(missing_ok=True)
     def hidden(text: str) -> str:  # a message without the URI's password
         return text.replace(str(video), shown_source(video))
@@ -452,6 +452,21 @@ def measure_video(video: Path | str, out_dir: Path, description: str, console, l
                 f"(in {paths.events.name} and {paths.csv.name}, where the disk allowed)")
         raise InputError(hidden(f"{video}: the run stopped: {failure}; {kept}"))
     return summary
+
+
+def readable_video(video: Path, out_dir: Path, zone=None):
+    """The first frame of a video file, checked before anything in ``out_dir`` is replaced: InputError when none can
+    be decoded (not a video, empty, damaged) or when the detection ``zone`` covers no pixel of its frames — an
+    earlier run's outputs there stay as they were."""
+    frame = first_frame(video)
+    untouched = f"; nothing in {out_dir} was changed"
+    if frame is None:
+        raise InputError(f"{video}: cannot be processed: no frame could be decoded from it (not a video, empty, or "
+                         f"damaged){untouched}")
+    wrong = zone.check((frame.shape[1], frame.shape[0])) if zone is not None else None
+    if wrong:
+        raise InputError(f"{video}: --zone: {wrong}{untouched}")
+    return frame
 
 
 def _same(a: Path, b: Path) -> bool:
@@ -912,6 +927,7 @@ def run_one(console, video: Path | str, out_dir: Path, calibration_path: Path | 
 
         shown = shown.replace(events_url, redacted(events_url))
     console.print(f"[bold]Pipeline[/] {shown}", highlight=False, soft_wrap=True)
+    frame = None if is_uri(video) else readable_video(video, out_dir, parse_zone(options.zone))
     summary = measure_video(video, out_dir, description, console,
                             keep=(calibration_path,) if calibration_path is not None else (), stop_after_s=duration_s,
                             status=options.status, zone=parse_zone(options.zone))
@@ -955,7 +971,7 @@ def run_one(console, video: Path | str, out_dir: Path, calibration_path: Path | 
             console.print(f"[yellow]no evaluation against {gt_path.name}: the calibration has no scale[/]")
     try:
         write_report(paths.report, ReportInputs(
-            events=summary.events, calibration=cal, frame=first_frame(video), evaluation=ev,
+            events=summary.events, calibration=cal, frame=first_frame(video) if frame is None else frame, evaluation=ev,
             ground_truth_name=str(gt_path or ""),
             title=f"gst-trafficcal run: {getattr(video, 'name', None) or shown_source(video)}",
             source=shown_source(video),

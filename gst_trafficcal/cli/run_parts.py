@@ -100,7 +100,8 @@ def run_parts(console, parts, total: int | None, out_dir: Path, calibration_path
         try:
             summary = run_one(console, video, sub, given, opts, calibration_mode=mode)
         except InputError as exc:
-            failures.append(f"{label}: {exc}")
+            text = str(exc)  # the part's label once: "notes.mp4: cannot be processed", not "notes.mp4: notes.mp4: ..."
+            failures.append(f"{label}: {text.removeprefix(f'{video}: ')}")
             rows.append([label, "–", "–", "–", "–", "", f"[red]failed[/]: {exc}"])
             records.append({"part": label, "folder": name, "status": "failed", "error": str(exc)})
             _write_parts(out_dir / "parts.csv", records)
