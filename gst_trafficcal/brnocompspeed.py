@@ -351,9 +351,13 @@ def _parse_results(raw: Any) -> Results:
     return Results(calib, tuple(cars))
 
 
-def load_results(path: str | Path) -> Results:
-    """Read a BrnoCompSpeed results JSON; raise InputError naming the file if it is unusable."""
+def load_results(path: str | Path, cars_required: bool = False) -> Results:
+    """Read a BrnoCompSpeed results JSON; raise InputError naming the file if it is unusable (with
+    ``cars_required``, also when it has no ``cars`` list: a calibration file given as results)."""
     raw = read_json(path, "BrnoCompSpeed results file")
+    if cars_required and isinstance(raw, dict) and "cars" not in raw:
+        raise InputError(f"{path}: no 'cars' list, so no vehicles to score (a calibration file? give it as "
+                         "--calibration)")
     try:
         res = _parse_results(raw)
     except ValueError as exc:
@@ -397,11 +401,16 @@ def car_json(track: Track) -> str:
     return json.dumps(_car_dict(track))
 
 
-def write_results_text(out, calibration: BrnoCalibration | None, cars: Iterable[str]) -> None:
-    """The results file's text into the open text file ``out``, the cars given as their JSON (:func:`car_json`)."""
+def write_results_text(out, calibration: BrnoCalibration | None, cars: Iterable[str],
+                       image_size: tuple[int, int] | None = None) -> None:
+    """The results file's text into the open text file ``out``, the cars given as their JSON (:func:`car_json`);
+    with ``image_size`` (width, height) also that field, beside the format's own (its calibration block holds
+    pixels of frames of that size: the file then serves as a calibration of any resolution, not only 1920x1080)."""
     out.write("{")
     if calibration is not None:
         out.write(f'"camera_calibration": {json.dumps(calibration.to_dict())}, ')
+        if image_size is not None:
+            out.write(f'"image_size": [{int(image_size[0])}, {int(image_size[1])}], ')
     out.write('"cars": [')
     for i, car in enumerate(cars):
         out.write((", " if i else "") + car)

@@ -585,7 +585,8 @@ class BrnoResultsWriter:
 
         def text(tmp: Path) -> None:
             with tmp.open("w", encoding="utf-8") as out:
-                write_results_text(out, brno_calibration(calibration), cars)
+                write_results_text(out, brno_calibration(calibration), cars,
+                                   calibration.image_size if calibration is not None else None)
 
         atomic_write(self.path, text, "BrnoCompSpeed results")
         return self.path

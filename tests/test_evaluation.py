@@ -285,6 +285,8 @@ def _bad_inputs(tmp_path: Path) -> list[tuple[list[str], str]]:
         (["--gt", gt, "--calibration", str(wrong_side)], "wrong_side.json: vanishing points give an imaginary"),
         (["--gt", gt, "--calibration", str(small)], "small.json: calibration is for 640x360 frames, the ground "
                                                     "truth's are 1920x1080 (--image-size)"),
+        (["--gt", gt, "--results", str(small)], "small.json: no 'cars' list, so no vehicles to score (a calibration "
+                                                "file? give it as --calibration)"),
     ]
 
 

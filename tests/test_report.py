@@ -392,7 +392,7 @@ def test_cli_report_from_run_files(tmp_path: Path) -> None:
     out = _cli("--events", str(tmp_path / "vehicles.jsonl"), "--calibration", str(tmp_path / "calibration.json"),
                "--frame", str(tmp_path / "frame.png"), "--speed-limit", "85,truck=75", "--interval", "0.5",
                "--intervals-csv", str(tmp_path / "intervals.csv"), "--out", str(tmp_path / "report.html"))
-    assert out.returncode == 0, out.stderr
+    assert out.returncode == 0 and "warning" not in out.stderr, out.stderr
     n_intervals = len({int(0.5 * (e.first_timestamp_s + e.last_timestamp_s) // 30) for e in events})
     assert out.stdout.strip().splitlines() == [
         f"{tmp_path / 'report.html'}: {len(events)} vehicles (1 broken line(s) skipped)",
@@ -418,6 +418,13 @@ def test_cli_report_from_run_files(tmp_path: Path) -> None:
     assert "detection zone [fractions of the frame]0,0 0.5,0 0.5,1" in text
     bad = _cli("--events", str(tmp_path / "vehicles.jsonl"), "--zone", "0,0 1,1", "--out", str(tmp_path / "r3.html"))
     assert bad.returncode == 2 and "--zone: zone '0,0 1,1': polygon 1 has 2 points" in bad.stderr
+    # a picture of another size: drawn scaled, with a warning (and another shape: perhaps another camera's)
+    for size, shape in (((W // 2, H // 2), False), ((H, H), True)):
+        cv2.imwrite(str(tmp_path / "other.png"), np.full((size[1], size[0], 3), 100, np.uint8))
+        other = _cli("--events", str(tmp_path / "vehicles.jsonl"), "--calibration", str(tmp_path / "calibration.json"),
+                     "--frame", str(tmp_path / "other.png"), "--out", str(tmp_path / "other.html"))
+        assert other.returncode == 0 and f"a calibration of {W}x{H} frames, the picture is {size[0]}x{size[1]}: the " \
+            "grid is drawn scaled to it" in other.stderr and ("another camera's?" in other.stderr) is shape
 
 
 def test_cli_report_with_ground_truth(tmp_path: Path) -> None:

@@ -128,6 +128,9 @@ def test_speeds_match_the_ground_truth(clip, implicit):
     prepared = evaluation.prepare_tracks(results, gt, width=cal.image_size[0], height=cal.image_size[1])
     report = evaluation.evaluate_speeds(gt, prepared, cal.camera)
     assert report.matched_valid >= 2 and report.errors_abs_kmh.max() < 3.5, report.errors_abs_kmh
+    # the results file says the frame size its calibration block is in: it serves as a calibration of this clip
+    again = load_calibration(out / "results.json")
+    assert again.image_size == cal.image_size == (480, 270) and np.allclose(again.camera.vp2, cal.camera.vp2)
     assert results.calibration is not None and results.calibration.scale == pytest.approx(cal.camera.brno_scale())
 
 

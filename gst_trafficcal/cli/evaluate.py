@@ -107,7 +107,7 @@ def command(gt_path: Path, results_path: Path | None, calibration_path: Path | N
         raise click.UsageError("give --results and/or --calibration")
     size = parse_image_size(image_size)
     gt = load_gt_data(gt_path)
-    results = load_results(results_path) if results_path is not None else None
+    results = load_results(results_path, cars_required=True) if results_path is not None else None
     camera = _camera(results, results_path, calibration_path, size)
     prepared = None
     if results is not None:

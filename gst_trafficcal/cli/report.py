@@ -90,6 +90,11 @@ def command(events_path: Path, calibration_path: Path | None, frame_path: Path |
     if cal is None and results is not None and results.calibration is not None:
         cal = Calibration.from_brno_block(results.calibration.to_dict(), where=str(results_path))
     frame = _frame(frame_path, video_path, frame_time)
+    if cal is not None and frame is not None and tuple(cal.image_size) != tuple(frame.shape[1::-1]):
+        (w, h), (fw, fh) = cal.image_size, frame.shape[1::-1]
+        other = "" if abs(w / h - fw / fh) < 0.01 * w / h else "; not even the same shape: another camera's?"
+        click.echo(f"warning: {calibration_path or results_path}: a calibration of {w}x{h} frames, the picture is "
+                   f"{fw}x{fh}: the grid is drawn scaled to it{other}", err=True)
     evaluation = None
     if gt_path is not None:
         from ..evaluation import evaluate
