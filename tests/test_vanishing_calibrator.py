@@ -199,9 +199,16 @@ def test_cli_errors_are_one_line(tmp_path):
     r = _cli("calibrate", str(tmp_path / "nope.mp4"), "-o", str(tmp_path / "c.json"), "--zone", "1,1 2,2")
     assert r.returncode == 2 and "--zone: zone '1,1 2,2': polygon 1 has 2 points" in r.stderr
     static = _write_video(tmp_path / "static.avi", [_scene()] * 60)
+    r = _cli("calibrate", str(static), "-o", str(tmp_path), "--no-progress")  # a folder: refused before the pass
+    assert r.returncode == 2 and r.stderr.strip().splitlines() == [
+        f"trafficcal: error: {tmp_path}: a folder, so it cannot be the calibration file (-o)"]
     r = _cli("calibrate", str(static), "-o", str(tmp_path / "s.json"), "--no-progress", "--min-duration", "1")
     assert r.returncode == 1 and "no traffic" in r.stdout
     assert json.loads((tmp_path / "s.json").read_text())["state"] == "failed"
+    r = _cli("calibrate", str(static), "-o", str(tmp_path / "z.json"), "--no-progress", "--min-duration", "1",
+             "--zone", "0,0 5000,0 5000,3000")  # pixels of a larger frame, perhaps: said before the pass, as run does
+    assert r.returncode == 1 and "--zone: zone 0,0 5000,0 5000,3000 reaches to 5000,3000, beyond the" in \
+        " ".join(r.stderr.split())
 
 
 def test_cli_constant_speed_switch(tmp_path):

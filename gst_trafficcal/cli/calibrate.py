@@ -94,10 +94,17 @@ def command(video: Path, out_path: Path, png_path: Path | None, method: str, min
                            vp1_constant_speed=constant_speed, zone=where)
     from ..fileio import open_video, writable_dir
 
-    open_video(video).release()  # a missing or unreadable video: its one line before anything is created
-    for folder in dict.fromkeys(p.parent for p in (out_path, png_path or out_path.with_suffix(".png"))):
-        writable_dir(folder, "output folder")  # now (after the inputs were checked), not after the whole video
+    cap = open_video(video)  # a missing or unreadable video: its one line before anything is created
+    size = (int(cap.get(cv2.CAP_PROP_FRAME_WIDTH)), int(cap.get(cv2.CAP_PROP_FRAME_HEIGHT)))
+    cap.release()
+    for path, what in ((out_path, "calibration file (-o)"), (png_path or out_path.with_suffix(".png"), "grid picture")):
+        if path.is_dir():  # now (after the inputs were checked), not after the whole video
+            raise InputError(f"{path}: a folder, so it cannot be the {what}")
+        writable_dir(path.parent, "output folder")
     console = Console(stderr=True)
+    doubt = where.doubt(size) if where is not None and min(size) > 0 else None
+    if doubt:  # a zone in pixels of another resolution, perhaps: said before the long pass, as trafficcal run does
+        console.print(f"[yellow]warning[/]: --zone: {doubt}", highlight=False)
     with Progress(TextColumn("[bold]calibrate"), BarColumn(), TextColumn("{task.completed}/{task.total} frames"),
                   TextColumn("{task.fields[info]}"), TimeElapsedColumn(), console=console,
                   disable=not progress) as bar:
