@@ -15,6 +15,7 @@ A calibration file learnt or measured in a zone keeps it as its field ``zone`` (
 
 from __future__ import annotations
 
+import re
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -118,7 +119,7 @@ def _parse_zone(text: str) -> Zone | None:
         if not part.strip():
             continue
         what = f"zone {text!r}: polygon {k + 1}"
-        pairs = [pair.split(",") for pair in part.split()]
+        pairs = [pair.split(",") for pair in re.sub(r"\s*,\s*", ",", part).split()]  # "x, y" as "x,y"
         if any(len(xy) != 2 for xy in pairs):
             raise InputError(f"{what} has a point without exactly two coordinates; expected {SYNTAX}")
         try:
@@ -129,8 +130,10 @@ def _parse_zone(text: str) -> Zone | None:
             raise InputError(f"{what} has a coordinate that is not a finite number")
         if len(pts) < 3:
             raise InputError(f"{what} has {len(pts)} points; a zone needs at least 3")
-        if abs(cv2.contourArea(pts.astype(np.float32))) <= 0:
+        if np.linalg.matrix_rank(pts - pts.mean(axis=0), tol=1e-9) < 2:
             raise InputError(f"{what} encloses no area (its points lie on a line)")
+        if _crosses_itself(pts):
+            raise InputError(f"{what} crosses itself: give its corners in order around it")
         polygons.append(pts)
     if not polygons:
         raise InputError(f"zone {text!r}: no polygon; expected {SYNTAX}")
@@ -142,6 +145,24 @@ def _parse_zone(text: str) -> Zone | None:
         raise InputError(f"zone {text!r}: mixes fractions of the frame (between 0 and 1) with pixels (above 1): "
                          "give every coordinate one way")
     return Zone(tuple(polygons), relative)
+
+
+def _crosses_itself(pts: np.ndarray) -> bool:
+    """Whether two edges of the closed polygon ``pts`` (Kx2) that do not share a corner cross or touch (corners
+    written out of order: "0,0 1,1 1,0 0,1" for a square)."""
+    a, b = pts, np.roll(pts, -1, axis=0)  # edge i runs from a[i] to b[i]
+    k = len(pts)
+
+    def side(p, q, r):  # sign of the turn p -> q -> r, for every pair of edges at once
+        return np.sign((q[:, 0] - p[:, 0]) * (r[:, 1] - p[:, 1]) - (q[:, 1] - p[:, 1]) * (r[:, 0] - p[:, 0]))
+
+    i, j = np.triu_indices(k, 2)
+    apart = (j - i) % k > 1 if k > 3 else np.zeros(len(i), bool)
+    apart &= ~((i == 0) & (j == k - 1))  # the last edge meets the first at corner 0
+    i, j = i[apart], j[apart]
+    d1, d2 = side(a[j], b[j], a[i]), side(a[j], b[j], b[i])
+    d3, d4 = side(a[i], b[i], a[j]), side(a[i], b[i], b[j])
+    return bool(np.any((d1 * d2 <= 0) & (d3 * d4 <= 0) & ~((d1 == 0) & (d2 == 0))))
 
 
 def zone_of_file(path: str | Path) -> Zone | None:

@@ -14,6 +14,7 @@ from gst_trafficcal.zone import parse_zone
 def test_a_zone_in_pixels_and_in_fractions() -> None:
     px = parse_zone(" 10,20 110,20 110,70 10,70 ")
     assert not px.relative and str(px) == "10,20 110,20 110,70 10,70"
+    assert str(parse_zone("10, 20  110 ,20 110 , 70 10,70")) == str(px)  # spaces around the commas are no matter
     m = px.mask((160, 90))
     assert m.shape == (90, 160) and m.dtype == np.uint8 and set(np.unique(m)) == {0, 255}
     # pixels 10..109 x 20..69, and those the outline passes through (one more row and column at most)
@@ -79,6 +80,8 @@ def test_a_zone_that_does_not_fit_the_frame() -> None:
     ("0.3,0.2 0.6,0.2 1.0,1 0.1,10", "mixes fractions of the frame (between 0 and 1) with pixels (above 1)"),
     ("0,0 inf,0 5,5", "polygon 1 has a coordinate that is not a finite number"),
     ("0,0 10,10 20,20", "polygon 1 encloses no area"),
+    ("0,0 100,100 100,0 0,100", "polygon 1 crosses itself: give its corners in order around it"),
+    ("0,0 10,0 10,10; 20,20 40,20 40,40 30,10 20,40", "polygon 2 crosses itself"),
     ("-1,0 5,0 5,5", "negative coordinates"),
     (";;", "no polygon"),
 ])
