@@ -395,6 +395,10 @@ def test_a_zone_leaves_out_the_other_carriageway(clip, with_truth, tmp_path):
         printed = " ".join(rerun.stdout.split())
         assert bool(re.search(r'vehicledetect model="vehicleseg"[^!]* zone="' + zone + '"', printed)) is kept
         assert ("Zone kept in" in printed) is kept and ("zone=" in printed) is kept
+    corner = trafficcal("run", clip / "video.mp4", "--out", tmp_path / "corner", "--no-overlay", "--zone",
+                        "0,0 30,0 30,30 0,30", "--calibration", clip / "calibration.json")  # no road there
+    assert corner.returncode == 0 and "no vehicle stood in the detection zone (0,0 30,0 30,30 0,30) in " in \
+        " ".join(corner.stdout.split()), corner.stdout[-2000:]
     line = one_line_error(trafficcal("run", clip / "video.mp4", "--out", tmp_path / "bad", "--zone", "10,10 20,20"))
     assert line == "trafficcal: error: --zone: zone '10,10 20,20': polygon 1 has 2 points; a zone needs at least 3"
     assert not (tmp_path / "bad").exists()

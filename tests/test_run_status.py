@@ -157,6 +157,14 @@ def test_trafficcal_status_exit_codes(tmp_path):
     wrong = subprocess.run([sys.executable, "-m", "gst_trafficcal", "status", str(tmp_path / "calibration.json")],
                            capture_output=True, text=True, timeout=60)
     assert wrong.returncode == 2 and "calibration.json: not a run's status" in wrong.stderr, wrong.stdout
+    for source, duration, said in (("video.mp4", 60.0, "frames      250 of the file"),
+                                   ("rtsp://cam/1", None, "frames      250 of the live stream, 3 dropped to keep up")):
+        folder = tmp_path / source.replace("/", "_").replace(":", "")
+        StatusFile(folder / "status.json", source).update(state="running", position_s=10.0, duration_s=duration,
+                                                          frames=250, frames_dropped=3 if duration is None else 0)
+        shown = subprocess.run([sys.executable, "-m", "gst_trafficcal", "status", str(folder)], capture_output=True,
+                               text=True, timeout=60)
+        assert said in shown.stdout and shown.stdout.count("frames") == 1, shown.stdout + shown.stderr
 
 
 def test_a_corrupt_status_file_is_one_line_naming_it(tmp_path):

@@ -956,6 +956,12 @@ def run_one(console, video: Path | str, out_dir: Path, calibration_path: Path | 
     print_remeasured(console, summary.remeasured, events_url, speeds=summary.remeasured_speeds)
     print_vehicles(console, summary.events, speed_limit)
     print_not_counted(console, summary.not_counted)
+    if options.zone and not summary.events and summary.position_s:  # the zone, not the road, is the likelier fault
+        empty = (f"no vehicle stood in the detection zone ({options.zone}) in {summary.position_s:.0f} s: check where "
+                 "it lies (overlay.mp4, or the grid picture of trafficcal calibrate --zone)")
+        summary.warnings.append(empty)
+        if options.status is not None:
+            options.status.warning(empty)
     for w in summary.warnings:
         console.print(f"[yellow]warning[/]: {w}", highlight=False)
 
