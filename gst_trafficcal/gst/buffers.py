@@ -220,7 +220,10 @@ def frame_gray(buffer: Gst.Buffer, info: GstVideo.VideoInfo) -> Iterator[np.ndar
     """Yield the frame as an HxW uint8 grey image.
 
     For GRAY8/I420/NV12 this is a read-only view of the Y plane (no copy: valid inside the
-    ``with`` block only); for BGR/RGB/BGRx a converted copy (ITU-R 601 luma, as cv2).
+    ``with`` block only); for BGR/RGB/BGRx a converted copy: BT.601 luma in the 16-235 range of the Y plane a YUV
+    stream of the same video carries (:func:`gst_trafficcal.vanishing.frames.luma`, as the CLI's frames), so that the detectors, trained and tuned on such planes, see the
+    same image whichever format the pipeline negotiates (full-range luma of RGB made MOG2's boxes and the speeds
+    worse on the same video).
     """
     fmt = format_name(info)
     if fmt in ("GRAY8", "I420", "NV12"):  # the luma plane only (no views of the chroma planes)
@@ -232,9 +235,10 @@ def frame_gray(buffer: Gst.Buffer, info: GstVideo.VideoInfo) -> Iterator[np.ndar
             finally:
                 del gray
         return
+    from ..vanishing.frames import luma
+
     with frame_planes(buffer, info) as planes:
-        code = {"BGR": cv2.COLOR_BGR2GRAY, "RGB": cv2.COLOR_RGB2GRAY, "BGRx": cv2.COLOR_BGRA2GRAY}[fmt]
-        gray = cv2.cvtColor(planes[0], code)
+        gray = luma(planes[0], fmt)
         try:
             yield gray
         finally:

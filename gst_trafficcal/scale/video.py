@@ -17,6 +17,7 @@ import numpy as np
 from ..calibration import Calibration
 from ..errors import InputError
 from ..tracking.tracker import body_shape_name
+from ..vanishing.frames import luma
 from .roll import derolled_fields
 from .streaming import ScaleEstimator, ScaleResult, Sighting, base_centre
 from ..zone import Zone
@@ -106,7 +107,7 @@ def scale_from_video(video: str | Path, calibration: Calibration, *, models=None
             if max_duration is not None and t > max_duration:
                 break
             # the elements see the decoder's Y plane (video range 16-235); OpenCV expands it to full range
-            gray = cv2.convertScaleAbs(cv2.cvtColor(bgr, cv2.COLOR_BGR2GRAY), alpha=219 / 255, beta=16)
+            gray = luma(bgr)
             detections = detect(det, bgr if detector else gray, t)
             if zone is not None:
                 detections = zone.keep(detections, gray.shape[::-1])
