@@ -55,6 +55,7 @@ output="$2"
 
 uri="$(input_uri "$input")"
 out_dir="$(dirname "$output")"
+[[ -d "$output" ]] && die "$output: a folder, not a calibration file (e.g. ${output%/}/calibration.json)"
 [[ -d "$out_dir" && -w "$out_dir" ]] || die "$output: directory $out_dir does not exist or is not writable"
 
 missing="$(check_elements "${need[@]}")"

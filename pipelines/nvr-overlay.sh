@@ -84,6 +84,7 @@ esac
 need+=("$mux_element")
 if [[ "$output" != *://* ]]; then
     out_dir="$(dirname "$output")"
+    [[ -d "$output" ]] && die "$output: a folder, not a recording file"
     [[ -d "$out_dir" && -w "$out_dir" ]] || die "$output: directory $out_dir does not exist or is not writable"
 fi
 

@@ -54,9 +54,13 @@ def test_check_finds_every_element(name):
 @pytest.mark.parametrize("name, args", [("calibrate.sh", ["{missing}", "{tmp}/cal.json"]),
                                         ("measure.sh", ["{missing}", "{tmp}/out"]),
                                         ("measure.sh", ["{video}", "{tmp}/out", "{missing}"]),
-                                        ("calibrate.sh", ["only-one-argument"])])
+                                        ("calibrate.sh", ["only-one-argument"]),
+                                        ("calibrate.sh", ["{video}", "{tmp}"]),  # a folder as the calibration
+                                        ("nvr-overlay.sh", ["{video}", "{folder}"])])
 def test_bad_arguments_are_one_clear_line(clip, tmp_path, name, args):
-    fill = {"missing": tmp_path / "absent.mp4", "tmp": tmp_path, "video": clip / "video.mp4"}
+    fill = {"missing": tmp_path / "absent.mp4", "tmp": tmp_path, "video": clip / "video.mp4",
+            "folder": tmp_path / "rec.mp4"}
+    (tmp_path / "rec.mp4").mkdir()
     proc = script(name, *[a.format(**fill) for a in args])
     assert proc.returncode == 2
     prefix = name.split(".")[0]
