@@ -7,6 +7,7 @@ import subprocess
 import threading
 from pathlib import Path
 
+import cv2
 import numpy as np
 import pytest
 
@@ -1040,3 +1041,16 @@ def test_a_pipeline_stopped_without_eos_still_posts_the_vehicles_in_view(clip, l
     assert any(b["speed_kmh"] is not None for b in flushed), flushed
     signed = [{k.lower(): v for k, v in h.items()}.get(SIGNATURE_HEADER.lower()) for h in webhook.headers]
     assert signed == [signature("s3cret", raw) for raw in webhook.raw]
+
+
+def test_buffers_without_timestamps_are_said_once_with_the_fix(tmp_path):
+    """An image sequence read without a frame rate has no timestamps: tracker and speedometer pass it through and
+    each says so once, with the fix (a frame rate on the source), instead of measuring nothing in silence."""
+    for i in range(6):
+        cv2.imwrite(str(tmp_path / f"f{i:05d}.jpg"), np.full((90, 160, 3), 40 * i, np.uint8))
+    run = run_pipeline(f"multifilesrc location={tmp_path / 'f%05d.jpg'} index=0 stop-index=5 ! jpegdec ! "
+                       "videoconvert ! vehicledetect ! tracker ! speedometer ! appsink name=sink")
+    assert len(run.frames) == 6 and sum(f.pts is None for f in run.frames) >= 5  # the first may carry 0
+    said = [w for w in run.warnings if "buffers without timestamps" in w]
+    assert sorted(w.split(": ")[1] for w in said) == ["speedometer", "tracker"], run.warnings
+    assert all('multifilesrc ... caps="image/jpeg,framerate=25/1"' in w for w in said)

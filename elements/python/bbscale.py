@@ -47,7 +47,6 @@ class BBScale(TrafficcalTransform):
         super().__init__()
         self._stage = None
         self._classifier = None
-        self._warned_pts = False
 
     def do_start(self):
         from gst_trafficcal.errors import TrafficcalError
@@ -105,9 +104,7 @@ class BBScale(TrafficcalTransform):
             return Gst.FlowReturn.OK
         t = self.buffer_t
         if t is None:
-            if not self._warned_pts:
-                self._warned_pts = True
-                self.post_warning("bbscale: buffers without timestamps are ignored")
+            self.warn_untimed("bbscale", "are ignored")
             return Gst.FlowReturn.OK
         every = read_vehicle_rois(buffer, self.frame_size, only=(VEHICLE,))
         rois = [r for r in every if r.object_id is not None and VEHICLE in r.params]

@@ -314,8 +314,9 @@ class Speedometer(TrafficcalTransform):
         if self._failed:
             return Gst.FlowReturn.ERROR
         t = self.buffer_t
-        if t is None:
-            return Gst.FlowReturn.OK  # no time, no speed: passed through
+        if t is None:  # no time, no speed: passed through
+            self.warn_untimed("speedometer", "are passed through unmeasured")
+            return Gst.FlowReturn.OK
         if len(self.stream_clock.jumps) > self._jumps:  # timestamps went back (joined parts, a seek): said once each
             self._jumps = len(self.stream_clock.jumps)
             back, given = self.stream_clock.jumps[-1]

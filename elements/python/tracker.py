@@ -55,7 +55,6 @@ class Tracker(TrafficcalTransform):
     def __init__(self):
         super().__init__()
         self._pipe = None
-        self._warned_pts = False
 
     def do_start(self):
         from gst_trafficcal.tracking.background import BackgroundModel
@@ -79,7 +78,6 @@ class Tracker(TrafficcalTransform):
             self.post_error(f"tracker: {exc}")
             return False
         self._pipe = TrackingPipeline(config=config, background=background, min_blob_area=self.min_blob_area)
-        self._warned_pts = False
         return True
 
     def on_calibration(self, cal):
@@ -109,9 +107,7 @@ class Tracker(TrafficcalTransform):
 
         t = self.buffer_t
         if t is None:
-            if not self._warned_pts:
-                self._warned_pts = True
-                self.post_warning("tracker: buffers without timestamps are passed through untracked")
+            self.warn_untimed("tracker", "are passed through untracked")
             return Gst.FlowReturn.OK
         rois = read_vehicle_rois(buffer, self.frame_size)
         if rois:

@@ -93,6 +93,7 @@ class TrafficcalTransform(GstBase.BaseTransform):
         self.calibration: Calibration | None = None
         self.stream_clock = StreamClock()
         self.buffer_t: float | None = None
+        self._said_untimed = False  # warn_untimed: said once per element
         self._pending_calibration: Calibration | None = None
         self._refused_caps: set[str] = set()
         self._streaming = False  # caps negotiated, until stopped: READY_ONLY properties are read by now
@@ -206,6 +207,14 @@ class TrafficcalTransform(GstBase.BaseTransform):
         """Post a GStreamer WARNING message (``gst-launch-1.0`` prints it; the pipeline goes on)."""
         err = GLib.Error.new_literal(Gst.CoreError.quark(), text, int(Gst.CoreError.FAILED))
         self.post_message(Gst.Message.new_warning(self, err, debug or ""))
+
+    def warn_untimed(self, name: str, what: str) -> None:
+        """Say once that buffers come without timestamps and what ``name`` does with them (``what``), with the fix:
+        an image sequence read without a frame rate is the usual cause."""
+        if not self._said_untimed:
+            self._said_untimed = True
+            self.post_warning(f"{name}: buffers without timestamps {what}: give the source a frame rate (an image "
+                              'sequence: multifilesrc ... caps="image/jpeg,framerate=25/1")')
 
     def zone_fits(self, zone: Any, size: tuple[int, int], name: str) -> bool:
         """Check a detection ``zone`` (gst_trafficcal.zone.Zone) against frames of ``size``: an ERROR (False) when it
