@@ -103,6 +103,9 @@ def test_bad_configuration_and_caps_are_clear_errors(tmp_path):
         run_pipeline("appsrc name=src ! vpdetect mode=sometimes ! appsink name=sink", blank, CAPS)
     with pytest.raises(PipelineError, match="focal range"):
         run_pipeline("appsrc name=src ! vpdetect focal-range=9,1 ! appsink name=sink", blank, CAPS)
+    with pytest.raises(PipelineError, match=r"vpdetect: the minimum duration \(30 s\) is longer than the maximum "
+                                            r"\(10 s\)"):
+        run_pipeline("appsrc name=src ! vpdetect min-duration=30 max-duration=10 ! appsink name=sink", blank, CAPS)
     with pytest.raises(PipelineError, match="vpdetect: zone 'a,b c,d e,f': polygon 1 is not a list of x,y numbers"):
         run_pipeline('appsrc name=src ! vpdetect zone="a,b c,d e,f" ! appsink name=sink', blank, CAPS)
     with pytest.raises(PipelineError, match=rf"vpdetect: zone 5000,0 6000,0 6000,50: it covers no pixel of the "

@@ -80,6 +80,11 @@ class CalibratorConfig:
     track: TrackParams = field(default_factory=TrackParams)
     zone: Zone | None = None        # learn only from the motion and edges inside it (gst_trafficcal.zone)
 
+    def __post_init__(self) -> None:
+        if self.min_duration > self.max_duration:  # it would only ever fail, at max_duration, "too short"
+            raise InputError(f"the minimum duration ({self.min_duration:g} s) is longer than the maximum "
+                             f"({self.max_duration:g} s)")
+
 
 @dataclass
 class Status:
