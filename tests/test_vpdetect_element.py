@@ -225,3 +225,16 @@ def test_a_moved_camera_is_noticed(learnt, frames, tmp_path, case):
         assert _states(run) == ["vps"] and final.id == stored.id and load_calibration(path).id == stored.id
     else:
         assert _states(run) == ["vps"] and final.id == stored.id and not warned
+
+
+def test_a_second_vpdetect_says_it_replaces_the_calibration_from_upstream(learnt, frames):
+    """Two vpdetects in one chain (a pipeline assembled by hand): the second, learning its own, replaces the first
+    one's calibration downstream, and says so once instead of in silence."""
+    run = run_pipeline(f"appsrc name=src ! vpdetect mode=fixed calibration-file={learnt} ! vpdetect {FAST} ! "
+                       "appsink name=sink", frames[:30], CAPS, fps=FPS)
+    said = [w for w in run.warnings if "a calibration also comes from upstream" in w]
+    assert len(said) == 1 and "(vpdetect, vps; another vpdetect?)" in said[0] and "keep one of them" in said[0], \
+        run.warnings
+    alone = run_pipeline(f"appsrc name=src ! vpdetect mode=fixed calibration-file={learnt} ! appsink name=sink",
+                         frames[:30], CAPS, fps=FPS)
+    assert not [w for w in alone.warnings if "from upstream" in w]

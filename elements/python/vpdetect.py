@@ -96,6 +96,7 @@ class VpDetect(TrafficcalTransform):
         self._views_loaded = False  # views-dir read
         self._size = None  # the frame size of the caps so far
         self._zone = None  # gst_trafficcal.zone.Zone: where the traffic to learn from is
+        self._said_upstream = False  # the warning that a calibration from upstream is replaced: once
 
     def do_start(self):
         """A calibration file to be written (modes learn and auto) whose folder cannot be written is an error now,
@@ -222,7 +223,12 @@ class VpDetect(TrafficcalTransform):
 
     def on_calibration(self, cal):
         # while learning or holding a loaded calibration back, our own calibration is the one downstream sees
-        return self._learner is None and not self._held
+        forward = self._learner is None and not self._held
+        if not forward and not self._said_upstream:  # two vpdetects, or a calibration source before this one
+            self._said_upstream = True
+            self.post_warning(f"vpdetect: a calibration also comes from upstream ({cal.source}, {cal.state}; another "
+                              "vpdetect?) and this vpdetect's own replaces it downstream: keep one of them")
+        return forward
 
     def transform_frame(self, buffer):
         from gst_trafficcal.vanishing.frames import luma
