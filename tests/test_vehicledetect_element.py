@@ -207,3 +207,17 @@ def test_gst_launch_and_inspect(tmp_path, nanodet):
                           "!", "vehicledetect", f"model={nanodet}", "interval=2", "threads=2", "!", "fakesink"],
                          env=env, capture_output=True, text=True, timeout=300)
     assert out.returncode == 0, out.stderr[-2000:]
+
+
+def test_a_second_detector_says_the_frames_came_with_detections(frames, nanodet):
+    """vehicledetect after another detector (two in one chain, or a DL Streamer detector before ours) adds its
+    vehicles to those already there, and says once that a vehicle may be counted twice."""
+    sample = frames[100:104]
+    run = run_pipeline(f"appsrc name=src ! vehicledetect model={nanodet} ! vehicledetect model={nanodet} ! "
+                       "appsink name=sink", sample, CAPS)
+    lib = OnnxDetector(nanodet, threshold=0.4)
+    assert [len(sf.rois) for sf in run.frames] == [2 * len(lib(f)) for f in sample] and len(run.frames[0].rois) > 0
+    said = [w for w in run.warnings if "the frames already carry detections" in w]
+    assert len(said) == 1 and "counted twice" in said[0]
+    alone = run_pipeline(f"appsrc name=src ! vehicledetect model={nanodet} ! appsink name=sink", sample, CAPS)
+    assert not [w for w in alone.warnings if "already carry" in w]

@@ -52,6 +52,7 @@ class VehicleDetect(TrafficcalTransform):
         super().__init__()
         self._detector = None
         self._zone = None
+        self._said_upstream = False  # the warning that the frames came with detections already: once
         self._frame = 0
 
     def do_start(self):
@@ -91,7 +92,7 @@ class VehicleDetect(TrafficcalTransform):
 
     def transform_frame(self, buffer):
         from gst_trafficcal.detection.factory import detect, reduced_size
-        from gst_trafficcal.gst.meta import add_vehicle_roi, hull_params
+        from gst_trafficcal.gst.meta import add_vehicle_roi, has_rois, hull_params
 
         frame, self._frame = self._frame, self._frame + 1
         if frame % self.interval:
@@ -102,6 +103,10 @@ class VehicleDetect(TrafficcalTransform):
             detections = detect(self._detector, image, self.buffer_t, self.frame_size if size else None)
         if self._zone is not None:
             detections = self._zone.keep(detections, self.frame_size)
+        if not self._said_upstream and has_rois(buffer):  # two detectors: each vehicle would be tracked twice
+            self._said_upstream = True
+            self.post_warning("vehicledetect: the frames already carry detections (another detector upstream?); "
+                              "this one's are added to them, and a vehicle both find may be counted twice")
         for d in detections:
             add_vehicle_roi(buffer, self.frame_size, d.box, d.label, d.score, d.class_id, params=hull_params(d.hull))
         return Gst.FlowReturn.OK

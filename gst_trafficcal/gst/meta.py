@@ -275,6 +275,11 @@ def read_vehicle_rois(buffer: Gst.Buffer, frame_size: tuple[int, int],
     return out
 
 
+def has_rois(buffer: Gst.Buffer) -> bool:
+    """Whether ``buffer`` carries any ROI meta (read nothing of it)."""
+    return next(iter(_cgst.iter_roi_metas(buffer)), None) is not None
+
+
 def hull_params(hull: np.ndarray | None) -> dict[str, dict[str, Any]] | None:
     """The ``"trafficcal-hull"`` parameter structure for a Kx2 hull (None for no hull)."""
     if hull is None:
