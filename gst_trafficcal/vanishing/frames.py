@@ -22,20 +22,21 @@ from ..errors import InputError
 
 # Y' = 16 + 219/255 (0.299 R + 0.587 G + 0.114 B), ITU-R BT.601 limited range (what decoders output)
 _K = 219.0 / 255.0
-_BT601 = {"BGR": (0.114, 0.587, 0.299), "RGB": (0.299, 0.587, 0.114)}
+_TO_VIDEO_RANGE = np.rint(16.0 + _K * np.arange(256)).astype(np.uint8)  # full-range luma -> 16-235
 
 
 def luma(image: np.ndarray, order: str = "BGR") -> np.ndarray:
     """HxW uint8 luma of a frame: a 2-D image (a Y plane, GRAY8) as it is; a colour image (``order`` BGR, RGB,
-    BGRx, RGBx, BGRA, RGBA) as BT.601 limited-range Y', rounded."""
+    BGRx, RGBx, BGRA, RGBA) as BT.601 limited-range Y': OpenCV's luma (0-255) mapped into 16-235 by a table, within
+    one grey level of the exact value and about as fast as cvtColor alone (a float transform took 9x as long)."""
     if image.ndim == 2:
         return image
     if image.ndim != 3 or image.shape[2] not in (3, 4):
         raise InputError(f"cannot take the luma of an image of shape {image.shape}")
-    coef = [c * _K for c in _BT601[order[:3].upper()]]
-    m = np.array([coef + [0.0] * (image.shape[2] - 3) + [16.0]], np.float32)
-    out = cv2.transform(image, m)
-    return out if out.ndim == 2 else out[..., 0]
+    rgb = order[:3].upper() == "RGB"
+    code = {(3, False): cv2.COLOR_BGR2GRAY, (3, True): cv2.COLOR_RGB2GRAY,
+            (4, False): cv2.COLOR_BGRA2GRAY, (4, True): cv2.COLOR_RGBA2GRAY}[(image.shape[2], rgb)]
+    return cv2.LUT(cv2.cvtColor(image, code), _TO_VIDEO_RANGE)
 
 
 @dataclass
