@@ -418,6 +418,19 @@ def test_cli_report_from_run_files(tmp_path: Path) -> None:
     assert "detection zone [fractions of the frame]0,0 0.5,0 0.5,1" in text
     bad = _cli("--events", str(tmp_path / "vehicles.jsonl"), "--zone", "0,0 1,1", "--out", str(tmp_path / "r3.html"))
     assert bad.returncode == 2 and "--zone: zone '0,0 1,1': polygon 1 has 2 points" in bad.stderr
+    # the calibration from a run's system.json, in pixels of its image_size: no size warning, the same grid
+    import json
+
+    from gst_trafficcal.outputs import brno_calibration
+
+    (tmp_path / "system.json").write_text(json.dumps({"camera_calibration": brno_calibration(_calibration()).to_dict(),
+                                                      "image_size": [W, H], "cars": []}))
+    sysrep = _cli("--events", str(tmp_path / "vehicles.jsonl"), "--results", str(tmp_path / "system.json"),
+                  "--frame", str(tmp_path / "frame.png"), "--out", str(tmp_path / "sys.html"))
+    assert sysrep.returncode == 0 and "warning" not in sysrep.stderr, sysrep.stderr
+    a = _decode(_parse((tmp_path / "sys.html").read_text(encoding="utf-8")).images[0])
+    b = _decode(_parse((tmp_path / "report.html").read_text(encoding="utf-8")).images[0])
+    assert np.abs(a.astype(int) - b).max() <= 2  # the same grid on the same picture
     # a picture of another size: drawn scaled, with a warning (and another shape: perhaps another camera's)
     for size, shape in (((W // 2, H // 2), False), ((H, H), True)):
         cv2.imwrite(str(tmp_path / "other.png"), np.full((size[1], size[0], 3), 100, np.uint8))

@@ -74,7 +74,7 @@ def command(events_path: Path, calibration_path: Path | None, frame_path: Path |
             frame_time: float, gt_path: Path | None, results_path: Path | None, title: str, speed_limit: str,
             interval_min: float, intervals_path: Path | None, out_path: Path, zone: str = "") -> None:
     from ..brnocompspeed import load_gt_data, load_results
-    from ..calibration import Calibration, load_calibration
+    from ..calibration import load_calibration
     from ..outputs import on_one_clock, read_events
     from ..report import ReportInputs, measured_paths, write_report
     from ..traffic_stats import interval_rows, parse_speed_limit, write_intervals_csv
@@ -88,7 +88,7 @@ def command(events_path: Path, calibration_path: Path | None, frame_path: Path |
     cal = load_calibration(calibration_path) if calibration_path is not None else None
     results = load_results(results_path) if results_path is not None else None
     if cal is None and results is not None and results.calibration is not None:
-        cal = Calibration.from_brno_block(results.calibration.to_dict(), where=str(results_path))
+        cal = load_calibration(results_path)  # its camera_calibration, in pixels of its image_size (ours write it)
     frame = _frame(frame_path, video_path, frame_time)
     if cal is not None and frame is not None and tuple(cal.image_size) != tuple(frame.shape[1::-1]):
         (w, h), (fw, fh) = cal.image_size, frame.shape[1::-1]
