@@ -128,6 +128,9 @@ def _parse_zone(text: str) -> Zone | None:
             raise InputError(f"{what} is not a list of x,y numbers; expected {SYNTAX}") from None
         if not np.isfinite(pts).all():
             raise InputError(f"{what} has a coordinate that is not a finite number")
+        pts = pts[np.r_[True, np.any(np.diff(pts, axis=0) != 0, axis=1)]]  # a point repeated in a row: once
+        if len(pts) > 3 and np.array_equal(pts[0], pts[-1]):  # closed as GIS tools write rings: the last is the first
+            pts = pts[:-1]
         if len(pts) < 3:
             raise InputError(f"{what} has {len(pts)} points; a zone needs at least 3")
         if np.linalg.matrix_rank(pts - pts.mean(axis=0), tol=1e-9) < 2:

@@ -15,6 +15,7 @@ def test_a_zone_in_pixels_and_in_fractions() -> None:
     px = parse_zone(" 10,20 110,20 110,70 10,70 ")
     assert not px.relative and str(px) == "10,20 110,20 110,70 10,70"
     assert str(parse_zone("10, 20  110 ,20 110 , 70 10,70")) == str(px)  # spaces around the commas are no matter
+    assert str(parse_zone("10,20 110,20 110,20 110,70 10,70 10,20")) == str(px)  # a ring closed, a point twice
     m = px.mask((160, 90))
     assert m.shape == (90, 160) and m.dtype == np.uint8 and set(np.unique(m)) == {0, 255}
     # pixels 10..109 x 20..69, and those the outline passes through (one more row and column at most)
