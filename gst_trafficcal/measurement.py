@@ -132,7 +132,7 @@ def steady_label(shown: str, next_: str, new: str) -> tuple[str, str]:
     far) does not flip its label on the video every second; the first class is shown at once."""
     if not shown or new == shown:
         return new, ""
-    return (new, "") if new == next_ else (shown, new)
+    return (new, "") if new and new == next_ else (shown, new)
 
 
 @dataclass(frozen=True)

@@ -60,6 +60,7 @@ class VehicleDetect(TrafficcalTransform):
         from gst_trafficcal.errors import TrafficcalError
         from gst_trafficcal.zone import parse_zone
 
+        self._said_upstream = False
         try:
             self._detector = create_detector(self.model, self.model_format, self.labels, self.threshold, self.threads,
                                              self.tiles, background=self.background)

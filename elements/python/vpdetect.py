@@ -103,10 +103,14 @@ class VpDetect(TrafficcalTransform):
         not after the minutes of video the calibration takes to learn."""
         from gst_trafficcal.errors import InputError
         from gst_trafficcal.fileio import writable_file
+        from gst_trafficcal.vanishing.calibrator import CalibratorConfig
         from gst_trafficcal.zone import parse_zone
 
+        self._said_upstream = False
         try:
             self._zone = parse_zone(self.zone)
+            # durations that can only fail: now, not when learning starts (with a loaded file: after a camera move)
+            CalibratorConfig(min_duration=self.min_duration, max_duration=self.max_duration)
         except InputError as exc:
             self.post_error(f"vpdetect: {exc}")
             return False

@@ -13,7 +13,7 @@ A subclass sets ``__gstmetadata__`` (and ``__gproperties__`` if any), implements
                 self.publish_calibration(result.calibration)
             return Gst.FlowReturn.OK
 
-    GObject.type_register(VpDetect)          # with __gtype_name__ = "GstVpDetect": elements named vpdetect0...
+    GObject.type_register(VpDetect)          # with __gtype_name__ = "GstVpdetect": elements named vpdetect0...
     __gstelementfactory__ = ("vpdetect", Gst.Rank.NONE, VpDetect)
 
 What the base does:
@@ -306,6 +306,7 @@ class TrafficcalTransform(GstBase.BaseTransform):
 
     def do_stop(self) -> bool:
         self._streaming = False
+        self._said_untimed = False  # a pipeline started again says it again
         self.video_info = None
         self.frame_size = None
         self.stream_clock = StreamClock()
