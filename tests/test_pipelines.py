@@ -65,6 +65,8 @@ def test_bad_arguments_are_one_clear_line(clip, tmp_path, name, args):
     assert proc.returncode == 2
     prefix = name.split(".")[0]
     assert proc.stderr.startswith(f"{prefix}: error: ") and len(proc.stderr.strip().splitlines()) == 1, proc.stderr
+    if "{folder}" in args or args[-1] == "{tmp}":  # a folder where a file is written: said so
+        assert ": a folder, not a " in proc.stderr, proc.stderr
     assert not (tmp_path / "out" / "vehicles.jsonl").exists()
 
 

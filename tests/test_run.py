@@ -189,14 +189,14 @@ def test_not_a_video(clip, tmp_path):
     for name, text in earlier.items():
         (out / name).write_text(text)
     line = one_line_error(trafficcal("run", bad, "--out", out, "--no-overlay"))
-    assert str(bad) in line and "not a video" in line and f"nothing in {out} was changed" in line
+    assert str(bad) in line and "not a video" in line and f"the earlier outputs in {out} are left as they were" in line
     assert {name: (out / name).read_text() for name in earlier} == earlier
     (tmp_path / "empty.mp4").write_bytes(b"")
     line = one_line_error(trafficcal("run", tmp_path / "empty.mp4", "--out", out, "--no-overlay"))
     assert "no frame could be decoded" in line and {name: (out / name).read_text() for name in earlier} == earlier
     line = one_line_error(trafficcal("run", clip / "video.mp4", "--out", out, "--no-overlay", "--zone",
                                      "5000,5000 6000,5000 6000,6000"))
-    assert "--zone: zone 5000,5000 6000,5000 6000,6000: it covers no pixel of the" in line
+    assert "the detection zone 5000,5000 6000,5000 6000,6000: it covers no pixel of the" in line
     assert {name: (out / name).read_text() for name in earlier} == earlier
 
 
@@ -399,6 +399,9 @@ def test_a_zone_leaves_out_the_other_carriageway(clip, with_truth, tmp_path):
                         "0,0 30,0 30,30 0,30", "--calibration", clip / "calibration.json")  # no road there
     assert corner.returncode == 0 and "no vehicle stood in the detection zone (0,0 30,0 30,30 0,30) in " in \
         " ".join(corner.stdout.split()), corner.stdout[-2000:]
+    brief = trafficcal("run", clip / "video.mp4", "--out", tmp_path / "brief", "--no-overlay", "--zone",
+                       "0,0 30,0 30,30 0,30", "--calibration", clip / "calibration.json", "--duration", "2")
+    assert brief.returncode == 0 and "no vehicle stood" not in brief.stdout  # 2 s of it: no vehicle yet is no news
     line = one_line_error(trafficcal("run", clip / "video.mp4", "--out", tmp_path / "bad", "--zone", "10,10 20,20"))
     assert line == "trafficcal: error: --zone: zone '10,10 20,20': polygon 1 has 2 points; a zone needs at least 3"
     assert not (tmp_path / "bad").exists()

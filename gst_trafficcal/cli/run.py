@@ -28,6 +28,7 @@ import click
 
 from ..errors import InputError
 
+EMPTY_ZONE_S = 60.0  # seconds of a stream without a vehicle in the zone before the run says the zone may be wrong
 OUTPUTS = ("calibration.json", "system.json", "vehicles.jsonl", "vehicles.csv", "intervals.csv", "overlay.mp4",
            "report.html", "evaluation.json")
 
@@ -459,13 +460,13 @@ def readable_video(video: Path, out_dir: Path, zone=None):
     be decoded (not a video, empty, damaged) or when the detection ``zone`` covers no pixel of its frames — an
     earlier run's outputs there stay as they were."""
     frame = first_frame(video)
-    untouched = f"; nothing in {out_dir} was changed"
+    untouched = f"; the earlier outputs in {out_dir} are left as they were"
     if frame is None:
         raise InputError(f"{video}: cannot be processed: no frame could be decoded from it (not a video, empty, or "
                          f"damaged){untouched}")
     wrong = zone.check((frame.shape[1], frame.shape[0])) if zone is not None else None
     if wrong:
-        raise InputError(f"{video}: --zone: {wrong}{untouched}")
+        raise InputError(f"{video}: the detection {wrong}{untouched}")
     return frame
 
 
@@ -956,8 +957,10 @@ def run_one(console, video: Path | str, out_dir: Path, calibration_path: Path | 
     print_remeasured(console, summary.remeasured, events_url, speeds=summary.remeasured_speeds)
     print_vehicles(console, summary.events, speed_limit)
     print_not_counted(console, summary.not_counted)
-    if options.zone and not summary.events and summary.position_s:  # the zone, not the road, is the likelier fault
-        empty = (f"no vehicle stood in the detection zone ({options.zone}) in {summary.position_s:.0f} s: check where "
+    watched = (summary.position_s or 0) >= EMPTY_ZONE_S or (not is_uri(video) and not summary.stopped)  # a whole
+    if options.zone and not summary.events and watched:  # file, or a minute: the zone, not the road, is the likelier
+        # fault (a run stopped early, a short reconnection or a quiet night's part may just have had no vehicle)
+        empty = (f"no vehicle stood in the detection zone ({options.zone}) in {summary.position_s or 0:.0f} s: check where "
                  "it lies (overlay.mp4, or the grid picture of trafficcal calibrate --zone)")
         summary.warnings.append(empty)
         if options.status is not None:

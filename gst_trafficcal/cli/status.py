@@ -152,7 +152,8 @@ def _one(file: Path, max_age_s: float, as_json: bool) -> None:
                             if cal else "none yet"),
         f"  vehicles    {status.vehicles}, {status.measured} measured; last {_ago(status.last_vehicle_at, now)}",
     ]
-    if status.frames and status.duration_s is None:  # a live stream (a file has a duration, and waits for us)
+    live = "://" in status.source and not status.source.startswith("file://")
+    if status.frames and live:  # a stream (a file waits for us: no frame of it is dropped)
         lines.append(f"  frames      {status.frames} of the live stream, {status.frames_dropped} dropped to keep up")
     elif status.frames:
         lines.append(f"  frames      {status.frames} of the file")
