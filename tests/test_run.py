@@ -200,6 +200,22 @@ def test_not_a_video(clip, tmp_path):
     assert {name: (out / name).read_text() for name in earlier} == earlier
 
 
+def test_a_run_failing_before_the_speedometer_started_has_no_vehicles_of_an_earlier_run(with_truth, tmp_path):
+    """The event files a run reads back after a failure are its own only if they changed since it started: an
+    earlier run's, untouched (the pipeline failed before the speedometer replaced them), are not its vehicles."""
+    import shutil
+
+    from gst_trafficcal.cli.run import RunPaths, _read_vehicle_events, _stamp
+
+    paths = RunPaths(tmp_path)
+    shutil.copy(with_truth[0] / "vehicles.jsonl", paths.events)
+    earlier = {p: _stamp(p) for p in (paths.events, paths.csv)}
+    assert _read_vehicle_events(paths, earlier) == [] and len(_read_vehicle_events(paths)) > 1
+    first = paths.events.read_text().splitlines(keepends=True)[0]
+    paths.events.write_text(first)  # the speedometer replaced it: this run's one vehicle
+    assert [e.id for e in _read_vehicle_events(paths, earlier)] == [read_events(paths.events).events[0].id]
+
+
 @pytest.mark.parametrize("command", ["run", "demo", "calibrate", "fit-scale"])
 def test_a_bad_detector_is_refused_before_any_work(clip, tmp_path, command):
     """The commands sharing --detector open the model first: a missing file is one line naming it, before a render,

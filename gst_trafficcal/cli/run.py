@@ -256,12 +256,24 @@ def _not_counted(outcome) -> tuple[int, int]:
     return int(last.get("brief", 0)), int(last.get("stationary", 0))
 
 
-def _read_vehicle_events(paths: RunPaths) -> list:
-    """The events the speedometer wrote: the JSON lines, or the CSV when the JSON lines could not be written."""
+def _stamp(path: Path) -> tuple[int, int, int] | None:
+    """What tells one version of a file from another (inode, size, modification time), None when there is none."""
+    try:
+        st = path.stat()
+    except OSError:
+        return None
+    return st.st_ino, st.st_size, st.st_mtime_ns
+
+
+def _read_vehicle_events(paths: RunPaths, earlier: dict | None = None) -> list:
+    """The events the speedometer wrote: the JSON lines, or the CSV when the JSON lines could not be written.  A
+    file still as it was before the run (``earlier``: :func:`_stamp` per path) is an earlier run's, not read."""
     from ..outputs import read_events, read_events_csv
 
     found: list = []
     for reader, path in ((lambda p: read_events(p).events, paths.events), (read_events_csv, paths.csv)):
+        if earlier and path in earlier and earlier[path] is not None and _stamp(path) == earlier[path]:
+            continue
         try:
             events = reader(path) if path.is_file() else []  # not /dev/full & co. (endless)
         except InputError:
@@ -355,10 +367,12 @@ def measure_video(video: Path | str, out_dir: Path, description: str, console, l
 
     paths = RunPaths(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
-    for name in OUTPUTS:  # nothing stale from an earlier run: not even its vehicles, which a run that fails before
-        stale = out_dir / name  # the speedometer replaces them would otherwise report as its own
-        if not any(_same(stale, k) for k in keep):
+    for name in OUTPUTS:  # nothing stale from an earlier run (speedometer truncates the event files itself)
+        stale = out_dir / name
+        if name not in (paths.events.name, paths.csv.name) and not any(_same(stale, k) for k in keep):
             stale.unlink(missing_ok=True)
+    earlier = {p: _stamp(p) for p in (paths.events, paths.csv)}  # a run that fails before the speedometer replaced
+    # them must not report the earlier run's vehicles as its own
     def hidden(text: str) -> str:  # a message without the URI's password
         return text.replace(str(video), shown_source(video))
 
@@ -423,7 +437,7 @@ def measure_video(video: Path | str, out_dir: Path, description: str, console, l
             f"this machine could not keep up with the live stream: {outcome.frames_dropped} of {outcome.frames_in} "
             f"frames ({100 * share:.0f} %) were dropped to stay in real time; the vehicles are measured from the "
             "frames kept (--no-overlay, --detector background or a faster machine keep more)")
-    summary = RunSummary(outcome.calibration, _read_vehicle_events(paths), outcome.warnings,
+    summary = RunSummary(outcome.calibration, _read_vehicle_events(paths, earlier), outcome.warnings,
                          duration_s=outcome.duration_s, stopped=outcome.stopped, stopped_by=outcome.stopped_by,
                          position_s=outcome.position_s,
                          moves=outcome.moves,
