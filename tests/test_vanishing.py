@@ -241,10 +241,14 @@ def test_calibrator_on_static_and_tiny_inputs_says_why():
 
 
 def test_calibrator_gives_up_at_max_duration(cuboid_frames):
-    cal = VPCalibrator((W, H), _fast_config(min_duration=100.0, max_duration=6.0))
+    """Not converged by max_duration (here: far too few tracks asked for): failed, with the reason, at 6 s; a
+    minimum longer than the maximum, which could only ever fail, is refused."""
+    with pytest.raises(InputError, match=r"the minimum duration \(100 s\) is longer than the maximum \(6 s\)"):
+        _fast_config(min_duration=100.0, max_duration=6.0)
+    cal = VPCalibrator((W, H), _fast_config(min_duration=6.0, max_duration=6.0, min_tracks=10**6))
     for i, f in enumerate(cuboid_frames):
         cal.add(f, i / FPS)
         if cal.done:
             break
-    assert cal.state == "failed" and "too short" in cal.reason
+    assert cal.state == "failed" and "need 1000000" in cal.reason, cal.reason
     assert cal.t < 8.5
