@@ -974,8 +974,8 @@ def run_one(console, video: Path | str, out_dir: Path, calibration_path: Path | 
     watched = (summary.position_s or 0) >= EMPTY_ZONE_S or (not is_uri(video) and not summary.stopped)  # a whole
     if options.zone and not summary.events and watched:  # file, or a minute: the zone, not the road, is the likelier
         # fault (a run stopped early, a short reconnection or a quiet night's part may just have had no vehicle)
-        empty = (f"no vehicle stood in the detection zone ({options.zone}) in {summary.position_s or 0:.0f} s: check where "
-                 "it lies (overlay.mp4, or the grid picture of trafficcal calibrate --zone)")
+        empty = (f"no vehicle stood in the detection zone ({options.zone}) in {summary.position_s or 0:.0f} s: check "
+                 "where it lies (overlay.mp4, or the grid picture of trafficcal calibrate --zone)")
         summary.warnings.append(empty)
         if options.status is not None:
             options.status.warning(empty)

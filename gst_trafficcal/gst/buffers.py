@@ -221,9 +221,9 @@ def frame_gray(buffer: Gst.Buffer, info: GstVideo.VideoInfo) -> Iterator[np.ndar
 
     For GRAY8/I420/NV12 this is a read-only view of the Y plane (no copy: valid inside the
     ``with`` block only); for BGR/RGB/BGRx a converted copy: BT.601 luma in the 16-235 range of the Y plane a YUV
-    stream of the same video carries (:func:`gst_trafficcal.vanishing.frames.luma`, as the CLI's frames), so that the detectors, trained and tuned on such planes, see the
-    same image whichever format the pipeline negotiates (full-range luma of RGB made MOG2's boxes and the speeds
-    worse on the same video).
+    stream of the same video carries (:func:`gst_trafficcal.vanishing.frames.luma`, as the CLI's frames), so that
+    the detectors, trained and tuned on such planes, see the same image whichever format the pipeline negotiates
+    (full-range luma of RGB made MOG2's boxes and the speeds worse on the same video).
     """
     fmt = format_name(info)
     if fmt in ("GRAY8", "I420", "NV12"):  # the luma plane only (no views of the chroma planes)
