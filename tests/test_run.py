@@ -194,6 +194,11 @@ def test_not_a_video(clip, tmp_path):
     (tmp_path / "empty.mp4").write_bytes(b"")
     line = one_line_error(trafficcal("run", tmp_path / "empty.mp4", "--out", out, "--no-overlay"))
     assert "no frame could be decoded" in line and {name: (out / name).read_text() for name in earlier} == earlier
+    spaced = tmp_path / "cam 7.mp4"  # a file:// URI is the file it names: checked as one (%20 is its space)
+    spaced.write_text("this is not a video either\n" * 50)
+    line = one_line_error(trafficcal("run", spaced.as_uri(), "--out", out, "--no-overlay"))
+    assert f"{spaced}: cannot be processed" in line and "%20" not in line
+    assert {name: (out / name).read_text() for name in earlier} == earlier
     line = one_line_error(trafficcal("run", clip / "video.mp4", "--out", out, "--no-overlay", "--zone",
                                      "5000,5000 6000,5000 6000,6000"))
     assert "the detection zone 5000,5000 6000,5000 6000,6000: it covers no pixel of the" in line
@@ -255,6 +260,12 @@ def test_bad_start_time_is_refused_before_the_run(clip, tmp_path):
 def test_missing_video(tmp_path):
     proc = trafficcal("run", tmp_path / "absent.mp4", "--out", tmp_path / "out")
     assert proc.returncode == 2 and "does not exist" in proc.stderr and "Traceback" not in proc.stderr
+    proc = trafficcal("run", (tmp_path / "absent.mp4").as_uri(), "--out", tmp_path / "out")
+    assert proc.returncode == 2 and f"'{tmp_path / 'absent.mp4'}' does not exist" in proc.stderr
+    from gst_trafficcal.cli.run import local_file
+
+    assert local_file("file://localhost/v%20a.mp4") == "/v a.mp4" and local_file("file://nas/v.mp4") is None
+    assert local_file("rtsp://cam/stream") is None
 
 
 def test_a_stream_whose_server_cannot_be_reached_says_why(tmp_path):

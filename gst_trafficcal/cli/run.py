@@ -884,10 +884,23 @@ def names_start(video: Path | str) -> Any:
     return start
 
 
+def local_file(uri: str) -> str | None:
+    """The path a ``file://`` URI names (``file:///data/cam%207.mp4`` → ``/data/cam 7.mp4``), or None for any other
+    URI: a local file is read, checked and measured again as a file is, whatever way it is given."""
+    from urllib.parse import unquote, urlsplit
+
+    parts = urlsplit(uri)
+    if parts.scheme.lower() != "file" or parts.netloc not in ("", "localhost"):
+        return None
+    return unquote(parts.path)
+
+
 def check_input(video: str) -> Path | str:
-    """A URI as it is; a file as a Path (click's usage error when it is missing or a directory)."""
-    if is_uri(video):
+    """A URI as it is, a ``file://`` URI as the file it names; a file as a Path (click's usage error when it is
+    missing or a directory)."""
+    if is_uri(video) and local_file(video) is None:
         return video
+    video = local_file(video) or video
     if not Path(video).is_file():
         raise click.BadParameter(f"File {video!r} does not exist." if not Path(video).exists() else
                                  f"{video!r} is a directory.", param_hint="'VIDEO|URI'")
