@@ -275,6 +275,30 @@ def test_plain_detections_without_ids() -> None:
     assert yellow[int(BOX[1]), int(BOX[0]) + 5:int(BOX[2]) - 5].mean() > 0.9
 
 
+@pytest.mark.parametrize("fmt", ["GRAY8", "I420"])
+def test_grey_frames_are_said_to_get_a_grey_overlay(fmt: str) -> None:
+    """A monochrome camera's GRAY8 is drawn on as it comes (in grey); the element says so once, with the way to
+    colour that keeps the vehicles' metadata (a converter in front of the chain, not before the overlay)."""
+    pipeline = Gst.parse_launch(f"{GREY_SRC},format={fmt} ! trafficoverlay ! fakesink")
+    bus = pipeline.get_bus()
+    pipeline.set_state(Gst.State.PLAYING)
+    infos = []
+    try:
+        while True:
+            msg = bus.timed_pop_filtered(30 * Gst.SECOND, Gst.MessageType.EOS | Gst.MessageType.ERROR |
+                                         Gst.MessageType.INFO)
+            assert msg is not None and msg.type != Gst.MessageType.ERROR, msg and msg.parse_error()
+            if msg.type == Gst.MessageType.EOS:
+                break
+            if msg.src.get_factory() is not None and msg.src.get_factory().get_name() == "trafficoverlay":
+                infos.append(msg.parse_info()[0].message)
+    finally:
+        pipeline.set_state(Gst.State.NULL)
+    grey = [i for i in infos if "GRAY8" in i]
+    assert (len(grey) == 1 and "videoconvert ! video/x-raw,format=I420 ! vpdetect" in grey[0]) if fmt == "GRAY8" \
+        else not grey, infos
+
+
 def test_bad_calibration_file_is_a_readable_error(tmp_path: Path) -> None:
     bad = tmp_path / "bad.json"
     bad.write_text("{not json")

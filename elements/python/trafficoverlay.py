@@ -62,6 +62,7 @@ class TrafficOverlay(TrafficcalTransform):
         self._zone = None
         self._grid_cache = None
         self._yuv = (0.299, 0.114, False)
+        self._said_grey = False  # on_caps: said once that GRAY8 frames get a grey overlay
 
     def do_start(self):
         from gst_trafficcal.overlay import GivenClasses, GridCache, PanelPlacer, VehicleCounter
@@ -82,6 +83,7 @@ class TrafficOverlay(TrafficcalTransform):
             self.post_error(f"trafficoverlay: {exc}")
             return False
         self._counter = VehicleCounter(speed_limit_kmh=self._limit)
+        self._said_grey = False
         self._grid_cache = GridCache()
         self._given = GivenClasses()  # the speedometer's class of each vehicle, also while it gives no live speed
         self._untracked = UntrackedWatch("trafficoverlay")
@@ -131,6 +133,15 @@ class TrafficOverlay(TrafficcalTransform):
         wrong = self.file_calibration_mismatch(self._file_cal, self.calibration_file)
         if wrong:
             self.post_error(f"trafficoverlay: {wrong}")
+        from gst_trafficcal.gst.buffers import format_name
+
+        if format_name(info) == "GRAY8" and not self._said_grey:  # a thermal or monochrome camera, as it came
+            self._said_grey = True
+            self.post_info("trafficoverlay: the frames are grey (GRAY8), so the overlay is drawn in grey: speeding "
+                           "vehicles, the zone and the grid's directions differ by colour only in colour frames. "
+                           "For colour, convert before the first trafficcal element (videoconvert ! "
+                           "video/x-raw,format=I420 ! vpdetect ...): a videoconvert between the tracker and this "
+                           "element drops the vehicles' ids and speeds")
 
     def transform_frame(self, buffer):
         from gst_trafficcal.gst.buffers import format_name
