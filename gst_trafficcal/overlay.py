@@ -284,6 +284,11 @@ class VehicleCounter:
     A vehicle that left before it had a direction, lane or speed (the calibration came later) is counted as
     "unknown" until :meth:`left` gives its final values (speedometer measures it then, and says so downstream);
     :meth:`left` moves it to its direction, lane and, over the limit, the speeding count.
+
+    With ``min_seen_s`` (for a chain without speedometer, whose "no vehicle passing" events otherwise take them out)
+    a track counts only once it has been in view that long (stream seconds, the ``t`` of :meth:`update`): a
+    detector's flicker or a fragment of a vehicle another track follows is not counted (the speedometer's rule,
+    :func:`gst_trafficcal.measurement.not_a_vehicle`'s "brief").
     """
 
     seen: dict[int, tuple[str | None, int | None]] = field(default_factory=dict)  # vehicles still around
@@ -307,6 +312,9 @@ class VehicleCounter:
     # departed vehicles' counted values (direction, lane, over the limit), newest last, for left()
     _done_ids: OrderedDict[int, tuple[str | None, int | None, bool]] = field(default_factory=OrderedDict,
                                                                              repr=False)
+    min_seen_s: float = 0.0  # a track counts once in view this long (0: at once)
+    _first_seen: dict[int, tuple[float, float, int, VehicleMark]] = field(default_factory=dict, repr=False)  # not
+    # yet counted: (first t, last t, last update, last mark)
 
     MAX_OFFSETS = 64  # per vehicle (its median is all that is used)
     LANE_REFRESH = 25  # per-lane counts are recounted at most every this many updates (or on a new vehicle)
@@ -314,11 +322,12 @@ class VehicleCounter:
     MAX_LANE_SAMPLES = 2000  # departed vehicles' offsets kept for the lane model
     MAX_DONE_IDS = 20000  # departed vehicles left() can still correct (hours of traffic waiting for a calibration)
 
-    def update(self, marks: Iterable[VehicleMark], camera: Camera | None = None) -> None:
+    def update(self, marks: Iterable[VehicleMark], camera: Camera | None = None, t: float | None = None) -> None:
+        """Count the vehicles of one frame (``t``: its stream time in seconds, for ``min_seen_s``)."""
         metric = camera is not None and camera.scale is not None
         self._updates += 1
         for m in marks:
-            if m.track_id is None:
+            if m.track_id is None or not self._long_enough(m, t):
                 continue
             old_dir, old_lane = self.seen.get(m.track_id, (None, None))
             self.seen[m.track_id] = (m.direction or old_dir, m.lane if m.lane is not None else old_lane)
@@ -334,7 +343,32 @@ class VehicleCounter:
         if self._updates % 50 == 0:
             self._forget(self._updates - self.FORGET_AFTER)
 
+    def _long_enough(self, m: VehicleMark, t: float | None) -> bool:
+        """Whether the track of ``m`` is counted now: it is already, or it has been in view ``min_seen_s`` by ``t``."""
+        i = m.track_id
+        if i in self.seen or self.min_seen_s <= 0 or t is None:
+            return True
+        first = self._first_seen.get(i, (t,))[0]
+        if t - first >= self.min_seen_s:
+            self._first_seen.pop(i, None)
+            return True
+        self._first_seen[i] = (first, t, self._updates, m)
+        return False
+
+    def end(self, t: float | None, still_in_view_s: float) -> None:
+        """End of the stream: the tracks not yet counted that were seen in its last ``still_in_view_s`` seconds (to
+        ``t``) count — the end cut them short, as speedometer counts them."""
+        for i, (_, last, u, m) in list(self._first_seen.items()):
+            if t is not None and last >= t - still_in_view_s:
+                self.seen[i] = (m.direction, m.lane)
+                self._last_seen[i] = u
+                if m.speed_kmh is not None:
+                    self._speed[i] = (m.speed_kmh, m.label)
+        self._first_seen.clear()
+
     def _forget(self, before: int) -> None:
+        for i in [i for i, (_, _, u, _) in self._first_seen.items() if u < before]:  # never counted: gone for good
+            del self._first_seen[i]
         gone = [i for i, t in self._last_seen.items() if t < before]
         for i in gone:
             direction, lane = self.seen[i]

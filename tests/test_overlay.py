@@ -290,6 +290,31 @@ def test_vehicle_counter_counts_each_track_once() -> None:
     assert c.lines()[:2] == ["vehicles: 4", "towards VP1: 2  away: 1  unknown: 1"]
 
 
+def test_vehicle_counter_counts_a_track_once_in_view_long_enough() -> None:
+    """min_seen_s (trafficoverlay without speedometer): a track seen for less is a flicker or a fragment, not counted
+    — unless the end of the stream cut it short; one never counted is forgotten with the departed."""
+    c = VehicleCounter(min_seen_s=0.5)
+    for k in range(10):  # 0.4 s at 25 fps: #1 in view throughout, #2 for two frames
+        c.update([VehicleMark((0, 0, 1, 1), 1, direction="towards_vp1")] +
+                 ([VehicleMark((0, 0, 1, 1), 2)] if k < 2 else []), None, k / 25)
+    assert c.total == 0
+    c.update([VehicleMark((0, 0, 1, 1), 1, direction="towards_vp1")], None, 0.5)
+    assert c.total == 1 and c.by_direction() == {"towards_vp1": 1}
+    c.update([VehicleMark((0, 0, 1, 1), 3, direction="away_from_vp1", lane=2)], None, 0.56)
+    c.end(0.6, 0.3)  # #3 seen at the end (cut short) counts with its values; #2 left before
+    assert c.total == 2 and c.by_direction() == {"towards_vp1": 1, "away_from_vp1": 1} and c.by_lane() == {2: 1}
+    c2 = VehicleCounter(min_seen_s=0.5)
+    c2.update([VehicleMark((0, 0, 1, 1), 7)], None, 0.0)
+    for k in range(1, VehicleCounter.FORGET_AFTER + 60):
+        c2.update([], None, k / 25)
+    c2.end(20.0, 1.0)
+    assert c2.total == 0 and not c2._first_seen
+    assert VehicleCounter().total == 0  # without min_seen_s every track counts at once (as before)
+    c3 = VehicleCounter()
+    c3.update([VehicleMark((0, 0, 1, 1), 1)], None, 0.0)
+    assert c3.total == 1
+
+
 def test_vehicles_over_the_speed_limit_are_drawn_in_red_and_counted() -> None:
     slow = VehicleMark((20, 40, 90, 90), 1, "car", 64.0, direction="towards_vp1")
     fast = VehicleMark((150, 40, 220, 90), 2, "car", 91.5, direction="towards_vp1")

@@ -279,6 +279,32 @@ def test_the_overlay_counts_every_vehicle_as_the_files_do(clip, limit, tmp_path,
                          "over_limit": sum(e.speed_kmh is not None and e.speed_kmh > limit for e in events)}
 
 
+def test_the_overlay_without_speedometer_counts_the_tracks_in_view_long_enough(clip, tmp_path):
+    """``vehicledetect ! tracker ! trafficoverlay`` (no speedometer to say which tracks were no vehicle passing): the
+    overlay counts a track once it has been in view for speedometer's ``min-seen`` (0.5 s), so a detector's flicker
+    or a fragment of a vehicle is not counted; its total is then the count speedometer writes from the same
+    detections, not every track.  Tracks the end of the stream cut short count, as speedometer counts them."""
+    from gst_trafficcal.measurement import DEFAULT_END_AFTER, MIN_SEEN_S
+
+    register_plugin_file(ELEMENTS / "trafficoverlay.py")
+    register_plugin_file(ELEMENTS / "vpdetect.py")
+    cal = f"calibration-file={clip / 'calibration.json'}"
+    run = run_pipeline(f"{source(clip)} ! vpdetect {cal} ! vehicledetect ! tracker ! trafficoverlay ! "
+                       "appsink name=sink")
+    spans: dict[int, list[float]] = {}
+    for f in run.frames:
+        for r in f.rois:
+            if r.object_id is not None:
+                spans.setdefault(r.object_id, [f.pts, f.pts])[1] = f.pts
+    end = run.frames[-1].pts
+    long = [i for i, (a, b) in spans.items() if b - a >= MIN_SEEN_S - 1e-6 or b >= end - DEFAULT_END_AFTER]
+    counts = [m.fields for m in run.messages if m.name == "trafficcal-overlay-counts"]
+    assert len(long) < len(spans), spans  # the background detector's fragments: tracks seen for an instant
+    assert len(counts) == 1 and counts[0]["total"] == len(long), (counts, len(long), len(spans))
+    _, events, _ = measure(clip, tmp_path, "vehicledetect", cal)
+    assert abs(counts[0]["total"] - len(events)) <= 1 < abs(len(spans) - len(events)), (counts, len(events), spans)
+
+
 def test_tracks_that_are_no_vehicle_passing_are_counted_not_written(clip, tmp_path):
     """Tracks left without a speed that were seen for an instant or never moved (``min-seen``, ``min-moved``) are not
     written; a ``trafficcal-not-counted`` message says how many.  With both properties 0 every track is written:

@@ -121,6 +121,9 @@ class TrafficOverlay(TrafficcalTransform):
 
     def on_eos(self):
         if self._counter is not None:  # counted whether or not the panel is drawn
+            from gst_trafficcal.measurement import DEFAULT_END_AFTER
+
+            self._counter.end(self.buffer_t, DEFAULT_END_AFTER)  # the tracks in view at the end count, however brief
             self.post_element_message("trafficcal-overlay-counts", self._counter.summary())
 
     def on_caps(self, info):
@@ -155,7 +158,7 @@ class TrafficOverlay(TrafficcalTransform):
         self._check_tracked(marks)
         cal = self.calibration
         camera = cal.camera if cal is not None else None
-        self._counter.update(marks, camera)
+        self._counter.update(marks, camera, self.buffer_t)
         options = OverlayOptions(grid=self.draw_grid, horizon=self.draw_horizon, boxes=self.draw_boxes,
                                  labels=self.draw_labels, speeds=self.draw_speeds, counters=self.draw_counters,
                                  grid_spacing_m=self.grid_spacing, thickness=self.line_thickness,
@@ -177,6 +180,10 @@ class TrafficOverlay(TrafficcalTransform):
         if self._tracked_upstream is None:
             self._tracked_upstream = any(upstream_element(self, name) is not None
                                          for name in ("tracker", "speedometer"))
+            if upstream_element(self, "speedometer") is None:  # nobody says which tracks were no vehicle passing:
+                from gst_trafficcal.measurement import MIN_SEEN_S  # count only those in view long enough
+
+                self._counter.min_seen_s = MIN_SEEN_S
         t = self.buffer_t
         if self._tracked_upstream and t is not None:
             warning = self._untracked.check(t, len(marks), sum(m.track_id is not None for m in marks), True)
