@@ -43,10 +43,37 @@ def test_synth_preset_end_to_end(tmp_path):
     # vehicles differ from frame to frame: the video is not a still
     assert np.abs(frames[0].astype(int) - frames[-1].astype(int)).mean() > 1.0
     # same seed, same ground truth
-    out2 = tmp_path / "again"
-    assert _run("--preset", "qvga_12fps", "--duration", "4", "--seed", "3", "--out", str(out2),
-                "--no-progress").returncode == 0
+    out2 = tmp_path / "again, with spaces"  # a path the encoder's pipeline description must not split
+    r = _run("--preset", "qvga_12fps", "--duration", "4", "--seed", "3", "--out", str(out2), "--no-progress")
+    assert r.returncode == 0, r.stderr
     assert (out2 / "frames.jsonl").read_text() == (out / "frames.jsonl").read_text()
+    assert cv2.VideoCapture(str(out2 / "video.mp4")).read()[0]
+
+
+def test_synth_with_dropped_frames_into_a_path_with_spaces(tmp_path):
+    """Dropped frames go through the appsrc writer (real timestamps with gaps): it too takes any path."""
+    pytest.importorskip("gst_trafficcal.vehicles.mesh", reason="vehicle catalogue (gst_trafficcal.vehicles) missing")
+    f = tmp_path / "s.yaml"
+    f.write_text("base: qvga_12fps\nduration: 2\nimaging: {drop_rate: 0.3}\n")
+    out = tmp_path / "drop ped" / "it's here"
+    r = _run("--scenario", str(f), "--out", str(out), "--no-progress")
+    assert r.returncode == 0, r.stderr
+    dropped = int(r.stdout.split("frames (")[1].split(" dropped")[0])
+    cap = cv2.VideoCapture(str(out / "video.mp4"))
+    n = 0
+    while cap.read()[0]:
+        n += 1
+    assert dropped > 0 and n == 25 - dropped, (r.stdout, n)
+
+
+def test_synth_seed_must_be_a_whole_number_from_zero(tmp_path):
+    r = _run("--preset", "qvga_12fps", "--seed", "-1", "--out", str(tmp_path / "o"))
+    assert r.returncode == 2 and "--seed" in r.stderr and "Traceback" not in r.stderr
+    f = tmp_path / "s.yaml"
+    f.write_text("base: qvga_12fps\nseed: -3\n")
+    r = _run("--scenario", str(f), "--out", str(tmp_path / "o"))
+    assert r.returncode == 2 and "field 'seed' must be a whole number from 0, got -3" in r.stderr, r.stderr
+    assert "Traceback" not in r.stderr and not (tmp_path / "o").exists()
 
 
 def test_synth_scenario_file_errors_are_one_line(tmp_path):

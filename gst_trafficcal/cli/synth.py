@@ -14,7 +14,8 @@ from ..errors import InputError
 @click.option("--scenario", "scenario_file", type=click.Path(dir_okay=False, path_type=Path),
               help="Scenario YAML/JSON file (may name a preset as 'base').")
 @click.option("--duration", type=float, default=None, help="Seconds of video (default: the scenario's).")
-@click.option("--seed", type=int, default=None, help="Random seed (default: the scenario's).")
+@click.option("--seed", type=click.IntRange(min=0), default=None,
+              help="Random seed, a whole number from 0 (default: the scenario's).")
 @click.option("--out", "out_dir", type=click.Path(file_okay=False, path_type=Path), help="Output folder.")
 @click.option("--list-presets", is_flag=True, help="Print the presets, one a line, and exit.")
 @click.option("--no-progress", is_flag=True, help="Do not show the progress bar.")

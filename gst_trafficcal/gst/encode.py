@@ -17,7 +17,7 @@ from ._gi import Gst
 
 
 class AppsrcH264Writer:
-    """Push I420 frames with PTS (seconds) into ``appsrc ! <encoder chain><path>``."""
+    """Push I420 frames with PTS (seconds) into ``appsrc ! <encoder chain, ending in a filesink>`` writing ``path``."""
 
     def __init__(self, path: Path, size: tuple[int, int], fps: float, encoder_chain: str):
         W, H = size
@@ -26,11 +26,12 @@ class AppsrcH264Writer:
         self.frame_dur = int(round(Gst.SECOND / fps))
         desc = (f"appsrc name=src format=time is-live=false block=true max-bytes={W * H * 6} "
                 f"caps=video/x-raw,format=I420,width={W},height={H},framerate=0/1,"
-                f"max-framerate={fr.numerator}/{fr.denominator} ! " + encoder_chain + str(path))
+                f"max-framerate={fr.numerator}/{fr.denominator} ! " + encoder_chain + " name=tcout")
         try:
             self.pipeline = Gst.parse_launch(desc)
         except Exception as exc:  # GLib.Error
             raise InputError(f"cannot build the encoder pipeline: {exc}") from None
+        self.pipeline.get_by_name("tcout").set_property("location", str(path))  # not parsed: any path works
         self.src = self.pipeline.get_by_name("src")
         self.pipeline.set_state(Gst.State.PLAYING)
 

@@ -27,10 +27,12 @@ def _fps_fraction(fps: float) -> Fraction:
 def encoder_chain(bitrate: int, fps: float) -> str:
     """x264 settings shared by both writers: fast preset, keyframe every 2 s, no B-frames (low latency like
     IP cameras). One encoder thread: with two, x264enc's output differs from run to run, and a scene must
-    give the same video every time (reproducible tests and benchmarks); rendering is the bottleneck anyway."""
+    give the same video every time (reproducible tests and benchmarks); rendering is the bottleneck anyway.
+    It ends in a ``filesink`` whose location each writer sets outside the description's text (a path may hold
+    spaces, quotes or "!")."""
     gop = max(int(round(2 * fps)), 1)
     return (f"x264enc bitrate={int(bitrate)} speed-preset=superfast key-int-max={gop} bframes=0 threads=1 "
-            f"! video/x-h264,profile=high ! h264parse ! mp4mux ! filesink location=")
+            f"! video/x-h264,profile=high ! h264parse ! mp4mux ! filesink")
 
 
 def _grow_pipe(pipe, size: int) -> None:
@@ -70,9 +72,10 @@ class VideoWriter:
         frame_bytes = W * H * 3 // 2
         pipeline = (f"fdsrc fd=0 blocksize={frame_bytes} ! rawvideoparse use-sink-caps=false width={W} height={H} "
                     f"format=i420 framerate={fr.numerator}/{fr.denominator} ! "
-                    + encoder_chain(bitrate, fps) + str(self.path))
-        self._proc = subprocess.Popen([exe, "-q", *pipeline.split()], stdin=subprocess.PIPE,
-                                      stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+                    + encoder_chain(bitrate, fps))
+        # the location as an argument of its own: gst-launch-1.0 escapes each argument (a path with spaces)
+        self._proc = subprocess.Popen([exe, "-q", *pipeline.split(), f"location={self.path}"],
+                                      stdin=subprocess.PIPE, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
         _grow_pipe(self._proc.stdin, frame_bytes)
 
     def write(self, rgb: np.ndarray, pts: float | None = None) -> None:

@@ -238,6 +238,8 @@ class Scenario:
 
     def validate(self, where: str = "scenario") -> "Scenario":
         _check_range(where, "duration", self.duration, 0.1, 7200.0)
+        if not isinstance(self.seed, int) or isinstance(self.seed, bool) or self.seed < 0:  # numpy's seeds
+            raise InputError(f"{where}: field 'seed' must be a whole number from 0, got {self.seed!r}")
         self.camera.validate(where)
         self.road.validate(where)
         self.traffic.validate(where)
