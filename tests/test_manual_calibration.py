@@ -169,3 +169,25 @@ def test_cli_calibrate_manual_bad_input(tmp_path):
         lines = proc.stderr.strip().splitlines()
         assert len(lines) == 1 and lines[0].startswith("trafficcal: error: ") and message in lines[0]
     assert not (tmp_path / "o.json").exists()
+
+
+def test_cli_calibrate_manual_of_a_smaller_recording(cuboid_clip, tmp_path):
+    """BrnoCompSpeed's ground truth holds no frame size: with --image the size is the picture's (the true camera
+    back), without it 1920x1080 is assumed and markings all in its top-left quarter are warned about; a calibration
+    named .png with --image (its picture would overwrite it) is refused before any work."""
+    truth = load_calibration(cuboid_clip / "calibration.json")
+    assert truth.image_size == (480, 270)
+    out = tmp_path / "manual.json"
+    proc = _run("calibrate-manual", "--gt", str(cuboid_clip / "gt_data.pkl"), "--image",
+                str(cuboid_clip / "video.mp4"), "-o", str(out))
+    assert proc.returncode == 0 and "warning" not in proc.stderr, proc.stderr
+    cal = load_calibration(out)
+    assert cal.image_size == (480, 270) and (out.with_suffix(".png")).is_file()
+    assert cal.camera.focal == pytest.approx(truth.camera.focal, rel=0.02)
+    assert cal.camera.scale == pytest.approx(truth.camera.scale, rel=0.02)
+    proc = _run("calibrate-manual", "--gt", str(cuboid_clip / "gt_data.pkl"), "-o", str(tmp_path / "big.json"))
+    assert proc.returncode == 0 and "every marking lies in the top-left quarter of 1920x1080" in proc.stderr
+    png = tmp_path / "cal.png"
+    proc = _run("calibrate-manual", "--gt", str(cuboid_clip / "gt_data.pkl"), "--image",
+                str(cuboid_clip / "video.mp4"), "-o", str(png))
+    assert proc.returncode == 2 and "name the calibration .json" in proc.stderr and not png.exists()

@@ -27,7 +27,8 @@ import numpy as np
               help="Calibration JSON to write.")
 @click.option("--image-size", default=None,
               help="Frame size WxH; the principal point is its centre (960.5, 540.5 for 1920x1080). Default: the "
-                   "measurements file's image_size, else 1920x1080.")
+                   "measurements file's image_size, else the size of --image, else 1920x1080 (a BrnoCompSpeed gt_data.pkl holds "
+                   "no size: give one of these for another resolution).")
 @click.option("--image", "image_path", type=click.Path(path_type=Path), default=None,
               help="A picture or video of the camera (its first frame): writes OUTPUT.png with the road grid, the "
                    "lane dividers and each segment with its measured and calibrated length.")
@@ -43,6 +44,9 @@ def command(gt_path: Path | None, measurements_path: Path | None, out_path: Path
 
     if (gt_path is None) == (measurements_path is None):
         raise click.UsageError("give either --gt or --measurements")
+    if image_path is not None and out_path.suffix.lower() == ".png":
+        raise InputError(f"{out_path}: the calibration is a JSON file, and with --image its picture goes beside it "
+                         f"as {out_path.with_suffix('.png').name}: name the calibration .json")
     size = parse_image_size(image_size) if image_size is not None else None
     if gt_path is not None:
         from ..brnocompspeed import load_gt_data
@@ -56,8 +60,13 @@ def command(gt_path: Path | None, measurements_path: Path | None, out_path: Path
             raise InputError(f"{measurements_path}: its image_size {file_size[0]}x{file_size[1]} differs from "
                              f"--image-size {size[0]}x{size[1]}")
         size = size or file_size
-    size = size or (1920, 1080)
     frame = _frame(image_path, size) if image_path is not None else None  # bad picture: an error before any work
+    size = size or ((frame.shape[1], frame.shape[0]) if frame is not None else (1920, 1080))
+    if image_size is None and frame is None and _in_top_left_quarter(markings, size):
+        Console(stderr=True).print(
+            f"[yellow]warning[/]: every marking lies in the top-left quarter of {size[0]}x{size[1]}: is the "
+            "recording smaller? Give its size (--image-size) or a frame of it (--image), or the calibration is "
+            "wrong", highlight=False)
     result = calibrate_markings(markings, image_size=size)
     cam = result.camera
     cal = Calibration(camera=cam, image_size=size, state="calibrated", source="manual-calibration")
@@ -84,8 +93,15 @@ def command(gt_path: Path | None, measurements_path: Path | None, out_path: Path
         out.print(f"Picture -> {png}", markup=False)
 
 
-def _frame(path: Path, size: tuple[int, int]) -> np.ndarray:
-    """The picture at ``path`` (or a video's first frame), BGR, which must be ``size``."""
+def _in_top_left_quarter(markings, size: tuple[int, int]) -> bool:
+    """Whether every point of the markings lies in the top-left quarter of a ``size`` frame: the measurements of a
+    smaller recording (BrnoCompSpeed's ground truth holds no frame size), read as 1920x1080."""
+    pts = np.concatenate([np.asarray(markings.p1, float).reshape(-1, 2), np.asarray(markings.p2, float).reshape(-1, 2)])
+    return len(pts) > 0 and bool(np.all(pts[:, 0] <= size[0] / 2) and np.all(pts[:, 1] <= size[1] / 2))
+
+
+def _frame(path: Path, size: tuple[int, int] | None) -> np.ndarray:
+    """The picture at ``path`` (or a video's first frame), BGR, which must be ``size`` when one is given."""
     import cv2
 
     from ..errors import InputError
@@ -99,7 +115,7 @@ def _frame(path: Path, size: tuple[int, int]) -> np.ndarray:
         img = first_frame(path)
         if img is None:
             raise InputError(f"{path}: neither a picture nor a video OpenCV can read")
-    if (img.shape[1], img.shape[0]) != size:
+    if size is not None and (img.shape[1], img.shape[0]) != size:
         raise InputError(f"{path}: it is {img.shape[1]}x{img.shape[0]}, the measurements are for {size[0]}x{size[1]}")
     return img
 
