@@ -304,6 +304,8 @@ class Results:
     calibration: BrnoCalibration | None
     cars: tuple[Track, ...]
     source: Path | None = field(default=None, compare=False)
+    image_size: tuple[int, int] | None = None  # (width, height) of the positions' frames, where the file says
+    # (ours write it beside the format's fields; the official files are of 1920x1080 recordings and do not)
 
 
 def _numbers(value: Any, what: str) -> tuple[np.ndarray, bool]:
@@ -348,7 +350,11 @@ def _parse_results(raw: Any) -> Results:
             raise ValueError(f"cars[{i}] (id {c['id']}) has no positions")
         cars.append(Track(id=c["id"], frames=frames, pos=np.column_stack([x, y]),
                           scalar_positions=s2 or s3 or s1))
-    return Results(calib, tuple(cars))
+    size = raw.get("image_size")
+    if size is not None and not (isinstance(size, list) and len(size) == 2 and
+                                 all(isinstance(v, int) and not isinstance(v, bool) and v > 0 for v in size)):
+        raise ValueError(f"'image_size' must be [width, height], got {size!r}")
+    return Results(calib, tuple(cars), image_size=None if size is None else (size[0], size[1]))
 
 
 def load_results(path: str | Path, cars_required: bool = False) -> Results:

@@ -32,6 +32,7 @@ Statistics are mean, median, ``np.percentile`` 95 / 99 (linear interpolation, as
 from __future__ import annotations
 
 import math
+import os
 from dataclasses import dataclass, field
 from itertools import combinations
 from typing import Any, Literal, Sequence
@@ -513,11 +514,12 @@ class Evaluation:
 
 def evaluate(gt: GroundTruth, camera: Camera, results: Results | None = None, mode: SpeedMode = "median",
              prepared: PreparedTracks | None = None) -> Evaluation:
-    """Full evaluation: calibration metrics always, speed metrics when system tracks are given."""
+    """Full evaluation: calibration metrics always, speed metrics when system tracks are given (their border filter
+    in the results' frame size when the file gives one, else BrnoCompSpeed's 1920x1080)."""
     calib = evaluate_calibration(gt, camera)
     speed = None
     if prepared is None and results is not None:
-        prepared = prepare_tracks(results, gt)
+        prepared = prepare_tracks(results, gt, *(results.image_size or (WIDTH, HEIGHT)))
     if prepared is not None:
         speed = evaluate_speeds(gt, prepared, camera, mode)
     return Evaluation(calib, speed)
@@ -527,6 +529,24 @@ def evaluate(gt: GroundTruth, camera: Camera, results: Results | None = None, mo
 
 
 _PLAIN_TICKS = (0.1, 0.2, 0.5, 1, 2, 3, 5, 10, 20, 50, 100, 200, 500)
+
+
+def plot_format(path) -> str:
+    """The image format of ``path`` from its extension (png, svg, pdf, ...): InputError for a folder, for a name
+    without an extension (matplotlib would write NAME.png instead) and for one it cannot write."""
+    from pathlib import Path
+
+    from matplotlib.backend_bases import FigureCanvasBase
+
+    path = Path(path)
+    if path.is_dir():
+        raise InputError(f"{path}: is a folder; give the plot's file name (e.g. {path / 'errors.png'})")
+    kind = path.suffix.lower().lstrip(".")
+    formats = FigureCanvasBase.get_supported_filetypes()
+    if kind not in formats:
+        raise InputError(f"{path}: " + (f"'.{kind}' is not an image format" if kind else "no extension") +
+                         f" (one of: {', '.join('.' + k for k in sorted(formats))})")
+    return kind
 
 
 def plot_cumulative_errors(errors: dict[str, np.ndarray], path, unit: str = "km/h", what: str = "absolute speed",
@@ -568,7 +588,7 @@ def plot_cumulative_errors(errors: dict[str, np.ndarray], path, unit: str = "km/
         ax.set_title(f"Cumulative histogram of {what} errors")
         ax.legend(loc="lower right")
         fig.tight_layout()
-        fig.savefig(path, dpi=100)
+        fig.savefig(path, dpi=100, format=plot_format(path) if isinstance(path, (str, os.PathLike)) else "png")
     except OSError as exc:
         raise InputError(f"{path}: cannot write plot ({exc.strerror or exc})") from None
     finally:

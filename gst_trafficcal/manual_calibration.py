@@ -159,6 +159,23 @@ class RoadMarkings:
                    gt.distances_m, gt.distances_to_vp1, str(gt.source or "ground truth"))
 
 
+def size_doubt(points: np.ndarray, size: tuple[int, int]) -> str:
+    """Why road markings at image ``points`` (N x 2 pixels) look measured in frames of another size than ``size``
+    ("" when they fit): some lie outside it, or all in its top-left quarter (a smaller recording's, read as
+    1920x1080 — BrnoCompSpeed's ground truth holds no frame size)."""
+    pts = np.asarray(points, float).reshape(-1, 2)
+    pts = pts[np.all(np.isfinite(pts), axis=1)]
+    w, h = size
+    if not len(pts):
+        return ""
+    out = pts[(pts[:, 0] < -1) | (pts[:, 0] > w + 1) | (pts[:, 1] < -1) | (pts[:, 1] > h + 1)]
+    if len(out):
+        return f"a road marking at ({out[0, 0]:.0f}, {out[0, 1]:.0f}) lies outside the {w}x{h} frame"
+    if np.all(pts[:, 0] <= w / 2) and np.all(pts[:, 1] <= h / 2):
+        return f"every road marking lies in the top-left quarter of the {w}x{h} frame"
+    return ""
+
+
 def calibrate_manual(gt: GroundTruth, image_size: tuple[int, int] = (1920, 1080), pp=None,
                      focal_range: tuple[float, float] = DEFAULT_FOCAL_RANGE) -> ManualCalibration:
     """ManualCalib + ManualScale from the lane dividers and measured segments of a ground truth."""

@@ -283,8 +283,14 @@ def _bad_inputs(tmp_path: Path) -> list[tuple[list[str], str]]:
         (["--gt", gt, "--results", str(wrong_side)], "wrong_side.json: camera_calibration: vanishing points give "
                                                      "an imaginary focal length"),
         (["--gt", gt, "--calibration", str(wrong_side)], "wrong_side.json: vanishing points give an imaginary"),
-        (["--gt", gt, "--calibration", str(small)], "small.json: calibration is for 640x360 frames, the ground "
-                                                    "truth's are 1920x1080 (--image-size)"),
+        (["--gt", gt, "--calibration", str(small)], f"gt_data.pkl: a road marking at"),
+        (["--gt", gt, "--calibration", str(small)], f"lies outside the 640x360 frame ({small}'s image_size): the "
+                                                    "ground truth and what is scored are of different frame sizes"),
+        (["--gt", gt, "--calibration", str(small), "--image-size", "1920x1080"],
+         "small.json: calibration is for 640x360 frames, the recording's are 1920x1080 (--image-size)"),
+        (["--gt", gt, "--results", res, "--plot", str(tmp_path)], f"{tmp_path}: is a folder; give the plot's file"),
+        (["--gt", gt, "--results", res, "--plot", str(tmp_path / "e.txt")], "'.txt' is not an image format (one of"),
+        (["--gt", gt, "--results", res, "--plot", str(tmp_path / "e")], "e: no extension (one of: "),
         (["--gt", gt, "--results", str(small)], "small.json: no 'cars' list, so no vehicles to score (a calibration "
                                                 "file? give it as --calibration)"),
     ]

@@ -257,6 +257,22 @@ def test_bad_start_time_is_refused_before_the_run(clip, tmp_path):
     assert not (tmp_path / "vehicles.jsonl").exists()
 
 
+def test_eval_of_a_runs_files_gives_the_runs_evaluation(clip, with_truth, tmp_path):
+    """trafficcal eval on a 480x270 run's system.json scores it in the frame size the file states (image_size), as
+    the run did: the same figures as its evaluation.json; its calibration.json is scored in its own size."""
+    out, _ = with_truth
+    proc = trafficcal("eval", "--gt", clip / "gt_data.pkl", "--results", out / "system.json", "--json",
+                      tmp_path / "e.json")
+    assert proc.returncode == 0, proc.stderr
+    again, run = json.loads((tmp_path / "e.json").read_text()), json.loads((out / "evaluation.json").read_text())
+    assert again["speed"] == run["speed"] and again["matched"] == run["matched"] and again["recall"] == run["recall"]
+    proc = trafficcal("eval", "--gt", clip / "gt_data.pkl", "--calibration", out / "calibration.json")
+    assert proc.returncode == 0 and "focal length: " in proc.stdout, proc.stderr
+    line = one_line_error(trafficcal("eval", "--gt", clip / "gt_data.pkl", "--calibration", out / "calibration.json",
+                                     "--image-size", "1920x1080"))
+    assert "calibration is for 480x270 frames, the recording's are 1920x1080 (--image-size)" in line
+
+
 def test_missing_video(tmp_path):
     proc = trafficcal("run", tmp_path / "absent.mp4", "--out", tmp_path / "out")
     assert proc.returncode == 2 and "does not exist" in proc.stderr and "Traceback" not in proc.stderr

@@ -39,7 +39,7 @@ def command(gt_path: Path | None, measurements_path: Path | None, out_path: Path
 
     from ..calibration import Calibration, save_calibration
     from ..errors import InputError
-    from ..manual_calibration import RoadMarkings, calibrate_markings
+    from ..manual_calibration import RoadMarkings, calibrate_markings, size_doubt
     from .evaluate import parse_image_size
 
     if (gt_path is None) == (measurements_path is None):
@@ -62,11 +62,11 @@ def command(gt_path: Path | None, measurements_path: Path | None, out_path: Path
         size = size or file_size
     frame = _frame(image_path, size) if image_path is not None else None  # bad picture: an error before any work
     size = size or ((frame.shape[1], frame.shape[0]) if frame is not None else (1920, 1080))
-    if image_size is None and frame is None and _in_top_left_quarter(markings, size):
-        Console(stderr=True).print(
-            f"[yellow]warning[/]: every marking lies in the top-left quarter of {size[0]}x{size[1]}: is the "
-            "recording smaller? Give its size (--image-size) or a frame of it (--image), or the calibration is "
-            "wrong", highlight=False)
+    doubt = size_doubt(np.concatenate([markings.p1, markings.p2]), size)
+    if doubt:
+        Console(stderr=True).print(f"[yellow]warning[/]: {doubt}: is the recording of another size? Give its size "
+                                   "(--image-size) or a frame of it (--image), or the calibration is wrong",
+                                   highlight=False)
     result = calibrate_markings(markings, image_size=size)
     cam = result.camera
     cal = Calibration(camera=cam, image_size=size, state="calibrated", source="manual-calibration")
@@ -91,13 +91,6 @@ def command(gt_path: Path | None, measurements_path: Path | None, out_path: Path
         if not cv2.imwrite(str(png), _picture(frame, cal, markings)):
             raise InputError(f"{png}: cannot write the picture")
         out.print(f"Picture -> {png}", markup=False)
-
-
-def _in_top_left_quarter(markings, size: tuple[int, int]) -> bool:
-    """Whether every point of the markings lies in the top-left quarter of a ``size`` frame: the measurements of a
-    smaller recording (BrnoCompSpeed's ground truth holds no frame size), read as 1920x1080."""
-    pts = np.concatenate([np.asarray(markings.p1, float).reshape(-1, 2), np.asarray(markings.p2, float).reshape(-1, 2)])
-    return len(pts) > 0 and bool(np.all(pts[:, 0] <= size[0] / 2) and np.all(pts[:, 1] <= size[1] / 2))
 
 
 def _frame(path: Path, size: tuple[int, int] | None) -> np.ndarray:

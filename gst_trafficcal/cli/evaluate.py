@@ -21,19 +21,30 @@ def parse_image_size(value: str) -> tuple[int, int]:
     return w, h
 
 
-def _camera(results, results_path: Path | None, calibration_path: Path | None, size: tuple[int, int]):
-    """The camera to evaluate: --calibration if given (for frames of ``size``), else the results file's
+def frame_size(given: str | None, results, cal, cal_path: Path | None) -> tuple[tuple[int, int], str]:
+    """(frame size, where it came from): --image-size, else the results file's image_size (ours write it), else
+    the --calibration's (``cal``), else BrnoCompSpeed's 1920x1080 (its ground truth holds no size)."""
+    if given is not None:
+        return parse_image_size(given), "--image-size"
+    if results is not None and results.image_size is not None:
+        return results.image_size, f"{results.source}'s image_size"
+    if cal is not None:
+        return tuple(cal.image_size), f"{cal_path}'s image_size"
+    return (1920, 1080), "BrnoCompSpeed's, assumed: --image-size for another"
+
+
+def _camera(results, results_path: Path | None, calibration_path: Path | None, cal, size: tuple[int, int],
+            size_from: str):
+    """The camera to evaluate: --calibration's (``cal``, for frames of ``size``) if given, else the results file's
     camera_calibration."""
-    from ..calibration import load_calibration
     from ..geometry import Camera
 
-    if calibration_path is not None:
-        cal = load_calibration(calibration_path)
+    if cal is not None:
         if cal.camera is None:
             raise InputError(f"{calibration_path}: calibration has no vanishing points yet (state {cal.state!r})")
         if tuple(cal.image_size) != tuple(size):  # another camera's, or a scaled-down copy: meaningless errors
             raise InputError(f"{calibration_path}: calibration is for {cal.image_size[0]}x{cal.image_size[1]} frames, "
-                             f"the ground truth's are {size[0]}x{size[1]} (--image-size)")
+                             f"the recording's are {size[0]}x{size[1]} ({size_from})")
         return cal.camera
     if results is None or results.calibration is None:
         raise InputError(f"{results_path}: has no camera_calibration block; pass --calibration")
@@ -94,8 +105,9 @@ def print_report(ev, console, mode: str = "median") -> None:
               help="Write a PNG cumulative histogram of absolute speed errors.")
 @click.option("--mode", type=click.Choice(["median", "full"]), default="median", show_default=True,
               help="Speed measurement mode of the official evaluation.")
-@click.option("--image-size", default="1920x1080", show_default=True,
-              help="Frame size WxH (for the 10 px border filter).")
+@click.option("--image-size", default=None,
+              help="Frame size WxH of the recording (for the 10 px border filter). Default: the results file's "
+                   "image_size (trafficcal run writes it), else the --calibration's, else 1920x1080 (BrnoCompSpeed).")
 def command(gt_path: Path, results_path: Path | None, calibration_path: Path | None, json_path: Path | None,
             plot_path: Path | None, mode: str, image_size: str) -> None:
     from rich.console import Console
@@ -105,10 +117,30 @@ def command(gt_path: Path, results_path: Path | None, calibration_path: Path | N
 
     if results_path is None and calibration_path is None:
         raise click.UsageError("give --results and/or --calibration")
-    size = parse_image_size(image_size)
+    from ..calibration import load_calibration
+
+    import numpy as np
+
+    if image_size is not None:
+        parse_image_size(image_size)  # a bad one: one line before any reading
+    if plot_path is not None:
+        from ..evaluation import plot_format
+
+        plot_format(plot_path)  # a folder or no image format: one line now, not after the tables
     gt = load_gt_data(gt_path)
     results = load_results(results_path, cars_required=True) if results_path is not None else None
-    camera = _camera(results, results_path, calibration_path, size)
+    cal = load_calibration(calibration_path) if calibration_path is not None else None
+    size, size_from = frame_size(image_size, results, cal, calibration_path)
+    camera = _camera(results, results_path, calibration_path, cal, size, size_from)
+    from ..manual_calibration import size_doubt
+
+    doubt = size_doubt(np.concatenate([gt.distances_p1, gt.distances_p2]), size)
+    if "outside" in doubt:  # the ground truth of another recording, or results of a scaled copy: meaningless errors
+        raise InputError(f"{gt_path}: {doubt} ({size_from}): the ground truth and what is scored are of different "
+                         "frame sizes")
+    if doubt:
+        Console(stderr=True).print(f"[yellow]warning[/]: {gt_path}: {doubt} ({size_from}): is the recording "
+                                   "smaller? (--image-size)", highlight=False)
     prepared = None
     if results is not None:
         if camera.scale is None:
