@@ -293,6 +293,18 @@ def test_report_with_nothing_measured() -> None:
     assert len(page.images) == 1  # a plain canvas of the image size, no histogram without speeds
 
 
+def test_report_of_events_without_times() -> None:
+    """An events file of another tool may leave the times out (they are optional): the speeds over time are drawn
+    for the vehicles that have them, left out with fewer than two, and nothing else breaks."""
+    timed = [VehicleEvent(i, "car", float(i), i + 2.0, 80.0 + i, "") for i in range(1, 4)]
+    untimed = [VehicleEvent(i, "car", None, None, 60.0 + i, "") for i in range(4, 9)]
+    for events, pictures in ((untimed, 1), (untimed + timed[:1], 1), (untimed + timed, 2)):
+        page = _parse(render_report(ReportInputs(events, None)))
+        text = "".join(page.text)
+        assert f"{len(events)} vehicles, {len(events)} with a measured speed." in text
+        assert len(page.images) == pictures, (len(events), len(page.images))  # histogram (+ speeds over time)
+
+
 def test_calibration_picture_shrinks_large_frames_and_keeps_geometry() -> None:
     cal = _calibration()
     big = np.full((2 * H, 2 * W, 3), 60, np.uint8)  # a frame at twice the calibrated size
