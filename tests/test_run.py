@@ -644,6 +644,25 @@ def test_several_files_one_failing_the_others_still_run(clip, tmp_path):
     assert parts[1]["error"].startswith(f"{bad}: ") and parts[1]["vehicles"] == ""
 
 
+def test_duration_counts_the_video_of_all_the_files(clip, tmp_path):
+    """--duration with several files: seconds of video in all (as for a stream's connections): the 12 s clip three
+    times with --duration 16 measures the first whole, the second up to its 4th second, and lists the third as not
+    run (it was left out of the table and parts.csv, with exit code 0 and no word)."""
+    import csv
+
+    out = tmp_path / "out"
+    proc = trafficcal("run", clip / "video.mp4", clip / "video.mp4", clip / "video.mp4", "--out", out,
+                      "--no-overlay", "--calibration", clip / "calibration.json", "--duration", "16")
+    assert proc.returncode == 0, proc.stdout[-2000:] + proc.stderr[-2000:]
+    with open(out / "parts.csv", newline="") as f:
+        parts = list(csv.DictReader(f))
+    assert [(r["folder"], r["status"], r["error"]) for r in parts] == [
+        ("video-1", "ok", ""), ("video-2", "ok", ""), ("video-3", "not run", "--duration reached")]
+    last = max(e.last_timestamp_s for e in read_events(out / "video-2" / "vehicles.jsonl").events)
+    assert 3.0 < last <= 4.05 and not (out / "video-3").exists()
+    assert "of 3 files" in proc.stdout and "not run" in proc.stdout
+
+
 def test_a_cameras_dated_files_are_counted_together(clip, tmp_path):
     """--start-time auto: each file dated from its name; --out/intervals.csv counts the vehicles of all of them
     on one clock (the 12 s clip as two recordings, 07:59:55 and 08:00:20: the 15-minute rows 07:45 and 08:00)."""

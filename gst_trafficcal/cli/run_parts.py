@@ -86,8 +86,8 @@ def run_parts(console, parts, total: int | None, out_dir: Path, calibration_path
             save_calibration(dc_replace(cal, source=f"{cal.source}, carried over from {origin}"), given,
                              zone=parse_zone(options.zone))
         opts = options if starts is None else dc_replace(options, start=starts[k - 1])
-        if live and options.duration_s is not None:
-            opts = dc_replace(options, duration_s=max(options.duration_s - used_s, 1e-3))
+        if options.duration_s is not None:  # seconds of video in all, over the files or connections
+            opts = dc_replace(opts, duration_s=max(options.duration_s - used_s, 1e-3))
         split = False  # --split-every: this connection ends at the next period's start on the clock
         if live and options.split_every_s:
             from datetime import datetime
@@ -143,6 +143,13 @@ def run_parts(console, parts, total: int | None, out_dir: Path, calibration_path
                 continue
             if summary.stopped:
                 interrupted = summary.stopped == "interrupted"
+                if total:  # the files not reached are in the table and parts.csv, not silently left out
+                    why_not = "interrupted" if interrupted else "--duration reached"
+                    for _, later_name, later_label in list(parts)[k:]:
+                        rows.append([later_label, "–", "–", "–", "–", "", f"[yellow]not run[/]: {why_not}"])
+                        records.append({"part": later_label, "folder": later_name, "status": "not run",
+                                        "error": why_not})
+                    _write_parts(out_dir / "parts.csv", records)
                 break
             why = "the stream ended"
             if (summary.position_s or 0.0) >= HEALTHY_S:
