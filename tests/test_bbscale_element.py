@@ -129,11 +129,14 @@ def test_fit_scale_cli_and_library_agree_with_the_element(clip, scaled, tmp_path
     from gst_trafficcal.scale.regression import load_regression
 
     env = dict(os.environ, COLUMNS="200")
-    out = subprocess.run([str(ROOT / ".venv/bin/trafficcal"), "fit-scale", "--train", str(clip), "-o",
+    (tmp_path / "same").symlink_to(clip)  # the scene again by another path: fitted once, with a word
+    out = subprocess.run([str(ROOT / ".venv/bin/trafficcal"), "fit-scale", "--train", str(clip), "--train",
+                          str(tmp_path / "same"), "-o",
                           str(tmp_path / "reg.json"), "--min-vehicles", "3", "--detector", "background"],
                          capture_output=True, text=True,
                          timeout=300, env=env)
     assert out.returncode == 0, out.stderr
+    assert "1 training folder(s) given more than once" in out.stderr and "[1/1]" in out.stderr
     reg = load_regression(tmp_path / "reg.json")
     (scene,) = reg.scenes
     true = load_calibration(clip / "calibration.json").camera.scale
@@ -160,6 +163,11 @@ def test_fit_scale_bad_input(tmp_path):
                           "-o", str(tmp_path / "r.json"), "--max-duration", "-5"], capture_output=True, text=True,
                          timeout=60)
     assert bad.returncode == 2 and "--max-duration" in bad.stderr and "x>0" in bad.stderr
+    (tmp_path / "scene").mkdir()  # an output that cannot be written: said before the (long) fit, not after it
+    (tmp_path / "scene" / "calibration.json").write_text("{}")
+    bad = subprocess.run([str(ROOT / ".venv/bin/trafficcal"), "fit-scale", "--train", str(tmp_path / "scene"),
+                          "-o", str(tmp_path / "video.mp4" / "r.json")], capture_output=True, text=True, timeout=60)
+    assert bad.returncode == 2 and "regression file (-o)" in bad.stderr and "measuring" not in bad.stderr, bad.stderr
 
 
 def test_classifier_property_restricts_the_types(clip, tmp_path):

@@ -84,12 +84,21 @@ def command(train: tuple[Path, ...], out_path: Path, models: str, iou_threshold:
             if not sub:
                 raise InputError(f"{d}: no calibration.json in it or in its subfolders (a trafficcal synth output?)")
             folders.extend(sub)
+    unique = list({f.resolve(): f for f in reversed(folders)}.values())[::-1]  # a scene given twice counts once
+    console = Console(stderr=True)
+    if len(unique) < len(folders):
+        console.print(f"[yellow]warning[/]: {len(folders) - len(unique)} training folder(s) given more than once "
+                      "(the same scene, by another path): each scene is fitted once", highlight=False)
+    folders = unique
+    from ..fileio import writable_file
+
+    writable_file(out_path, "regression file (-o)")  # a wrong path: one line now, not after the whole fit
     align_models = load_align_models(models)
     model = check_detector(detector)
-    console = Console(stderr=True)
     table = Table("scene", "truth", "true λ", "λ*", "error %", "status")
     names, raw, true = [], [], []
-    for f in folders:
+    for k, f in enumerate(folders, 1):
+        console.print(f"[{k}/{len(folders)}] {f.name}: measuring its scale", highlight=False)
         cal = load_calibration(f / "calibration.json")
         lam_true, source = true_scale(f, cal)
         res = scale_from_video(f / "video.mp4", cal.with_scale(None), models=align_models,
