@@ -133,8 +133,11 @@ class Calibration:
         if not isinstance(d, dict):
             raise InputError(f"{where}: not a calibration (expected a JSON object)")
         if d.get("format") != FORMAT:
-            if "camera_calibration" in d and "format" not in d:
+            if d.get("camera_calibration") is not None and "format" not in d:
                 return cls.from_brno_block(d["camera_calibration"], where=where, image_size=_size(d, where))
+            if ("cars" in d or "camera_calibration" in d) and "format" not in d:
+                raise InputError(f"{where}: a BrnoCompSpeed results file without a calibration (its "
+                                 "camera_calibration is empty: the run found no scale)")
             raise InputError(f"{where}: not a gst-trafficcal calibration file (format {d.get('format')!r})")
         if d.get("version") != VERSION:
             raise InputError(f"{where}: unsupported calibration version {d.get('version')!r} (this is {VERSION})")

@@ -483,6 +483,18 @@ def test_cli_report_errors_are_one_line(tmp_path: Path) -> None:
     out = _cli("--events", str(tmp_path / "v.jsonl"), "--gt", str(tmp_path / "gt.pkl"), "--out",
                str(tmp_path / "r.html"))
     assert out.returncode == 2 and "gt.pkl: no such file" in out.stderr
+    from .conftest import closed_port
+
+    (tmp_path / "results.json").write_text(json.dumps({"camera_calibration": None, "cars": []}))
+    for args, said in [(["--frame", str(tmp_path)], f"{tmp_path}: a folder, not an image"),
+                       (["--video", f"rtsp://127.0.0.1:{closed_port()}/cam"], "/cam: no frame could be read from"),
+                       (["--video", "rtsp://127.0.0.1/cam", "--frame-time", "3"], "--frame-time is for a video file"),
+                       (["--video", str(tmp_path / "fake.mp4"), "--frame-time", "-1"], "--frame-time"),
+                       (["--interval", "0.0001"], "--interval"),
+                       (["--calibration", str(tmp_path / "results.json")],
+                        "results.json: a BrnoCompSpeed results file without a calibration")]:
+        out = _cli("--events", str(tmp_path / "v.jsonl"), *args, "--out", str(tmp_path / "r.html"))
+        assert out.returncode == 2 and said in out.stderr and "Traceback" not in out.stderr, (args, out.stderr)
     assert not (tmp_path / "r.html").exists()
 
 

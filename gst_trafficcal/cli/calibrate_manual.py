@@ -100,7 +100,7 @@ def _frame(path: Path, size: tuple[int, int] | None) -> np.ndarray:
     from ..errors import InputError
 
     if not path.is_file():
-        raise InputError(f"{path}: no such file")
+        raise InputError(f"{path}: " + ("a folder, not a picture or video" if path.is_dir() else "no such file"))
     img = cv2.imread(str(path), cv2.IMREAD_COLOR)
     if img is None:
         from .run import first_frame

@@ -9,24 +9,33 @@ import click
 from ..errors import InputError
 
 
-def _frame(image: Path | None, video: Path | None, at_s: float):
-    """A BGR frame: the image file, or the video's frame at ``at_s`` seconds (None when neither is given)."""
+def _frame(image: Path | None, video: str | None, at_s: float):
+    """A BGR frame: the image file, or the video's frame at ``at_s`` seconds, or a stream's (a URI) frame now
+    (None when neither is given)."""
     import cv2
+
+    from .run import first_frame, is_uri, local_file, shown_source
 
     from ..fileio import cannot_open_video, open_video, video_file
 
     if image is not None:
         if not image.is_file():
-            raise InputError(f"{image}: no such image")
+            raise InputError(f"{image}: " + ("a folder, not an image" if image.is_dir() else "no such image"))
         frame = cv2.imread(str(image), cv2.IMREAD_COLOR)
         if frame is None:
             raise InputError(f"{image}: not an image OpenCV can read")
         return frame
     if video is None:
         return None
+    if is_uri(video) and local_file(video) is None:
+        if at_s > 0:
+            raise InputError("--frame-time is for a video file: a stream gives the frame it is at")
+        frame = first_frame(video)
+        if frame is None:
+            raise InputError(f"{shown_source(video)}: no frame could be read from the stream")
+        return frame
+    video = Path(local_file(video) or video)
     if at_s <= 0:  # the first frame, as trafficcal run's report shows it (GStreamer where OpenCV refuses the file)
-        from .run import first_frame
-
         frame = first_frame(video_file(video))
         if frame is None:
             raise cannot_open_video(video)
@@ -50,9 +59,10 @@ def _frame(image: Path | None, video: Path | None, at_s: float):
 @click.option("--calibration", "calibration_path", type=click.Path(path_type=Path),
               help="Calibration JSON (ours, or a BrnoCompSpeed results file with camera_calibration).")
 @click.option("--frame", "frame_path", type=click.Path(path_type=Path), help="An image of the scene.")
-@click.option("--video", "video_path", type=click.Path(path_type=Path),
-              help="The video; a frame of it is used when --frame is not given.")
-@click.option("--frame-time", default=0.0, show_default=True, help="Seconds into --video of that frame.")
+@click.option("--video", "video_path", metavar="VIDEO|URI",
+              help="The video (a file, or a stream's URI); a frame of it is used when --frame is not given.")
+@click.option("--frame-time", type=click.FloatRange(min=0), default=0.0, show_default=True,
+              help="Seconds into --video of that frame (a file's; a stream gives the frame it is at).")
 @click.option("--gt", "gt_path", type=click.Path(path_type=Path), help="Ground truth gt_data.pkl.")
 @click.option("--results", "results_path", type=click.Path(path_type=Path),
               help="BrnoCompSpeed results JSON of the run (system.json): the picture of the lanes; needed with "
@@ -61,7 +71,7 @@ def _frame(image: Path | None, video: Path | None, at_s: float):
 @click.option("--speed-limit", default="", metavar="KMH[,CLASS=KMH...]",
               help="Posted speed limit in km/h, and classes with limits of their own (e.g. 80,truck=60,bus=60): "
                    "marked on the plots; the tables count the vehicles over their limit.")
-@click.option("--interval", "interval_min", type=click.FloatRange(min=0, min_open=True), default=15.0,
+@click.option("--interval", "interval_min", type=click.FloatRange(min=0.01, max=10080), default=15.0,
               show_default=True, help="Minutes per interval of the traffic count (aligned to the clock when the "
                                       "events carry dates: speedometer start-datetime=, trafficcal run --start-time).")
 @click.option("--intervals-csv", "intervals_path", type=click.Path(path_type=Path),
@@ -70,7 +80,7 @@ def _frame(image: Path | None, video: Path | None, at_s: float):
               help="The detection zone the run used (trafficcal run --zone): outlined in the calibration picture. "
                    "Default: the zone the --calibration file keeps (a run's calibration.json does); 'all': none.")
 @click.option("--out", "out_path", required=True, type=click.Path(path_type=Path), help="The report.html to write.")
-def command(events_path: Path, calibration_path: Path | None, frame_path: Path | None, video_path: Path | None,
+def command(events_path: Path, calibration_path: Path | None, frame_path: Path | None, video_path: str | None,
             frame_time: float, gt_path: Path | None, results_path: Path | None, title: str, speed_limit: str,
             interval_min: float, intervals_path: Path | None, out_path: Path, zone: str = "") -> None:
     from ..brnocompspeed import load_gt_data, load_results
