@@ -17,16 +17,26 @@ def command() -> None:
 @click.argument("source")
 @click.option("--sha256", "sha256", required=True, help="Expected SHA-256 of the file (64 hex digits).")
 @click.option("--name", default=None, help="File name in the cache (default: the source's file name).")
-def install_cmd(source: str, sha256: str, name: str | None) -> None:
-    """Verify and copy SOURCE (a URL or a local path) into the model cache."""
+@click.option("--force", is_flag=True, help="Replace a different model installed under the same name.")
+def install_cmd(source: str, sha256: str, name: str | None, force: bool) -> None:
+    """Verify and copy SOURCE (a URL or a local path) into the model cache; print where it is.
+
+    A different model already installed under the same name is kept unless --force is given; the same file
+    again changes nothing.
+    """
     from ..detection.models import install
 
-    click.echo(str(install(source, sha256, name)))
+    done = install(source, sha256, name, force=force)
+    click.echo(str(done.path))  # stdout: the path alone, for scripts; what happened on stderr
+    if done.action == "unchanged":
+        click.echo(f"trafficcal: {done.path.name} was installed already (the same file): nothing changed", err=True)
+    elif done.action == "replaced":
+        click.echo(f"trafficcal: replaced the model installed as {done.path.name}", err=True)
 
 
 @command.command(name="list")
 def list_cmd() -> None:
-    """List installed models: name, size, SHA-256, path."""
+    """List installed models: name, size, SHA-256, path (and why, for a file that cannot be read)."""
     from ..detection.models import cache_dir, list_models
 
     entries = list_models()
@@ -34,4 +44,7 @@ def list_cmd() -> None:
         click.echo(f"no models installed in {cache_dir()}")
         return
     for e in entries:
-        click.echo(f"{e.name}\t{e.size}\t{e.sha256}\t{e.path}")
+        if e.problem:
+            click.echo(f"{e.name}\t{'-' if e.size is None else e.size}\t-\t{e.path}\t{e.problem}")
+        else:
+            click.echo(f"{e.name}\t{e.size}\t{e.sha256}\t{e.path}")

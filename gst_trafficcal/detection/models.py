@@ -7,10 +7,11 @@ that onnxruntime can open it; elements and commands then accept the bare file na
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
+import http.client
 import os
-import shutil
-import tempfile
+import secrets
 import urllib.parse
 import urllib.request
 from dataclasses import dataclass
@@ -27,8 +28,17 @@ class ModelEntry:
 
     name: str
     path: Path
-    size: int
-    sha256: str
+    size: int | None
+    sha256: str | None  # None when the file cannot be read
+    problem: str = ""  # why it cannot be read ("" for a readable file)
+
+
+@dataclass(frozen=True)
+class Installed:
+    """What ``install`` did: ``action`` is "installed", "unchanged" (the same file was there) or "replaced"."""
+
+    path: Path
+    action: str
 
 
 def cache_dir() -> Path:
@@ -50,7 +60,17 @@ def _is_url(source: str) -> bool:
     return urllib.parse.urlparse(source).scheme in ("http", "https", "ftp", "file")
 
 
+def _os_error(exc: OSError, about: Path | None = None) -> str:
+    """An OSError in a few words, with the file it is about unless that is ``about`` or a file in it (a temporary
+    name says nothing to the user): 'No such file or directory: /proc/foo'."""
+    words = exc.strerror or str(exc) or type(exc).__name__
+    if not exc.filename or (about is not None and about in (Path(exc.filename), Path(exc.filename).parent)):
+        return words
+    return f"{words}: {exc.filename}"
+
+
 def _check_onnx(path: Path, shown: str) -> None:
+    """InputError unless onnxruntime opens ``path``; the message names ``shown`` (the user's source), not ``path``."""
     import onnxruntime as ort
 
     opts = ort.SessionOptions()
@@ -58,15 +78,73 @@ def _check_onnx(path: Path, shown: str) -> None:
     try:
         ort.InferenceSession(str(path), sess_options=opts, providers=["CPUExecutionProvider"])
     except Exception as exc:
-        first = (str(exc).strip().splitlines() or [type(exc).__name__])[0]
+        first = (str(exc).strip().splitlines() or [type(exc).__name__])[0].replace(str(path), shown)
         raise InputError(f"{shown}: not a usable ONNX model ({first[:200]})") from None
 
 
-def install(source: str | Path, sha256: str, name: str | None = None) -> Path:
-    """Copy/download ``source`` into the cache as ``name`` (default: its file name); return the path.
+def _create_part(folder: Path) -> tuple[int, Path]:
+    """A new temporary file in ``folder``, open for writing, with mode 0666 less the umask like any new file
+    (mkstemp's 0600 would hide the model from the other users of a shared cache)."""
+    for _ in range(10):
+        tmp = folder / f".part-{secrets.token_hex(8)}"
+        try:
+            return os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666), tmp
+        except FileExistsError:
+            continue
+    raise FileExistsError(f"no free temporary name in {folder}")
+
+
+def _installed_already(dest: Path, expected: str, force: bool) -> bool:
+    """Whether ``dest`` holds the file with SHA-256 ``expected`` already; InputError when it holds another one
+    (or one that cannot be read) and ``force`` is false."""
+    if not (dest.exists() or dest.is_symlink()):
+        return False
+    if dest.is_dir():
+        raise InputError(f"{dest}: a folder is in the way in the model cache (remove it, or pass another --name)")
+    try:
+        got = sha256_of(dest)
+    except OSError as exc:
+        if force:
+            return False
+        raise InputError(f"{dest}: cannot read the model installed under this name ({_os_error(exc, dest)}); "
+                         "pass --force to replace it") from None
+    if got == expected:
+        return True
+    if not force:
+        raise InputError(f"{dest}: a different model is installed under this name (SHA-256 {got}); pass --force "
+                         "to replace it, or --name to install under another name")
+    return False
+
+
+def _copy(source: str, is_url: bool, fd: int) -> str:
+    """Copy ``source`` into the open file ``fd`` (closed after); its hex SHA-256.  Errors reading the source are
+    InputError naming it; errors writing stay OSError (the cache's)."""
+    h = hashlib.sha256()
+    with os.fdopen(fd, "wb") as out:
+        try:
+            src = urllib.request.urlopen(source, timeout=60) if is_url else open(source, "rb")
+        except OSError as exc:
+            raise InputError(f"cannot fetch {source} ({_os_error(exc)})") from None
+        with src:
+            while True:
+                try:
+                    chunk = src.read(CHUNK)
+                except (OSError, http.client.HTTPException) as exc:
+                    raise InputError(f"cannot read {source} ({exc})") from None
+                if not chunk:
+                    break
+                h.update(chunk)
+                out.write(chunk)
+    return h.hexdigest()
+
+
+def install(source: str | Path, sha256: str, name: str | None = None, force: bool = False) -> Installed:
+    """Copy/download ``source`` into the cache as ``name`` (default: its file name).
 
     The file must have the given SHA-256 (hex, case-insensitive) and open in onnxruntime; nothing
-    is left in the cache otherwise. Installing the same file again is a no-op.
+    is left in the cache otherwise. Installing the same file again does nothing ("unchanged"); a different
+    file under a name already installed is refused unless ``force``. The new file gets the usual permissions
+    (0666 less the umask). Every failure, the cache's included (not writable, not creatable), is an InputError.
     """
     expected = sha256.strip().lower()
     if len(expected) != 64 or any(c not in "0123456789abcdef" for c in expected):
@@ -78,46 +156,53 @@ def install(source: str | Path, sha256: str, name: str | None = None) -> Path:
         raise InputError(f"--name {name!r}: a file name in the model cache, without folders (e.g. mymodel.onnx)")
     if not filename or filename in (".", "..") or "/" in filename:
         raise InputError(f"cannot derive a model file name from {source!r}; pass a name")
+    if not is_url and Path(source).is_dir():
+        raise InputError(f"{source}: a directory, not a model file")
     if not is_url and not Path(source).is_file():
         raise InputError(f"model file not found: {source}")
     dest_dir = cache_dir()
     dest = dest_dir / filename
-    if dest.is_file() and sha256_of(dest) == expected:
-        return dest
-    dest_dir.mkdir(parents=True, exist_ok=True)
-    fd, tmp_name = tempfile.mkstemp(prefix=".part-", dir=dest_dir)
-    tmp = Path(tmp_name)
     try:
-        h = hashlib.sha256()
-        with os.fdopen(fd, "wb") as out:
-            try:
-                src = urllib.request.urlopen(source, timeout=60) if is_url else open(source, "rb")
-            except OSError as exc:
-                raise InputError(f"cannot fetch {source}: {exc}") from None
-            with src:
-                while chunk := src.read(CHUNK):
-                    h.update(chunk)
-                    out.write(chunk)
-        got = h.hexdigest()
+        if _installed_already(dest, expected, force):
+            return Installed(dest, "unchanged")
+        existed = dest.exists() or dest.is_symlink()
+        dest_dir.mkdir(parents=True, exist_ok=True)
+        fd, tmp = _create_part(dest_dir)
+    except OSError as exc:
+        raise InputError(f"cannot write to the model cache {dest_dir} ({_os_error(exc, dest_dir)})") from None
+    try:
+        got = _copy(source, is_url, fd)
         if got != expected:
             raise InputError(f"{source}: SHA-256 mismatch (expected {expected}, got {got})")
         _check_onnx(tmp, source)
         os.replace(tmp, dest)
+    except OSError as exc:
+        raise InputError(f"cannot write to the model cache {dest_dir} ({_os_error(exc, dest_dir)})") from None
     finally:
-        tmp.unlink(missing_ok=True)
-    return dest
+        with contextlib.suppress(OSError):
+            tmp.unlink(missing_ok=True)
+    return Installed(dest, "replaced" if existed else "installed")
 
 
 def list_models() -> list[ModelEntry]:
-    """Installed models, sorted by name."""
+    """Installed models, sorted by name; one that cannot be read is listed with its ``problem`` (no SHA-256).
+    InputError when the cache folder itself cannot be read."""
     d = cache_dir()
-    if not d.is_dir():
-        return []
-    return [
-        ModelEntry(p.name, p, p.stat().st_size, sha256_of(p))
-        for p in sorted(d.iterdir())
-        if p.is_file() and not p.name.startswith(".part-")
-    ]
+    try:
+        if not d.is_dir():
+            return []
+        files = sorted(p for p in d.iterdir() if p.is_file() and not p.name.startswith(".part-"))
+    except OSError as exc:
+        raise InputError(f"cannot read the model cache {d} ({_os_error(exc, d)})") from None
+    entries = []
+    for p in files:
+        size: int | None = None
+        try:
+            size = p.stat().st_size
+            entries.append(ModelEntry(p.name, p, size, sha256_of(p)))
+        except OSError as exc:
+            entries.append(ModelEntry(p.name, p, size, None, f"cannot read it ({exc.strerror or exc})"))
+    return entries
 
 
 def resolve_model(model: str | Path) -> Path:
