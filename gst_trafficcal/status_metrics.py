@@ -2,7 +2,7 @@
 
 Monitoring that already scrapes Prometheus — node_exporter's textfile collector fed by a cron job, or any scraper
 of a text file — gets every camera's run as series labelled ``run`` (the status file's folder) and ``source``:
-whether it is healthy, its state, vehicles and measured vehicles, a live stream's frames and dropped frames,
+whether it is healthy, its state, vehicles and measured vehicles, frames and a live stream's dropped frames,
 camera moves (counters), speed against real time, the stream position, how old the status and the last
 vehicle are, and how firmly the view pins the speeds down (gauges).  A run without a readable status is
 ``trafficcal_healthy 0`` with nothing else.  The text is made by ``prometheus_client``, which also escapes the
@@ -46,8 +46,9 @@ class _RunsCollector:
         counters = {name: CounterMetricFamily(f"trafficcal_{name}", text, labels=LABELS) for name, text in (
             ("vehicles", "Vehicles that left the view, the whole run"),
             ("vehicles_measured", "Of those, vehicles with a speed"),
-            ("frames", "A live stream's frames that reached the analysis"),
-            ("frames_dropped", "Of those, frames dropped because the machine could not keep up"),
+            ("frames", "Frames that reached the analysis, of a file or a live stream"),
+            ("frames_dropped", "Of those, frames a live stream dropped because the machine could not keep up "
+             "(0 for a file)"),
             ("camera_moves", "Times the camera was seen to move"))}
         gauges = {name: GaugeMetricFamily(f"trafficcal_{name}", text, labels=LABELS) for name, text in (
             ("speed_ratio", "Stream seconds measured per wall-clock second"),

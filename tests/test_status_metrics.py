@@ -47,3 +47,21 @@ def test_trafficcal_status_as_prometheus_metrics(tmp_path):
     both = subprocess.run([sys.executable, "-m", "gst_trafficcal", "status", str(cameras), "--prometheus", "--json"],
                           capture_output=True, text=True, timeout=60)
     assert both.returncode == 2 and "--json or --prometheus, not both" in both.stderr
+
+
+def test_frames_help_text_covers_a_file(tmp_path):
+    """trafficcal_frames_total counts a file's frames too (run.md, since stop 47): its help text said "A live
+    stream's frames"; the dropped frames are a live stream's alone."""
+    from datetime import datetime
+
+    from prometheus_client.parser import text_string_to_metric_families
+
+    from gst_trafficcal.run_status import read_status
+    from gst_trafficcal.status_metrics import RunHealth, prometheus_text
+
+    StatusFile(tmp_path / "status.json", "video.mp4").update(state="running", frames=250)
+    run = RunHealth(str(tmp_path / "status.json"), read_status(tmp_path / "status.json"))
+    families = {f.name: f for f in text_string_to_metric_families(prometheus_text([run], datetime.now().astimezone()))}
+    assert families["trafficcal_frames"].documentation == "Frames that reached the analysis, of a file or a live stream"
+    assert [s.value for s in families["trafficcal_frames"].samples if s.name == "trafficcal_frames_total"] == [250]
+    assert families["trafficcal_frames_dropped"].documentation.endswith("could not keep up (0 for a file)")
