@@ -157,7 +157,8 @@ class StatusFile:
 
 
 def read_status(path: str | Path) -> RunStatus:
-    """A status.json read back (fields it lacks keep their defaults; unknown ones are ignored)."""
+    """A status.json read back (fields it lacks keep their defaults; unknown ones are ignored); InputError for a file
+    that is not one: not JSON, no ``state`` or ``updated_at``, a field of the wrong type, a state not in ``STATES``."""
     from .fileio import read_json
 
     data = read_json(path, "run's status")
@@ -175,6 +176,9 @@ def read_status(path: str | Path) -> RunStatus:
         if not _of_type(value, hints[name]):
             shown = json.dumps(value)[:60]
             raise InputError(f"{path}: not a run's status ({name} is {shown}, not {_named(hints[name])})")
+    if fields["state"] not in STATES:  # read as "dancing since ..." and counted in no trafficcal_state series
+        shown = json.dumps(fields["state"])[:60]
+        raise InputError(f"{path}: not a run's status (state is {shown}, not one of {', '.join(STATES)})")
     return RunStatus(**fields)
 
 

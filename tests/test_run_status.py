@@ -259,3 +259,37 @@ def test_a_status_with_a_field_of_the_wrong_type_is_one_line_naming_it(tmp_path,
     run = subprocess.run([sys.executable, "-m", "gst_trafficcal", "status", str(tmp_path)], capture_output=True,
                          text=True, timeout=60)
     assert run.returncode == 2 and "Traceback" not in run.stderr and words in run.stderr, run.stderr
+
+
+def test_a_status_with_an_unknown_state_is_not_a_runs_status(tmp_path):
+    """"state": "dancing" was printed as "dancing since ..." and had no trafficcal_state series at 1: now it is an
+    invalid status like a corrupt file — one line and exit 2 alone, "no status" (unhealthy) among several runs."""
+    import subprocess
+    import sys
+
+    from prometheus_client.parser import text_string_to_metric_families
+
+    run_dir = tmp_path / "cameras" / "east"
+    StatusFile(run_dir / "status.json", "rtsp://cam/1").update(state="running")
+    data = on_disk(run_dir / "status.json")
+    data["state"] = "dancing"
+    (run_dir / "status.json").write_text(json.dumps(data))
+    words = 'not a run\'s status (state is "dancing", not one of starting, running, reconnecting, finished, ' \
+            'interrupted, failed)'
+    with pytest.raises(InputError, match=re.escape(f"status.json: {words}")):
+        read_status(run_dir / "status.json")
+
+    def status(*args: object) -> subprocess.CompletedProcess:
+        return subprocess.run([sys.executable, "-m", "gst_trafficcal", "status", *map(str, args)],
+                              capture_output=True, text=True, timeout=60)
+
+    alone = status(run_dir)
+    assert alone.returncode == 2 and alone.stderr == f"trafficcal: error: {run_dir / 'status.json'}: {words}\n"
+    assert alone.stdout == ""
+    StatusFile(tmp_path / "cameras" / "west" / "status.json", "rtsp://cam/2").update(state="running")
+    both = status(tmp_path / "cameras")
+    assert both.returncode == 1 and f"{run_dir / 'status.json'}: UNHEALTHY: no status: {words}" in both.stdout
+    metrics = status(tmp_path / "cameras", "--prometheus")
+    series = [(s.name, s.labels["run"]) for f in text_string_to_metric_families(metrics.stdout) for s in f.samples
+              if s.labels["run"] == str(run_dir)]
+    assert metrics.returncode == 1 and series == [("trafficcal_healthy", str(run_dir))]
