@@ -205,10 +205,12 @@ def _of_type(value: Any, hint: Any) -> bool:
 
 
 FINAL_STATES = ("finished", "interrupted", "failed")
+CLOCK_SKEW_S = 5.0  # how far in the future a status's updated_at may lie before the clocks are said to differ
 
 
 def age_s(iso: str | None, now: datetime) -> float | None:
-    """Seconds from the ISO 8601 time ``iso`` to ``now`` (None when there is no readable time)."""
+    """Seconds from the ISO 8601 time ``iso`` to ``now`` (None when there is no readable time; negative when ``iso``
+    lies after ``now``: the clock that wrote it is ahead)."""
     try:
         return (now - datetime.fromisoformat(iso)).total_seconds()
     except (TypeError, ValueError):
@@ -241,7 +243,9 @@ def health(status: RunStatus, max_age_s: float = 60.0, now: datetime | None = No
 
     Unhealthy: the run failed; a run not ended whose file was not updated for ``max_age_s`` (the process hangs or
     is gone) or whose process is gone (checked on the machine that wrote it); a stream lost (reconnecting) for
-    longer than ``max_age_s``.  A run that finished or was interrupted ended as it should: healthy."""
+    longer than ``max_age_s``; ``updated_at`` more than ``CLOCK_SKEW_S`` in the future (the writer's clock is ahead:
+    its age, so whether it hangs, cannot be told).  A run that finished or was interrupted ended as it should:
+    healthy."""
     now = now or datetime.now().astimezone()
     why = []
     if status.state == "failed":
@@ -249,7 +253,11 @@ def health(status: RunStatus, max_age_s: float = 60.0, now: datetime | None = No
     if status.state in FINAL_STATES:
         return why
     age = age_s(status.updated_at, now)
-    if age is None or age > max_age_s:
+    if age is not None and age < -CLOCK_SKEW_S:
+        clocks = ("this machine's clock was set back since" if status.host == socket.gethostname() else
+                  f"the clocks of the writer{f' ({status.host})' if status.host else ''} and this machine differ")
+        why.append(f"updated_at lies {-age:.0f} s in the future: {clocks}; whether the run hangs cannot be told")
+    elif age is None or age > max_age_s:
         why.append("status not updated for " + ("an unknown time" if age is None else f"{age:.0f} s") +
                    f" (more than {max_age_s:g} s): the run hangs or is gone")
     if status.host == socket.gethostname() and status.pid and not _process_alive(status.pid):

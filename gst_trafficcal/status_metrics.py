@@ -56,8 +56,10 @@ class _RunsCollector:
             ("calibrated", "1 when the calibration in force has a scale (speeds are measured)"),
             ("view_speed_sensitivity_percent", "How much the speeds change (%) under a 0.1 degree error of VP2: "
              "2 or more for a view along the road"),
-            ("status_age_seconds", "Seconds since the status file was last written"),
-            ("last_vehicle_age_seconds", "Seconds since the last vehicle left the view"))}
+            ("status_age_seconds", "Seconds since the status file was last written (negative: the writer's clock "
+             "is ahead of this machine's)"),
+            ("last_vehicle_age_seconds", "Seconds since the last vehicle left the view (negative: the writer's clock "
+             "is ahead)"))}
         for run in self.runs:
             s = run.status
             labels = [str(Path(run.path).parent), "" if s is None else s.source]

@@ -293,3 +293,47 @@ def test_a_status_with_an_unknown_state_is_not_a_runs_status(tmp_path):
     series = [(s.name, s.labels["run"]) for f in text_string_to_metric_families(metrics.stdout) for s in f.samples
               if s.labels["run"] == str(run_dir)]
     assert metrics.returncode == 1 and series == [("trafficcal_healthy", str(run_dir))]
+
+
+def test_a_status_from_the_future_is_clock_skew_not_healthy(tmp_path):
+    """updated_at in the future (the writer's clock years ahead) was healthy and printed "(-96831612 s ago)":
+    now unhealthy with the reason, and the times say "in the future"; a skew of a second or two stays healthy."""
+    import socket
+    import subprocess
+    import sys
+    from dataclasses import replace
+    from datetime import datetime, timedelta
+
+    from prometheus_client.parser import text_string_to_metric_families
+
+    from gst_trafficcal.run_status import CLOCK_SKEW_S, health
+
+    status = StatusFile(tmp_path / "status.json", "rtsp://cam/1")
+    status.update(state="running")
+    now = datetime.fromisoformat(status.status.updated_at)
+    away = replace(status.status, host="nvr-07")
+    assert health(away, 60, now - timedelta(seconds=2)) == []  # this machine 2 s behind: fine
+    assert health(away, 60, now - timedelta(seconds=3600)) == [
+        "updated_at lies 3600 s in the future: the clocks of the writer (nvr-07) and this machine differ; whether "
+        "the run hangs cannot be told"]
+    here = health(replace(away, host=socket.gethostname()), 60, now - timedelta(seconds=CLOCK_SKEW_S + 1))
+    assert here[0].startswith(f"updated_at lies {CLOCK_SKEW_S + 1:.0f} s in the future: this machine's clock was "
+                              "set back since")
+    assert health(replace(away, state="finished"), 60, now - timedelta(seconds=3600)) == []  # ended: its age is moot
+
+    data = on_disk(tmp_path / "status.json")
+    ahead = (datetime.now().astimezone() + timedelta(days=1000)).isoformat(timespec="milliseconds")
+    data.update(updated_at=ahead, host="nvr-07")
+    (tmp_path / "status.json").write_text(json.dumps(data))
+    run = subprocess.run([sys.executable, "-m", "gst_trafficcal", "status", str(tmp_path)], capture_output=True,
+                         text=True, timeout=60)
+    assert run.returncode == 1 and "s ago)" not in run.stdout.splitlines()[-2], run.stdout
+    assert re.search(rf"updated     {re.escape(ahead)} \(\d+ s in the future: clocks differ\) by process",
+                     run.stdout), run.stdout
+    assert re.search(r"UNHEALTHY: updated_at lies \d+ s in the future: the clocks of the writer \(nvr-07\) and this "
+                     r"machine differ", run.stdout), run.stdout
+    metrics = subprocess.run([sys.executable, "-m", "gst_trafficcal", "status", str(tmp_path), "--prometheus"],
+                             capture_output=True, text=True, timeout=60)
+    values = {s.name: s.value for f in text_string_to_metric_families(metrics.stdout) for s in f.samples}
+    assert metrics.returncode == 1 and values["trafficcal_healthy"] == 0.0
+    assert -1000 * 86400 <= values["trafficcal_status_age_seconds"] < -999 * 86400  # the skew, the run unhealthy

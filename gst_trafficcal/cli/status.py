@@ -12,12 +12,17 @@ import click
 
 
 def _ago(iso: str | None, now: datetime) -> str:
+    """A status's time with how long ago it was — or how far in the future, when the writer's clock is ahead."""
     from ..run_status import age_s
 
     if not iso:
         return "–"
     s = age_s(iso, now)
-    return iso if s is None else f"{iso} ({s:.0f} s ago)"
+    if s is None:
+        return iso
+    if s > -0.5:
+        return f"{iso} ({max(s, 0.0):.0f} s ago)"
+    return f"{iso} ({-s:.0f} s in the future: clocks differ)"
 
 
 def _document(status, problems: list[str]) -> dict:
@@ -56,9 +61,9 @@ def command(paths: tuple[Path, ...], max_age_s: float, as_json: bool, prometheus
     speed against real time, calibration, vehicles, the last vehicle, dropped frames, warnings.
 
     Exit code 0 when the run is healthy (running and updated within --max-age, or ended as it should), 1 when not
-    (failed; no update for --max-age seconds; its process gone; the stream lost for --max-age seconds), 2 when
-    there is no readable status: usable as a container or service health check, e.g.
-    HEALTHCHECK CMD trafficcal status /out --max-age 60.
+    (failed; no update for --max-age seconds; its process gone; the stream lost for --max-age seconds; its last
+    update in the future: the clocks differ), 2 when there is no readable status: usable as a container or service
+    health check, e.g. HEALTHCHECK CMD trafficcal status /out --max-age 60.
 
     Several runs — several OUT_DIRs, or a folder holding one OUT_DIR per camera (trafficcal status /srv/cameras)
     — are a line each and a count; exit code 0 when every one is healthy, 1 when any is not or has no readable
