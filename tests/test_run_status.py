@@ -190,7 +190,8 @@ def test_trafficcal_status_of_a_folder_of_cameras_is_a_line_each(tmp_path):
             state=state, vehicles=12, measured=10, error="disk full" if state == "failed" else "")
     (cameras / "south").mkdir()
     (cameras / "south" / "status.json").write_text("{not json")
-    (cameras / "notes").mkdir()  # not a run: no status.json, not listed
+    (cameras / "notes").mkdir()  # not a run: other files only, not listed
+    (cameras / "notes" / "cabling.txt").write_text("east: port 3")
     run = status(cameras)
     lines = run.stdout.splitlines()
     assert run.returncode == 1 and len(lines) == 5, run.stdout + run.stderr
@@ -337,3 +338,44 @@ def test_a_status_from_the_future_is_clock_skew_not_healthy(tmp_path):
     values = {s.name: s.value for f in text_string_to_metric_families(metrics.stdout) for s in f.samples}
     assert metrics.returncode == 1 and values["trafficcal_healthy"] == 0.0
     assert -1000 * 86400 <= values["trafficcal_status_age_seconds"] < -999 * 86400  # the skew, the run unhealthy
+
+
+def test_a_camera_folder_without_a_status_is_reported_not_skipped(tmp_path):
+    """`trafficcal status FOLDER` skipped a camera folder without status.json (healthy, exit 0, no Prometheus
+    series): now a subfolder with any of a run's outputs, or an empty one, is a camera with no status (unhealthy,
+    exit 1); hidden folders, lost+found and folders of other files are not cameras."""
+    import subprocess
+    import sys
+
+    from prometheus_client.parser import text_string_to_metric_families
+
+    def status(*args: object) -> subprocess.CompletedProcess:
+        return subprocess.run([sys.executable, "-m", "gst_trafficcal", "status", *map(str, args)],
+                              capture_output=True, text=True, timeout=60)
+
+    cameras = tmp_path / "cameras"
+    StatusFile(cameras / "cam1" / "status.json", "rtsp://nvr/1").update(state="running")
+    (cameras / "cam2").mkdir()  # its run has not written anything yet
+    (cameras / "cam3").mkdir()  # an earlier run's outputs, its status.json gone
+    (cameras / "cam3" / "calibration.json").write_text("{}")
+    for other in (".snapshots", "lost+found", "docs"):
+        (cameras / other).mkdir()
+    (cameras / "docs" / "README.txt").write_text("one folder per camera")
+    run = status(cameras)
+    assert run.returncode == 1, run.stdout + run.stderr
+    assert run.stdout.splitlines()[1:] == [f"{cameras / name / 'status.json'}: UNHEALTHY: no status: no such file"
+                                           for name in ("cam2", "cam3")] + ["3 runs: 1 healthy, 2 not"]
+    metrics = status(cameras, "--prometheus")
+    healthy = {s.labels["run"]: s.value for f in text_string_to_metric_families(metrics.stdout) for s in f.samples
+               if s.name == "trafficcal_healthy"}
+    assert metrics.returncode == 1 and healthy == {str(cameras / "cam1"): 1.0, str(cameras / "cam2"): 0.0,
+                                                   str(cameras / "cam3"): 0.0}
+    # a run's own --out without status.json is that run (no status, exit 2), not a folder of cameras: the
+    # earlier-<start>/ folder of outputs set aside inside it is no camera
+    StatusFile(cameras / "cam3" / "earlier-20261205-080000" / "status.json", "rtsp://nvr/3").update(state="finished")
+    alone = status(cameras / "cam3")
+    assert alone.returncode == 2 and alone.stderr.startswith(f"trafficcal: error: {cameras / 'cam3' / 'status.json'}: "
+                                                             "no such file"), alone.stderr
+    (tmp_path / "nothing-yet").mkdir()  # an empty --out: that run's, without a status (as before)
+    empty = status(tmp_path / "nothing-yet")
+    assert empty.returncode == 2 and "no such file" in empty.stderr

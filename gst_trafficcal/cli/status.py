@@ -31,17 +31,51 @@ def _document(status, problems: list[str]) -> dict:
     return {**(asdict(status) if status is not None else {}), "healthy": not problems, "problems": problems}
 
 
+NOT_CAMERAS = ("lost+found",)  # folders a volume of camera folders may hold that are never a camera's
+
+
+def _run_outputs() -> tuple[str, ...]:
+    """What a run leaves in its --out (any one of them makes a folder a run's)."""
+    from .run import OUTPUTS
+
+    return ("status.json", "parts.csv", "views") + OUTPUTS
+
+
+def _holds_a_run(folder: Path) -> bool:
+    """Whether ``folder`` holds any of a run's outputs: it is a run's --out, with its status.json or without."""
+    return any((folder / name).exists() for name in _run_outputs())
+
+
+def _camera_folders(folder: Path) -> list[Path]:
+    """The subfolders of ``folder`` that are a camera's --out: one with any of a run's outputs, an empty one (a
+    camera whose run has not written yet) or one that cannot be looked into; not hidden ones, lost+found, or ones
+    of other things only (notes)."""
+    cameras = []
+    for child in sorted(folder.iterdir()):
+        if child.name.startswith(".") or child.name in NOT_CAMERAS or not child.is_dir():
+            continue
+        try:
+            if _holds_a_run(child) or next(child.iterdir(), None) is None:
+                cameras.append(child)
+        except OSError:  # unreadable: its status cannot be told, which is reported, not hidden
+            cameras.append(child)
+    return cameras
+
+
 def status_files(paths: tuple[Path, ...]) -> list[Path]:
     """The status files ``paths`` name: a status.json itself; a run's --out folder (its status.json); or a folder of
-    such folders, one per camera (each child's status.json, when the folder has none of its own)."""
+    such folders, one per camera (``_camera_folders``; each one's status.json, there or not, so a camera without a
+    status is reported, not skipped) when the folder holds no run's outputs of its own."""
     files = []
     for path in paths:
-        if path.is_dir() and not (path / "status.json").exists():
-            children = sorted(p for p in path.glob("*/status.json") if p.is_file())
-            if children:
-                files += children
-                continue
-        files.append(path / "status.json" if path.is_dir() else path)
+        try:
+            cameras = _camera_folders(path) if path.is_dir() and not _holds_a_run(path) else []
+        except OSError:  # a folder that cannot be read: its status.json cannot be either, which is said
+            cameras = []
+        if cameras:
+            files += [camera / "status.json" for camera in cameras]
+        else:
+            files.append(path / "status.json" if path.is_dir() else path)
     return files
 
 
@@ -67,7 +101,9 @@ def command(paths: tuple[Path, ...], max_age_s: float, as_json: bool, prometheus
 
     Several runs — several OUT_DIRs, or a folder holding one OUT_DIR per camera (trafficcal status /srv/cameras)
     — are a line each and a count; exit code 0 when every one is healthy, 1 when any is not or has no readable
-    status.
+    status. A camera's folder is any subfolder with a run's outputs (status.json, calibration.json,
+    vehicles.jsonl, ...) or an empty one, reported without a status when it has no status.json; hidden folders,
+    lost+found and folders of other files are not cameras.
     """
     if as_json and prometheus:
         raise click.UsageError("--json or --prometheus, not both")
@@ -89,9 +125,7 @@ def judged(files: list[Path], max_age_s: float, now: datetime) -> list:
     runs = []
     for file in files:
         try:
-            if not file.exists():
-                raise InputError(f"{file}: no such file")
-            status = read_status(file)
+            status = read_status(file)  # "FILE: no such file" when there is none
         except InputError as exc:
             runs.append(RunHealth(str(file), None, [f"no status: {str(exc).removeprefix(f'{file}: ')}"]))
             continue
