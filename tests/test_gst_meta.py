@@ -45,6 +45,24 @@ def test_round_trip_on_a_buffer() -> None:
     assert r1.params["object_id"] == {"id": 12}
 
 
+def test_rois_of_another_detector_are_updated_by_place() -> None:
+    """A detector of another make adds ROI metas the standard way (gst_buffer_add_video_region_of_interest_meta,
+    every id 0): each update reaches its own ROI, not the first one (the tracker put every vehicle's id and box
+    on the first box)."""
+    buf = _buffer()
+    for x in (10, 200, 400):
+        meta = GstVideo.buffer_add_video_region_of_interest_meta(buf, "car", x, 50, 60, 40)
+        assert meta.id == 0
+    rois = read_vehicle_rois(buf, SIZE)
+    assert [r.index for r in rois] == [0, 1, 2] and {r.meta_id for r in rois} == {0}
+    assert [r.box[0] for r in rois] == [10, 200, 400]
+    for r in rois:
+        update_roi_params(buf, r.index, "object_id", {"id": r.index + 7})
+    assert [(r.box[0], r.object_id) for r in read_vehicle_rois(buf, SIZE)] == [(10, 7), (200, 8), (400, 9)]
+    with pytest.raises(KeyError, match="no region-of-interest meta number 3"):
+        update_roi_params(buf, 3, "object_id", {"id": 1})
+
+
 def test_hulls_travel_with_the_rois_into_detections() -> None:
     buf = _buffer()
     hull = np.array([[10.25, 20.5], [60.0, 21.0], [58.5, 44.75], [11.0, 40.0]])
@@ -108,7 +126,7 @@ def test_update_replaces_a_structure_in_place() -> None:
     assert [r.params["speed"] for r in rois] == [{"speed_kmh": 1.0}, {"speed_kmh": 56.5}, {"speed_kmh": 1.0}]
     meta = GstVideo.buffer_get_video_region_of_interest_meta_id(buf, 1)
     assert meta.get_param("speed").get_value("speed_kmh") == 56.5  # exactly one "speed" left
-    with pytest.raises(KeyError, match="no region-of-interest meta with id 9"):
+    with pytest.raises(KeyError, match="no region-of-interest meta number 9"):
         update_roi_params(buf, 9, "speed", {"speed_kmh": 1.0})
 
 

@@ -368,7 +368,7 @@ class Speedometer(TrafficcalTransform):
         for roi, s in labelled:
             live = out.speeds.get(s.id)
             if live is not None:
-                update_roi_params(buffer, roi.meta_id, "speed", speed_params(live, live.label or s.label))
+                update_roi_params(buffer, roi.index, "speed", speed_params(live, live.label or s.label))
         if not self._emit(out.finished):
             return Gst.FlowReturn.ERROR
         if self._frames is not None and labelled and not self._write_frame(buffer, t):
@@ -481,8 +481,8 @@ class Speedometer(TrafficcalTransform):
             if track is None:
                 continue
             fields = vehicle_fields(track, track.last, camera, cal.id if cal is not None else "")
-            update_roi_params(buffer, roi.meta_id, OBJECT_ID, {"id": int(track.id)})
-            update_roi_params(buffer, roi.meta_id, STRUCTURE, fields)
+            update_roi_params(buffer, roi.index, OBJECT_ID, {"id": int(track.id)})
+            update_roi_params(buffer, roi.index, STRUCTURE, fields)
             hull = track.last.hull
             if hull is not None:
                 fields["hull"] = hull  # builds the 3D box later when the vanishing points come late

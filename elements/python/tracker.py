@@ -127,7 +127,7 @@ class Tracker(TrafficcalTransform):
                         for b, lab, s, c in zip(detections.boxes, detections.labels, detections.scores,
                                                 detections.class_ids)]
         else:
-            meta_ids = [r.meta_id for r in rois]
+            meta_ids = [r.index for r in rois]
         for i in range(len(detections)):
             track = result.track_of(i)
             if track is None:

@@ -47,7 +47,9 @@ class RoiRecord:
 
     ``box`` is (x0, y0, x1, y1) in pixels (from the normalised "detection" doubles when present,
     else the meta's integer rectangle); ``params`` holds every parameter structure by name,
-    including "detection" and "object_id".
+    including "detection" and "object_id".  ``index`` is its place among the buffer's ROI metas (attachment order),
+    which :func:`update_roi_params` takes: ``meta_id`` is whatever the detector set (ours number them, GStreamer's
+    default and other detectors leave 0 on every ROI).
     """
 
     meta_id: int
@@ -57,6 +59,7 @@ class RoiRecord:
     label_id: int
     object_id: int | None
     params: dict[str, dict[str, Any]] = field(default_factory=dict)
+    index: int = -1
 
 
 def _gvalue(value: Any) -> Any:
@@ -254,7 +257,7 @@ def read_vehicle_rois(buffer: Gst.Buffer, frame_size: tuple[int, int],
     width, height = float(frame_size[0]), float(frame_size[1])
     names = None if only is None else {DETECTION, OBJECT_ID, *only}
     out: list[RoiRecord] = []
-    for _addr, m in _cgst.iter_roi_metas(buffer):
+    for index, (_addr, m) in enumerate(_cgst.iter_roi_metas(buffer)):
         params: dict[str, dict[str, Any]] = {}
         for s in _cgst.roi_param_structures(m, names):  # the first structure of a name wins, as get_param
             params.setdefault(s.get_name(), structure_to_dict(s))
@@ -269,7 +272,7 @@ def read_vehicle_rois(buffer: Gst.Buffer, frame_size: tuple[int, int],
             RoiRecord(
                 meta_id=int(m.id), label=label, box=tuple(round(float(v), 6) for v in box),  # hide 1-ulp normalisation noise
                 confidence=float(det.get("confidence", 0.0)), label_id=int(det.get("label_id", -1)),
-                object_id=None if oid is None else int(oid), params=params,
+                object_id=None if oid is None else int(oid), params=params, index=index,
             )
         )
     return out
@@ -308,16 +311,18 @@ def detections_from_rois(rois: Sequence[RoiRecord]) -> Detections:
                       hulls if any(h is not None for h in hulls) else None)
 
 
-def update_roi_params(buffer: Gst.Buffer, meta_id: int, name: str, fields: Mapping[str, Any]) -> None:
-    """Replace (or add) parameter structure ``name`` of the ROI with id ``meta_id``.
+def update_roi_params(buffer: Gst.Buffer, index: int, name: str, fields: Mapping[str, Any]) -> None:
+    """Replace (or add) parameter structure ``name`` of the ``index``-th ROI meta of ``buffer`` (attachment order:
+    :attr:`RoiRecord.index`, what :func:`add_vehicle_roi` returns) — by place, not by the meta's id, which other
+    detectors leave 0 on every ROI (every vehicle's data then went onto the first box).
 
     Updating "object_id" is how the tracker labels an existing detection.
     """
     _require_writable(buffer)
-    for addr, m in _cgst.iter_roi_metas(buffer):
-        if m.id == meta_id:
+    for k, (addr, m) in enumerate(_cgst.iter_roi_metas(buffer)):
+        if k == index:
             structure = make_structure(name, fields)
             _cgst.roi_remove_params(m, name)
             _cgst.roi_add_param(addr, structure)
             return
-    raise KeyError(f"no region-of-interest meta with id {meta_id} on this buffer")
+    raise KeyError(f"no region-of-interest meta number {index} on this buffer")
