@@ -514,6 +514,36 @@ def test_calibration_of_another_image_size_is_an_error(clip, tmp_path):
         run_pipeline(f"{source(clip)} ! speedometer calibration-file={tmp_path / 'hd.json'} ! appsink name=sink")
 
 
+def test_timestamps_that_keep_going_back_are_said_once() -> None:
+    """Reverse playback (an NVR scrubbing backwards; here 60 frames with falling timestamps): one warning that the
+    timestamps keep going back, beside the first jump's — not one per frame (QA: 149 warnings for 149 frames)."""
+    from gst_trafficcal.gst._gi import Gst as G
+
+    pipeline = G.parse_launch("appsrc name=src format=time caps=video/x-raw,format=I420,width=64,height=48,"
+                              "framerate=25/1 ! speedometer ! fakesink")
+    src, bus = pipeline.get_by_name("src"), pipeline.get_bus()
+    pipeline.set_state(G.State.PLAYING)
+    said = []
+    try:
+        for k in range(60):
+            buf = G.Buffer.new_wrapped(bytes(64 * 48 * 3 // 2))
+            buf.pts, buf.duration = int((60 - k) * G.SECOND / 25), G.SECOND // 25
+            assert src.emit("push-buffer", buf) == G.FlowReturn.OK
+        src.emit("end-of-stream")
+        while True:
+            msg = bus.timed_pop_filtered(30 * G.SECOND, G.MessageType.EOS | G.MessageType.ERROR |
+                                         G.MessageType.WARNING)
+            assert msg is not None and msg.type != G.MessageType.ERROR, msg and msg.parse_error()
+            if msg.type == G.MessageType.EOS:
+                break
+            said += [msg.parse_warning()[0].message]
+    finally:
+        pipeline.set_state(G.State.NULL)
+    said = [w for w in said if "timestamps" in w]
+    assert len(said) == 2, said
+    assert "went back to 2.360 s" in said[0] and "keep going back (reverse playback" in said[1]
+
+
 def test_recordings_joined_by_concat_go_on_in_time(clip, implicit, tmp_path):
     """A camera's recordings played as one stream by ``concat`` (here the clip twice): each part's timestamps start
     at 0 again, which once stopped the pipeline ("timestamps must not go backwards"); now the elements' time goes on

@@ -157,6 +157,8 @@ class Speedometer(TrafficcalTransform):
         self._failed = False
         self._last_pts = None
         self._jumps = 0  # timestamp jumps back already said
+        self._last_jump = None  # the time given at the latest jump back
+        self._said_reverse = False  # _say_jumps: said that the timestamps keep going back
         self._dts = []
         self._own_stage = None  # bbscale's stage, built at start
         self._stage = None  # ... in use: no bbscale upstream, no scale given (decided at the first frame)
@@ -306,6 +308,22 @@ class Speedometer(TrafficcalTransform):
         return cal is self._upstream or not from_upstream
 
     # ------------------------------------------------------------------ frames
+    def _say_jumps(self, jumps) -> None:
+        """Say each time the timestamps went back (parts joined, a seek back) — but a stream whose timestamps keep
+        going back (reverse playback, frames out of order: another jump within a second of stream time) once,
+        not on every frame."""
+        for back, given in jumps:
+            if self._last_jump is not None and given - self._last_jump < 1.0:
+                if not self._said_reverse:
+                    self._said_reverse = True
+                    self.post_warning("speedometer: the timestamps keep going back (reverse playback, or frames out "
+                                      "of order): the vehicles' times go on forwards and their speeds are not "
+                                      "those of the road; said once")
+            else:
+                self.post_warning(f"speedometer: the timestamps went back to {back:.3f} s (parts joined, a seek "
+                                  f"back); the vehicles' times go on from {given:.3f} s")
+            self._last_jump = given
+
     def transform_frame(self, buffer):
         from gst_trafficcal.gst.meta import read_vehicle_rois, update_roi_params
         from gst_trafficcal.measurement import END_AFTER_MARGIN, Sighting, speed_params
@@ -318,10 +336,8 @@ class Speedometer(TrafficcalTransform):
             self.warn_untimed("speedometer", "are passed through unmeasured")
             return Gst.FlowReturn.OK
         if len(self.stream_clock.jumps) > self._jumps:  # timestamps went back (joined parts, a seek): said once each
+            self._say_jumps(self.stream_clock.jumps[self._jumps:])
             self._jumps = len(self.stream_clock.jumps)
-            back, given = self.stream_clock.jumps[-1]
-            self.post_warning(f"speedometer: the timestamps went back to {back:.3f} s (parts joined, a seek back); "
-                              f"the vehicles' times go on from {given:.3f} s")
         if self._last_pts is not None and t > self._last_pts and len(self._dts) < 50:
             self._dts.append(t - self._last_pts)  # the frame rate of variable-rate caps, for BrnoCompSpeed
         self._last_pts = t
