@@ -58,11 +58,11 @@ def test_exports_are_idempotent_and_quoted() -> None:
     assert "export GST_PLUGIN_PATH='" in shell_exports(once)
 
 
-def test_plugin_dir_option_puts_extra_dirs_first(tmp_path: Path) -> None:
+def test_plugin_dir_option_puts_extra_dirs_after_ours(tmp_path: Path) -> None:
     out = subprocess.run(TRAFFICCAL + ["gst-env", "--plugin-dir", str(PLUGINS)], capture_output=True, text=True,
                          env=_clean_env(tmp_path, PYTHONPATH=str(ROOT)), timeout=60)
     assert out.returncode == 0, out.stderr
-    assert f"export GST_PLUGIN_PATH={PLUGINS}:{ROOT / 'elements'}\n" in out.stdout
+    assert f"export GST_PLUGIN_PATH={ROOT / 'elements'}:{PLUGINS}\n" in out.stdout
     bad = subprocess.run(TRAFFICCAL + ["gst-env", "--plugin-dir", str(tmp_path / "missing")], capture_output=True,
                          text=True, env=_clean_env(tmp_path, PYTHONPATH=str(ROOT)), timeout=60)
     assert bad.returncode == 2 and "does not exist" in bad.stderr and "Traceback" not in bad.stderr
@@ -74,6 +74,26 @@ def test_gst_inspect_finds_a_test_element_after_eval(tmp_path: Path) -> None:
                 _clean_env(tmp_path))
     assert out.returncode == 0, out.stderr
     assert "tcmarker" in out.stdout and "calibration-file" in out.stdout
+
+
+@needs_gst
+def test_an_element_of_another_make_that_imports_opencv_leaves_ours_loadable(tmp_path: Path) -> None:
+    """A plugin folder (--plugin-dir) whose Python element imports cv2: loaded before ours, its OpenCV bootstrap
+    left the loader unable to import any of our six elements ("No module named 'vehicledetect'")."""
+    (tmp_path / "theirs" / "python").mkdir(parents=True)
+    (tmp_path / "theirs" / "python" / "aaacv.py").write_text(
+        "import gi\ngi.require_version('Gst', '1.0')\ngi.require_version('GstBase', '1.0')\n"
+        "from gi.repository import GObject, Gst, GstBase\nimport cv2  # noqa: F401\n\n\n"
+        "class AaaCv(GstBase.BaseTransform):\n    __gstmetadata__ = ('aaacv', 'Filter', 'imports OpenCV', 'test')\n"
+        "    __gsttemplates__ = (Gst.PadTemplate.new('src', Gst.PadDirection.SRC, Gst.PadPresence.ALWAYS, "
+        "Gst.Caps.new_any()),\n                        Gst.PadTemplate.new('sink', Gst.PadDirection.SINK, "
+        "Gst.PadPresence.ALWAYS, Gst.Caps.new_any()))\n\n\n"
+        "GObject.type_register(AaaCv)\n__gstelementfactory__ = ('aaacv', Gst.Rank.NONE, AaaCv)\n")
+    out = _bash(f'eval "$({" ".join(TRAFFICCAL)} gst-env --plugin-dir {tmp_path / "theirs"})" && '
+                "gst-inspect-1.0 aaacv && gst-inspect-1.0 vpdetect && gst-inspect-1.0 speedometer",
+                _clean_env(tmp_path))
+    assert out.returncode == 0, out.stdout[-1500:] + out.stderr[-1500:]
+    assert "imports OpenCV" in out.stdout and "calibration-file" in out.stdout and "events-file" in out.stdout
 
 
 @needs_gst

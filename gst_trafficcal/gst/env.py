@@ -62,12 +62,14 @@ def gst_environment(
 ) -> dict[str, str]:
     """The values of :data:`VARIABLES` to run our elements, prepended to those of ``base`` (default: os.environ).
 
-    ``plugin_dirs`` are extra GST_PLUGIN_PATH entries (each with a ``python/`` subdirectory), put first.
+    ``plugin_dirs`` are extra GST_PLUGIN_PATH entries (each with a ``python/`` subdirectory), put right after our
+    elements: a Python element of another make that imports OpenCV first (its bootstrap rewrites the embedded
+    interpreter's import path) left the loader unable to import ours after it — all six elements were gone.
     """
     base = os.environ if base is None else base
     root = project_root()
     venv = venv_dir(root)
-    plugins = [Path(p).resolve() for p in plugin_dirs] + [elements_dir(root)]
+    plugins = [elements_dir(root)] + [Path(p).resolve() for p in plugin_dirs]
     return {
         "VIRTUAL_ENV": str(venv),
         "PATH": _prepend([venv / "bin"], base.get("PATH", os.defpath)),
