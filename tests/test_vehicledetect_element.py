@@ -180,6 +180,21 @@ def test_options_the_detector_does_not_use_are_said_at_start(frames, nanodet):
         f"vehicledetect: background is not used by model {nanodet}; ignored"]
 
 
+def test_class_ids_the_model_does_not_have_are_said_at_start(frames, nanodet):
+    """NanoDet has COCO's 80 classes: labels naming only ids beyond them would find nothing, in silence — an error
+    at start; some of them beside ones it has: a warning naming them."""
+    with pytest.raises(PipelineError, match=r"the model has 80 classes \(ids 0 to 79\); labels names only class "
+                                            r"id\(s\) 99"):
+        run_pipeline(f"appsrc name=src ! videoconvert ! vehicledetect model={nanodet} labels=99:alien ! "
+                     "appsink name=sink", frames[:3], CAPS)
+    run = run_pipeline(f"appsrc name=src ! videoconvert ! vehicledetect model={nanodet} labels=2:car,99:alien,120:x "
+                       "! appsink name=sink", frames[:3], CAPS)
+    assert [w.split(": ", 1)[1] for w in run.warnings] == [
+        f"vehicledetect: model {nanodet} has 80 classes; labels' class id(s) 99, 120 are not among them and are "
+        "never found"]
+    assert any(r.label == "car" for f in run.frames for r in f.rois)
+
+
 def test_bad_background_method_fails_at_start(frames):
     with pytest.raises(PipelineError, match="background method must be mog2 or average"):
         run_pipeline("appsrc name=src ! videoconvert ! vehicledetect background=median ! appsink name=sink",

@@ -70,6 +70,11 @@ class VehicleDetect(TrafficcalTransform):
         except TrafficcalError as exc:
             self.post_error(f"vehicledetect: {exc}", code=Gst.CoreError.FAILED)
             return False
+        missing = getattr(self._detector, "missing_labels", None)
+        if missing:  # some of the classes asked for are not the model's: those are never found
+            self.post_warning(f"vehicledetect: model {self.model} has {self._detector.decoder.num_classes} classes; "
+                              f"labels' class id(s) {', '.join(map(str, missing))} are not among them and are never "
+                              "found")
         if ignored:
             which = "the built-in background detector" if not self.model else f"model {self.model}"
             self.post_warning(f"vehicledetect: {', '.join(ignored)} {'is' if len(ignored) == 1 else 'are'} not used "

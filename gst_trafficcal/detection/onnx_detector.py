@@ -167,6 +167,12 @@ class OnnxDetector:
             raise InputError(f"{self.path}: {exc}") from None
         self.preprocess = replace(self.decoder.preprocess, **(preprocess or {}))
         self.input_size = size
+        n = self.decoder.num_classes
+        missing = sorted(c for c in self.labels.names if n > 0 and c >= n)
+        if missing and len(missing) == len(self.labels.names):  # nothing would ever be found, in silence
+            raise InputError(f"{self.path}: the model has {n} classes (ids 0 to {n - 1}); labels names only "
+                             f"class id(s) {', '.join(map(str, missing))}")
+        self.missing_labels = missing  # ids the model does not have (the others still give vehicles)
 
     @property
     def model_format(self) -> str:
