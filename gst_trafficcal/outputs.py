@@ -4,8 +4,9 @@ Designed so that nothing already measured is lost:
 
 * :class:`JsonlEventWriter` and :class:`CsvEventWriter` write one line per vehicle *as it leaves*, each
   line with a single unbuffered ``write`` (then ``fsync``), so a crash or a full disk keeps every earlier
-  line. A failed write raises :class:`InputError` naming the file; the writer stays usable (a later write
-  first terminates the broken fragment with a newline, so :func:`read_events` skips only that fragment).
+  line. A line that cannot be written whole (a full disk) is cut off again, so the file ends with the last complete
+  line, and :class:`InputError` names the file; the writer stays usable. (A fragment left by a crash, or by a pipe
+  that cannot be cut back, is ended with a newline by the next write, so :func:`read_events` skips only it.)
 * :class:`EventWriters` fans one event out to several writers and writes to *all* of them before raising
   the first error, so a full disk under one file does not cost the others their line.
 * :class:`BrnoResultsWriter` collects reference-point tracks and writes the BrnoCompSpeed results file
@@ -247,12 +248,34 @@ class _LineFile:
                 raise InputError(f"{self.path}: cannot write ({exc.strerror or exc})") from None
             self.pending = False
 
+    def _end(self) -> int | None:
+        """The size of a regular file (where the next line begins: it is opened for appending); None for a pipe or
+        device, which cannot be cut back."""
+        try:
+            st = os.fstat(self._f.fileno())
+        except OSError:
+            return None
+        return st.st_size if stat.S_ISREG(st.st_mode) else None
+
+    def _cut_back(self, end: int | None) -> bool:
+        """Truncate the file to ``end`` (where the failed line began), so that no fragment of it stays; False when
+        that is not possible (a pipe, a device, a failing truncate)."""
+        if end is None:
+            return False
+        try:
+            os.ftruncate(self._f.fileno(), end)
+        except OSError:
+            return False
+        return True
+
     def write_line(self, text: str) -> None:
+        """Write ``text`` as one line.  When it cannot be written whole (a full disk) the file is cut back to where
+        the line began, so that it ends with the last complete line, and InputError says so."""
         if self._f.closed:
             raise InputError(f"{self.path}: writer already closed")
         self.begin()
         data = (("\n" if self._broken else "") + text.rstrip("\n") + "\n").encode("utf-8")
-        view, done = memoryview(data), 0
+        view, done, end = memoryview(data), 0, self._end()
         try:
             while done < len(data):
                 n = self._f.write(view[done:])
@@ -266,7 +289,8 @@ class _LineFile:
                     if exc.errno not in (22, 95):  # EINVAL/EOPNOTSUPP: special files (pipes, /dev/...)
                         raise
         except OSError as exc:
-            self._broken = self._broken or done > 0
+            if not self._cut_back(end):  # the fragment stays: the next line starts on a line of its own
+                self._broken = self._broken or done > 0
             raise InputError(f"{self.path}: cannot write ({exc.strerror or exc}); "
                              "every earlier line is kept") from None
         self._broken = False

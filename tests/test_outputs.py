@@ -198,11 +198,11 @@ def test_a_full_disk_under_one_file_does_not_cost_the_others_their_line(tmp_path
 _FILL_SCRIPT = textwrap.dedent("""
     import resource, signal, sys
     from gst_trafficcal.errors import InputError
-    from gst_trafficcal.outputs import JsonlEventWriter, VehicleEvent
+    from gst_trafficcal.outputs import CsvEventWriter, JsonlEventWriter, VehicleEvent
     signal.signal(signal.SIGXFSZ, signal.SIG_IGN)           # the kernel then fails write() with EFBIG
     limit = int(sys.argv[2])
     resource.setrlimit(resource.RLIMIT_FSIZE, (limit, limit))  # the disk is "full" at `limit` bytes
-    w = JsonlEventWriter(sys.argv[1])
+    w = (CsvEventWriter if sys.argv[1].endswith(".csv") else JsonlEventWriter)(sys.argv[1])
     written = 0
     try:
         for i in range(1, 10000):
@@ -216,21 +216,53 @@ _FILL_SCRIPT = textwrap.dedent("""
 """)
 
 
-def test_earlier_lines_survive_when_the_disk_fills_up(tmp_path: Path) -> None:
-    """A real short write on a real file (file-size limit), then the file is read back."""
-    path = tmp_path / "v.jsonl"
+def _fill_up(path: Path, limit: int) -> tuple[int, str]:
+    """Vehicles written to ``path`` (JSON lines, or CSV by its suffix) by a process whose files cannot grow beyond
+    ``limit`` bytes (a real short write, then EFBIG) until a write fails: how many were written, and the error."""
     env = dict(os.environ, PYTHONPATH=str(ROOT))
-    out = subprocess.run([sys.executable, "-c", _FILL_SCRIPT, str(path), "2000"], capture_output=True, text=True,
+    out = subprocess.run([sys.executable, "-c", _FILL_SCRIPT, str(path), str(limit)], capture_output=True, text=True,
                          env=env, timeout=60)
     assert out.returncode == 0, out.stderr
-    written_str, message = out.stdout.splitlines()
-    written = int(written_str)
-    assert written >= 5 and message.startswith(f"{path}: cannot write (File too large)")
-    assert path.stat().st_size == 2000  # the failing line was cut at the limit
+    written, message = out.stdout.splitlines()
+    return int(written), message
+
+
+def test_earlier_lines_survive_when_the_disk_fills_up(tmp_path: Path) -> None:
+    """A real short write on a real file (file-size limit), then the file is read back: it ends with the last
+    complete line, the one that did not fit is cut off again (no invalid JSON line is left)."""
+    path = tmp_path / "v.jsonl"
+    written, message = _fill_up(path, 2000)
+    assert written >= 5 and message == f"{path}: cannot write (File too large); every earlier line is kept"
+    text = path.read_text()
+    assert 0 < len(text) < 2000 and text.endswith("\n")  # cut back to the last whole line
+    assert [json.loads(line)["id"] for line in text.splitlines()] == list(range(1, written + 1))
     log = read_events(path)
-    assert [e.id for e in log.events] == list(range(1, written + 1))  # every earlier vehicle is there
-    assert log.skipped == 1  # the cut line
+    assert [e.id for e in log.events] == list(range(1, written + 1)) and log.skipped == 0
     assert log.events[-1].speed_kmh == 50.0 + written
+
+
+def test_csv_rows_survive_when_the_disk_fills_up(tmp_path: Path) -> None:
+    """The CSV events too: the row that did not fit is cut off again, every earlier row is whole."""
+    path = tmp_path / "v.csv"
+    written, message = _fill_up(path, 1500)
+    assert written >= 5 and message == f"{path}: cannot write (File too large); every earlier line is kept"
+    text = path.read_text()
+    assert 0 < len(text) < 1500 and text.endswith("\n") and len(text.splitlines()) == written + 1  # + the header
+    assert [e.id for e in read_events_csv(path)] == list(range(1, written + 1))
+
+
+def test_a_line_that_does_not_fit_is_not_left_for_a_later_run(tmp_path: Path) -> None:
+    """A later run appending to the file (after the disk got room again) continues right after the last whole
+    line: every line of the file is a vehicle, none is a fragment."""
+    path = tmp_path / "v.jsonl"
+    written, _ = _fill_up(path, 1000)
+    later = _events(2)
+    with JsonlEventWriter(path, append=True) as w:
+        for e in later:
+            w.write(e)
+    lines = path.read_text().splitlines()
+    assert len(lines) == written + 2 and all(isinstance(json.loads(line), dict) for line in lines)
+    assert read_events(path).skipped == 0
 
 
 def test_a_writer_recovers_after_a_failed_write(tmp_path: Path) -> None:
