@@ -1,7 +1,9 @@
 """Reading and writing the project's files with errors a user can act on.
 
 Every reader raises :class:`InputError` naming the file (missing, unreadable, not JSON); every writer is atomic
-(temporary file, fsync, rename) so a crash or a full disk never leaves half a file where a good one was.
+(temporary file, fsync, rename) so a crash or a full disk never leaves half a file where a good one was.  A symlink
+is written through (the rename happens on its target, the link stays); a named pipe, device or socket at the path
+is refused, since renaming over it would replace it by a regular file.
 """
 
 from __future__ import annotations
@@ -9,6 +11,7 @@ from __future__ import annotations
 import contextlib
 import json
 import os
+import stat
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -35,16 +38,48 @@ def read_json(path: str | Path, what: str) -> Any:
         raise InputError(f"{path}: not valid JSON, so not a {what} ({exc.msg} at line {exc.lineno})") from None
 
 
-def atomic_write(path: str | Path, write: Callable[[Path], None], what: str) -> Path:
-    """Call ``write(tmp)`` then move ``tmp`` over ``path``; InputError "<path>: cannot write <what> (...)"."""
+_KINDS: tuple[tuple[Callable[[int], bool], str], ...] = (
+    (stat.S_ISDIR, "a folder"), (stat.S_ISFIFO, "a named pipe"), (stat.S_ISCHR, "a character device"),
+    (stat.S_ISBLK, "a block device"), (stat.S_ISSOCK, "a socket"),
+)
+
+
+def replace_target(path: str | Path, what: str) -> Path:
+    """Where a file written whole and renamed into place (:func:`atomic_write`) must go for ``path``: the file a
+    symlink leads to (so the link stays a link and its target gets the new text), else ``path`` itself.
+    InputError naming ``path`` when something other than a regular file is there (a named pipe, a device, a
+    socket, a folder): renaming over it would replace it instead of writing to it."""
     path = Path(path)
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    target = Path(os.path.realpath(path)) if path.is_symlink() else path
     try:
-        path.parent.mkdir(parents=True, exist_ok=True)
+        mode = target.stat().st_mode
+    except FileNotFoundError:
+        return target
+    except OSError as exc:  # a symlink loop, a folder that cannot be searched
+        raise InputError(f"{path}: cannot write {what} there ({exc.strerror or exc})") from None
+    if stat.S_ISREG(mode):
+        return target
+    kind = next((name for test, name in _KINDS if test(mode)), "an unknown kind of file")
+    via = f" (a link to {target})" if target != path else ""
+    raise InputError(f"{path}{via}: {kind}, not a regular file: cannot write {what} there "
+                     "(it is written whole, then renamed into place)")
+
+
+def atomic_write(path: str | Path, write: Callable[[Path], None], what: str) -> Path:
+    """Call ``write(tmp)`` then move ``tmp`` over ``path``; InputError "<path>: cannot write <what> (...)".
+
+    A symlink at ``path`` is followed: the temporary file is made beside its target and renamed over the target
+    (atomic on the target's file system), the link is kept.  Anything else that is not a regular file is refused
+    (:func:`replace_target`).  Returns ``path``."""
+    path = Path(path)
+    target = replace_target(path, what)
+    tmp = target.with_name(f".{target.name}.{os.getpid()}.tmp")
+    try:
+        target.parent.mkdir(parents=True, exist_ok=True)
         write(tmp)
         with open(tmp, "rb") as fh:
             os.fsync(fh.fileno())
-        os.replace(tmp, path)
+        os.replace(tmp, target)
     except OSError as exc:
         with contextlib.suppress(OSError):
             tmp.unlink(missing_ok=True)
@@ -78,14 +113,16 @@ def writable_dir(path: str | Path, what: str) -> Path:
 
 
 def writable_file(path: str | Path, what: str) -> Path:
-    """``path``, checked before any work that a file can be written there (its folder made or writable, not a
-    folder itself), without touching a file already there; InputError naming ``what`` otherwise."""
+    """``path``, checked before any work that a file written whole and renamed into place (:func:`atomic_write`)
+    can go there: its folder (a symlink's: its target's) made or writable, and nothing but a regular file already
+    there (no folder, named pipe, device: :func:`replace_target`), which is not touched; InputError naming ``what``
+    otherwise."""
     import tempfile
 
     path = Path(path)
     if path.is_dir():
         raise InputError(f"{path}: a folder, so it cannot be the {what}")
-    folder = path.parent
+    folder = replace_target(path, f"the {what}").parent
     try:
         if folder.exists() and not folder.is_dir():
             raise NotADirectoryError(20, f"{folder} is not a folder")
@@ -111,11 +148,14 @@ def free_path(path: str | Path) -> Path:
 
 def keep_aside(path: str | Path) -> Path | None:
     """Move a non-empty file at ``path`` to ``name.earlier-<its last change>.ext`` beside it (numbered when taken)
-    instead of letting a new run replace it; returns where it went, or None when there was nothing to keep.
+    instead of letting a new run replace it; returns where it went, or None when there was nothing to keep.  A
+    symlink's target is moved (beside the target), so the link stays and the new file is written through it.
     InputError naming the file when it cannot be moved."""
     from datetime import datetime
 
     path = Path(path)
+    if path.is_symlink():
+        path = Path(os.path.realpath(path))
     try:
         st = path.stat()
     except FileNotFoundError:

@@ -41,7 +41,7 @@ from .brnocompspeed import (
 from .calibration import Calibration
 from .clock import clock_time, parse_start_time
 from .errors import InputError
-from .fileio import atomic_write, atomic_write_text
+from .fileio import atomic_write, atomic_write_text, replace_target
 
 EVENT_FIELDS: tuple[str, ...] = (
     "id", "label", "first_timestamp_s", "last_timestamp_s", "speed_kmh", "reason", "lane", "direction",
@@ -532,9 +532,12 @@ class BrnoResultsWriter:
         self.path = Path(path)
         self.fps = float(fps)
         self._revised: dict[int, str | None] = {}  # vehicles measured again: their car's JSON, None to leave out
-        try:  # opened now, so that a results file that cannot be written is an error at the start, not at the end
-            self.path.parent.mkdir(parents=True, exist_ok=True)
-            self._cars = tempfile.TemporaryFile(dir=self.path.parent, buffering=0)  # a car's JSON per line
+        # checked now, so that a results file that cannot be written (its folder, or a named pipe or device at the
+        # path, which the rename would replace) is an error at the start, not at the end
+        folder = replace_target(self.path, "BrnoCompSpeed results").parent
+        try:
+            folder.mkdir(parents=True, exist_ok=True)
+            self._cars = tempfile.TemporaryFile(dir=folder, buffering=0)  # a car's JSON per line
         except OSError as exc:
             raise InputError(f"{self.path}: cannot write BrnoCompSpeed results there "
                              f"({exc.strerror or exc})") from None
@@ -632,8 +635,11 @@ def checkpoint_interval(write_s: float, minimum_s: float = 10.0, share: float = 
 
 def revise_event_file(path: str | Path, new: Mapping[tuple[str | None, int], VehicleEvent], csv_file: bool) -> int:
     """Replace, in a JSON-lines or CSV event file, each event whose (run, id) is in ``new`` by the new one; the file
-    rewritten atomically.  Returns how many lines were replaced."""
+    rewritten atomically (through a symlink: its target).  Returns how many lines were replaced: none when the
+    events went to a named pipe or a device (/dev/null), whose lines are gone and which must not be replaced."""
     path = Path(path)
+    if path.exists() and not path.is_file():
+        return 0
     try:
         text = path.read_text(encoding="utf-8")
     except OSError as exc:

@@ -1,14 +1,20 @@
-"""fileio: free names beside what is already there, and earlier files kept instead of replaced."""
+"""fileio: free names beside what is already there, earlier files kept instead of replaced, and files written whole
+(through a symlink; never over a named pipe, device or socket)."""
 
 from __future__ import annotations
 
 import os
+import re
+import socket
+import stat
 from pathlib import Path
 
 import pytest
 
 from gst_trafficcal.errors import InputError
-from gst_trafficcal.fileio import free_path, keep_aside, open_video, writable_dir
+from gst_trafficcal.fileio import (
+    atomic_write_text, free_path, keep_aside, open_video, replace_target, writable_dir, writable_file,
+)
 
 
 def test_free_path_numbers_files_and_folders(tmp_path: Path) -> None:
@@ -71,3 +77,67 @@ def test_open_video_names_what_is_wrong(tmp_path: Path) -> None:
     (tmp_path / "text.mp4").write_text("not a video")
     with pytest.raises(InputError, match=r"text.mp4: cannot open video"):
         open_video(tmp_path / "text.mp4")
+
+
+def test_a_symlink_is_written_through_and_stays_a_link(tmp_path: Path) -> None:
+    """The file is renamed over the link's target, in the target's folder: the link stays, the target gets the new
+    text, and no temporary file is left in either folder."""
+    (tmp_path / "real").mkdir()
+    (tmp_path / "links").mkdir()
+    target = tmp_path / "real" / "r.json"
+    target.write_text("old")
+    link = tmp_path / "links" / "r.json"
+    link.symlink_to("../real/r.json")
+    assert atomic_write_text(link, "new", "results") == link
+    assert link.is_symlink() and os.readlink(link) == "../real/r.json" and target.read_text() == "new"
+    assert sorted(p.name for p in (tmp_path / "real").iterdir()) == ["r.json"]
+    assert sorted(p.name for p in (tmp_path / "links").iterdir()) == ["r.json"]
+    dangling = tmp_path / "links" / "new.json"  # a link to a file not made yet: the file is made there
+    dangling.symlink_to("../real/new.json")
+    atomic_write_text(dangling, "first", "results")
+    assert dangling.is_symlink() and (tmp_path / "real" / "new.json").read_text() == "first"
+    assert writable_file(link, "results") == link and target.read_text() == "new"  # checked, not touched
+
+
+def test_a_named_pipe_device_or_socket_is_refused_not_replaced(tmp_path: Path) -> None:
+    """Renaming over them would put a regular file in their place: refused in one line naming the path and what
+    is there, by the check at start (writable_file) and by the writer itself."""
+    fifo = tmp_path / "fifo.csv"
+    os.mkfifo(fifo)
+    sock_path = tmp_path / "s.json"
+    sock = socket.socket(socket.AF_UNIX)
+    sock.bind(str(sock_path))
+    device = tmp_path / "null.json"
+    device.symlink_to("/dev/null")  # through a link only: nothing here may write at /dev itself
+    try:
+        for path, kind in ((fifo, "a named pipe"), (sock_path, "a socket"), (device, "a character device")):
+            shown = re.escape(f"{path} (a link to /dev/null)" if path == device else str(path))
+            with pytest.raises(InputError, match=rf"^{shown}: {kind}, not a regular file: cannot write interval table "
+                                                 r"there \(it is written whole, then renamed into place\)$"):
+                atomic_write_text(path, "x", "interval table")
+            with pytest.raises(InputError, match=rf"^{shown}: {kind}, not a regular file: cannot write the interval "
+                                                 r"table there"):
+                writable_file(path, "interval table")
+        assert stat.S_ISFIFO(fifo.lstat().st_mode) and stat.S_ISSOCK(sock_path.lstat().st_mode)
+        assert device.is_symlink() and stat.S_ISCHR(device.stat().st_mode)
+        assert sorted(p.name for p in tmp_path.iterdir()) == ["fifo.csv", "null.json", "s.json"]  # no temp file
+    finally:
+        sock.close()
+    loop = tmp_path / "loop.json"
+    loop.symlink_to("loop.json")
+    with pytest.raises(InputError, match=r"loop\.json: cannot write results there \(Too many levels"):
+        replace_target(loop, "results")
+
+
+def test_keep_aside_through_a_symlink_keeps_the_link(tmp_path: Path) -> None:
+    """The link's target is set aside beside it; the link stays, so the next file is written through it."""
+    (tmp_path / "real").mkdir()
+    target = tmp_path / "real" / "system.json"
+    target.write_text("earlier")
+    link = tmp_path / "system.json"
+    link.symlink_to(target)
+    kept = keep_aside(link)
+    assert kept is not None and kept.parent == tmp_path / "real" and kept.read_text() == "earlier"
+    assert link.is_symlink() and not target.exists()
+    atomic_write_text(link, "new", "results")
+    assert link.is_symlink() and target.read_text() == "new"

@@ -429,8 +429,8 @@ def test_brno_results_are_written_atomically(tmp_path: Path) -> None:
     # no temporary file left behind (the cars' own file is anonymous)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["other.json", "system.json"]
     (tmp_path / "dir.json").mkdir()
-    with pytest.raises(InputError, match=r"dir\.json: cannot write BrnoCompSpeed results"):
-        BrnoResultsWriter(tmp_path / "dir.json", 50.0).write(cal)
+    with pytest.raises(InputError, match=r"dir\.json: a folder, not a regular file: cannot write BrnoCompSpeed "):
+        BrnoResultsWriter(tmp_path / "dir.json", 50.0)  # at once, not at the end
 
 
 def test_vehicle_outputs_write_everything_and_survive_a_failing_file(tmp_path: Path) -> None:
@@ -592,3 +592,57 @@ def test_vehicles_measured_again_replace_their_lines_in_every_file(tmp_path: Pat
     cars = {c.id: c for c in load_results(tmp_path / "system.json").cars}
     assert sorted(cars) == sorted(e.id for e in run if e.id != gone.id)
     assert len(cars[faster.id].frames) == 2 and len(cars[run[2].id].frames) == 3
+
+
+def test_symlinked_files_stay_links_when_written_whole(tmp_path: Path) -> None:
+    """The BrnoCompSpeed results and event files revised at the end (remeasure) are renamed into place: through a
+    symlink that is its target (the link stays a link), where before the link was replaced by a regular file and
+    its target kept the old content."""
+    from dataclasses import replace
+
+    real, links = tmp_path / "real", tmp_path / "links"
+    real.mkdir()
+    links.mkdir()
+    for name in ("system.json", "v.jsonl", "v.csv"):
+        (real / name).write_text("")
+        (links / name).symlink_to(f"../real/{name}")
+    run = [replace(e, run="20261206T070000Z-bbbb") for e in _events(3)]
+    out = VehicleOutputs(links / "v.jsonl", links / "v.csv", links / "system.json", fps=25.0)
+    pts = np.array([[100.0, 200.0], [110.0, 210.0]])
+    for e in run:
+        out.vehicle(e, [0.0, 0.04], pts)
+    faster = replace(run[0], speed_kmh=run[0].speed_kmh * 1.1)
+    out.revise([(faster, np.array([0.0, 0.04]), pts)])
+    out.close(None)
+    assert all((links / name).is_symlink() for name in ("system.json", "v.jsonl", "v.csv"))
+    assert read_events(real / "v.jsonl").events == [faster] + run[1:]
+    assert read_events_csv(real / "v.csv") == [faster] + run[1:]
+    assert [c.id for c in load_results(real / "system.json").cars] == [e.id for e in run]
+    assert sorted(p.name for p in real.iterdir()) == ["system.json", "v.csv", "v.jsonl"]  # no temporary file
+
+
+def test_a_named_pipe_is_no_results_file_and_events_sent_down_one_are_not_revised(tmp_path: Path) -> None:
+    """A results file renamed into place cannot go to a named pipe (it would be replaced by a regular file): an
+    error when the writer is made, not at the end. Events written down a pipe are gone: revising them reads
+    nothing (it once waited for another writer of the pipe) and leaves the pipe as it is."""
+    import stat
+    import threading
+
+    from gst_trafficcal.outputs import revise_event_file
+
+    fifo = tmp_path / "fifo"
+    os.mkfifo(fifo)
+    with pytest.raises(InputError, match=rf"^{fifo}: a named pipe, not a regular file: cannot write BrnoCompSpeed "
+                                         "results there"):
+        BrnoResultsWriter(fifo, 25.0)
+    done: list[int] = []
+    revising = threading.Thread(target=lambda: done.append(revise_event_file(fifo, {(None, 1): _events(1)[0]},
+                                                                              False)), daemon=True)
+    revising.start()
+    revising.join(10)
+    blocked = revising.is_alive()
+    if blocked:  # waiting for a writer to the pipe it opened to read: let it go before failing
+        os.close(os.open(fifo, os.O_WRONLY | os.O_NONBLOCK))
+        revising.join(10)
+    assert not blocked and done == [0]
+    assert stat.S_ISFIFO(fifo.lstat().st_mode)

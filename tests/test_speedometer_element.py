@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import stat
 import subprocess
 import threading
 from pathlib import Path
@@ -449,6 +450,38 @@ def test_a_results_file_that_cannot_be_written_is_an_error_at_start(clip, tmp_pa
     where = tmp_path / "plain" / "system.json"
     with pytest.raises(PipelineError, match=r"plain/system\.json: cannot write BrnoCompSpeed results there"):
         run_pipeline(f"{source(clip)} ! {detector(clip)} ! speedometer results-file={where} ! appsink name=sink")
+
+
+def test_output_files_through_symlinks_stay_links_and_a_named_pipe_is_refused_at_start(clip, implicit, tmp_path):
+    """results-file and intervals-file are written whole and renamed into place: through a symlink onto its target
+    (the link stays a link and its target gets this run's file, append=true keeping the earlier one beside the
+    target), where once the link was replaced by a regular file and the target kept its old content. A named pipe
+    there would be replaced by a regular file: refused at start, naming it."""
+    _, _, events, _ = implicit
+    real, links = tmp_path / "real", tmp_path / "links"
+    real.mkdir()
+    links.mkdir()
+    names = {"events-file": "e.jsonl", "csv-file": "e.csv", "results-file": "r.json", "intervals-file": "i.csv"}
+    for name in names.values():
+        (real / name).write_text("old\n")
+        (links / name).symlink_to(f"../real/{name}")
+    props = " ".join(f"{k}={links / v}" for k, v in names.items())
+    cal = f"calibration-file={clip / 'calibration.json'}"
+    for append in ("false", "true"):
+        run_pipeline(f"{source(clip)} ! {detector(clip)} ! speedometer {cal} {props} interval=0.05 append={append} "
+                     "! appsink name=sink")
+        assert all((links / name).is_symlink() for name in names.values())
+    assert len(read_events(real / "e.jsonl").events) == len(read_events_csv(real / "e.csv")) == 2 * len(events)
+    assert [c.id for c in load_results(real / "r.json").cars] and "interval_start" in (real / "i.csv").read_text()
+    kept = sorted(p.name for p in real.glob("*.earlier-*"))  # the first run's tables, set aside by the second
+    assert [k.split(".")[0] for k in kept] == ["i", "r"] and not list(links.glob("*.earlier-*"))
+    for prop in ("results-file", "intervals-file"):
+        fifo = tmp_path / f"fifo-{prop}"
+        os.mkfifo(fifo)
+        with pytest.raises(PipelineError, match=rf"speedometer: {fifo}: a named pipe, not a regular file: cannot "
+                                                "write"):
+            run_pipeline(f"{source(clip)} ! {detector(clip)} ! speedometer {cal} {prop}={fifo} ! appsink name=sink")
+        assert stat.S_ISFIFO(fifo.lstat().st_mode)
 
 
 def test_tracker_data_dropped_on_the_way_is_said_not_silently_ignored(clip, tmp_path):

@@ -126,6 +126,30 @@ def test_bad_configuration_and_caps_are_clear_errors(tmp_path):
                          "! appsink name=sink", blank, CAPS)
 
 
+def test_a_calibration_file_through_a_symlink_stays_a_link_and_a_named_pipe_is_refused(frames, tmp_path):
+    """The learnt calibration is written whole and renamed into place: through a symlink onto its target (the link
+    stays, the target gets the calibration), where once the link was replaced by a regular file. A named pipe would
+    be replaced by a regular file: refused at start, naming it."""
+    import os
+    import stat
+
+    (tmp_path / "etc").mkdir()
+    (tmp_path / "etc" / "cam1.json").write_text('{"old": true}')
+    link = tmp_path / "cal.json"
+    link.symlink_to("etc/cam1.json")
+    run_pipeline(f"appsrc name=src ! vpdetect {FAST} mode=learn calibration-file={link} ! appsink name=sink",
+                 frames, CAPS, fps=FPS)
+    assert link.is_symlink() and os.readlink(link) == "etc/cam1.json"
+    assert load_calibration(tmp_path / "etc" / "cam1.json").state == "vps"
+    fifo = tmp_path / "fifo.json"
+    os.mkfifo(fifo)
+    with pytest.raises(PipelineError, match=rf"vpdetect: {fifo}: a named pipe, not a regular file: cannot write the "
+                                            "calibration file there"):
+        run_pipeline(f"appsrc name=src ! vpdetect {FAST} mode=learn calibration-file={fifo} ! appsink name=sink",
+                     frames[:2], CAPS, fps=FPS)
+    assert stat.S_ISFIFO(fifo.lstat().st_mode)
+
+
 def test_gst_launch_documents_every_property():
     import os
     import subprocess
