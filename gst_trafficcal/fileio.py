@@ -53,7 +53,7 @@ def replace_target(path: str | Path, what: str) -> Path:
     target = Path(os.path.realpath(path)) if path.is_symlink() else path
     try:
         mode = target.stat().st_mode
-    except FileNotFoundError:
+    except (FileNotFoundError, NotADirectoryError):  # nothing there yet (a folder that is a file: said by the caller)
         return target
     except OSError as exc:  # a symlink loop, a folder that cannot be searched
         raise InputError(f"{path}: cannot write {what} there ({exc.strerror or exc})") from None
