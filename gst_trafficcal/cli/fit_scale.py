@@ -90,11 +90,11 @@ def command(train: tuple[Path, ...], out_path: Path, models: str, iou_threshold:
         console.print(f"[yellow]warning[/]: {len(folders) - len(unique)} training folder(s) given more than once "
                       "(the same scene, by another path): each scene is fitted once", highlight=False)
     folders = unique
+    align_models = load_align_models(models)
+    model = check_detector(detector)
     from ..fileio import writable_file
 
     writable_file(out_path, "regression file (-o)")  # a wrong path: one line now, not after the whole fit
-    align_models = load_align_models(models)
-    model = check_detector(detector)
     table = Table("scene", "truth", "true λ", "λ*", "error %", "status")
     names, raw, true = [], [], []
     for k, f in enumerate(folders, 1):
