@@ -68,7 +68,7 @@ def _error_text(msg: Gst.Message) -> str:
 
 
 def run_pipeline(
-    description: str,
+    description: str | Gst.Pipeline,
     frames: Iterable[np.ndarray | Sequence[np.ndarray] | Gst.Buffer] | None = None,
     caps: str | None = None,
     *,
@@ -79,15 +79,21 @@ def run_pipeline(
 ) -> PipelineRun:
     """Run ``description`` until EOS and return what reached ``appsink name=sink``.
 
+    ``description`` may also be a pipeline built before (and run before: it is left in NULL), to run the same
+    element instances again, as an NVR restarts a pipeline when it reconnects.
+
     ``frames`` (pushed into ``appsrc name=src`` with ``caps``, timestamps i/fps) may be packed BGR
     images (converted to the caps' format), lists of planes (laid out with the caps' strides) or
     ready ``Gst.Buffer`` objects. ``on_buffer(buffer, video_info)`` is called for each sink buffer
     while it is valid (do not keep the buffer). ``timeout`` (seconds) guards against hangs only.
     """
-    try:
-        pipeline = Gst.parse_launch(description)
-    except Exception as exc:  # GLib.Error from the parser
-        raise PipelineError(f"cannot build pipeline {description!r}: {exc}") from None
+    if isinstance(description, Gst.Pipeline):
+        pipeline, description = description, description.get_name()
+    else:
+        try:
+            pipeline = Gst.parse_launch(description)
+        except Exception as exc:  # GLib.Error from the parser
+            raise PipelineError(f"cannot build pipeline {description!r}: {exc}") from None
     src = pipeline.get_by_name("src")
     sink = pipeline.get_by_name("sink")
     run = PipelineRun()
@@ -108,7 +114,7 @@ def run_pipeline(
                     run.calibrations.append(cal)
             return Gst.PadProbeReturn.OK
 
-        sink.get_static_pad("sink").add_probe(
+        probe_id = sink.get_static_pad("sink").add_probe(
             Gst.PadProbeType.BUFFER | Gst.PadProbeType.EVENT_DOWNSTREAM, probe
         )
 
@@ -121,6 +127,8 @@ def run_pipeline(
         src.set_property("format", Gst.Format.TIME)
         src.set_property("block", True)  # back-pressure: the feeder waits instead of queueing every frame
     bus = pipeline.get_bus()
+    while bus.pop() is not None:  # a pipeline run before: what its stop posted is not this run's
+        pass
     feeder_error: list[BaseException] = []
     feeder = None
     try:
@@ -149,6 +157,8 @@ def run_pipeline(
         pipeline.set_state(Gst.State.NULL)  # unblocks a feeder waiting in push-buffer
         if feeder is not None:
             feeder.join(timeout=10)
+        if sink is not None:  # a pipeline run again reports to its own run only
+            sink.get_static_pad("sink").remove_probe(probe_id)
     return run
 
 
