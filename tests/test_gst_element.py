@@ -133,6 +133,24 @@ def test_calibration_can_be_consumed_instead_of_forwarded(tmp_path: Path) -> Non
         assert [m.fields["calibration"] for m in run.messages if m.name == "tccheck"] == [cal.id, cal.id]
 
 
+def test_an_element_started_again_forgets_the_last_runs_calibration(tmp_path: Path) -> None:
+    """The same pipeline run again (NULL, then PLAYING: an NVR reconnecting) after the calibration source lost its
+    file: the base class starts the run without a calibration, as a new element would (before, self.calibration
+    kept the first run's)."""
+    cal = Calibration(Camera((260.0, -480.0), (-2840.0, -280.0), (160.0, 120.0), 6.5), (320, 240), source="test")
+    path = save_calibration(cal, tmp_path / "cal.json")
+    frames = [np.full((240, 320), 50, np.uint8)] * 2
+    caps = "video/x-raw,format=GRAY8,width=320,height=240,framerate=25/1"
+    pipeline = Gst.parse_launch(f"appsrc name=src ! tcmarker name=m calibration-file={path} ! tccheck ! "
+                                "appsink name=sink")
+    first = run_pipeline(pipeline, frames, caps)
+    pipeline.get_by_name("m").set_property("calibration-file", "")
+    second = run_pipeline(pipeline, frames, caps)
+    assert [m.fields["calibration"] for m in first.messages if m.name == "tccheck"] == [cal.id, cal.id]
+    assert [m.fields["calibration"] for m in second.messages if m.name == "tccheck"] == ["", ""]
+    assert second.calibrations == [] and len(second.frames) == 2
+
+
 def test_gst_inspect_documents_the_test_element(gst_env: dict[str, str]) -> None:
     out = _gst(gst_env, "gst-inspect-1.0", "tcmarker")
     assert out.returncode == 0, out.stderr

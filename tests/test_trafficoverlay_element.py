@@ -337,6 +337,25 @@ def test_a_property_read_at_start_set_while_running_is_warned_about() -> None:
                                  "PLAYING)"]
 
 
+def test_started_again_without_a_calibration_it_draws_no_grid(tmp_path: Path) -> None:
+    """The same pipeline run again (NULL, then PLAYING: an NVR reconnecting) after its calibration source lost its
+    file: in the second run the overlay has no calibration and draws nothing, as a new one would (before, the base
+    class kept the first run's calibration and the old road grid was drawn over the new stream)."""
+    cal_path = save_calibration(Calibration(_camera(), (W, H), source="test"), tmp_path / "cal.json")
+    pipeline = Gst.parse_launch(f"{GREY_SRC},format=I420 ! tcroisource name=s calibration-file={cal_path} ! "
+                                "trafficoverlay draw-counters=false ! videoconvert ! video/x-raw,format=BGR ! "
+                                "appsink name=sink")
+    first: list[np.ndarray] = []
+    second: list[np.ndarray] = []
+    run_pipeline(pipeline, on_buffer=lambda b, i: first.append(_bgr(b, i)))
+    pipeline.get_by_name("s").set_property("calibration-file", "")
+    run = run_pipeline(pipeline, on_buffer=lambda b, i: second.append(_bgr(b, i)))
+    assert run.calibrations == [] and len(second) == len(first) == 8
+    assert np.abs(first[0].astype(int) - first[0][0, 0]).max() > 20  # run 1: the grid and horizon
+    for f in second:
+        assert np.abs(f.astype(int) - f[0, 0]).max() <= 2  # run 2: the plain grey frame
+
+
 def test_gst_inspect_documents_every_property(tmp_path: Path) -> None:
     env = dict(os.environ, **gst_environment(), GST_REGISTRY=str(tmp_path / "registry.bin"))
     out = subprocess.run(["gst-inspect-1.0", "trafficoverlay"], env=env, capture_output=True, text=True, timeout=120)

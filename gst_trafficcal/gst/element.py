@@ -33,7 +33,10 @@ What the base does:
   finished vehicles) go to hook :meth:`on_custom_event`;
 - :meth:`publish_calibration` sends a new calibration downstream (sticky event, before the next
   buffer or before EOS) and posts it on the bus; :meth:`post_element_message`, :meth:`post_warning`,
-  :meth:`post_error` for the bus; hook :meth:`on_eos` runs before EOS goes downstream.
+  :meth:`post_error` for the bus; hook :meth:`on_eos` runs before EOS goes downstream;
+- ``do_stop`` forgets the run (calibration, clock, caps, said-once flags): an element started again (an NVR's
+  reconnect) begins as a new one. Subclasses set their own per-run state in ``do_start`` (never in ``__init__``
+  alone) and call ``super().do_stop()`` last when they override ``do_stop``.
 
 Never keep a reference to a buffer after ``transform_frame`` returns (copy the data you need).
 """
@@ -88,18 +91,25 @@ class TrafficcalTransform(GstBase.BaseTransform):
         super().__init__()
         self.set_in_place(True)
         self.set_passthrough(self.PASSTHROUGH)
+        self._reset_run()
+        for pspec in self.list_properties():  # property "min-score" <-> attribute self.min_score
+            if pspec.owner_type.is_a(TrafficcalTransform.__gtype__):  # declared in Python, not by GstBaseTransform
+                setattr(self, _attr(pspec.name), pspec.default_value)
+
+    def _reset_run(self) -> None:
+        """The state of one run (start to stop), as a new element has it: set at creation and again at every stop,
+        so that an element started again (an NVR's reconnect: NULL or READY, then PLAYING) behaves like a new one
+        instead of carrying the last run's calibration, clock and caps into the next."""
         self.video_info: GstVideo.VideoInfo | None = None
         self.frame_size: tuple[int, int] | None = None
         self.calibration: Calibration | None = None
         self.stream_clock = StreamClock()
         self.buffer_t: float | None = None
-        self._said_untimed = False  # warn_untimed: said once per element
+        self._said_untimed = False  # warn_untimed: said once per run
+        self._views_warned = False  # keep_scale_view: said once per run
         self._pending_calibration: Calibration | None = None
         self._refused_caps: set[str] = set()
         self._streaming = False  # caps negotiated, until stopped: READY_ONLY properties are read by now
-        for pspec in self.list_properties():  # property "min-score" <-> attribute self.min_score
-            if pspec.owner_type.is_a(TrafficcalTransform.__gtype__):  # declared in Python, not by GstBaseTransform
-                setattr(self, _attr(pspec.name), pspec.default_value)
 
     # ------------------------------------------------------------------ properties
 
@@ -190,7 +200,7 @@ class TrafficcalTransform(GstBase.BaseTransform):
         try:
             save_view(cal, folder)
         except InputError as exc:
-            if not getattr(self, "_views_warned", False):
+            if not self._views_warned:
                 self._views_warned = True
                 self.post_warning(f"{self.get_factory().get_name()}: the scale is not kept for a restart: {exc}")
 
@@ -305,11 +315,9 @@ class TrafficcalTransform(GstBase.BaseTransform):
             return Gst.FlowReturn.ERROR
 
     def do_stop(self) -> bool:
-        self._streaming = False
-        self._said_untimed = False  # a pipeline started again says it again
-        self.video_info = None
-        self.frame_size = None
-        self.stream_clock = StreamClock()
+        """The run is over: its state goes (a start again begins as a new element would). Subclasses that override
+        this call it last."""
+        self._reset_run()
         return True
 
 
