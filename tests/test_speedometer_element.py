@@ -1143,3 +1143,31 @@ def test_buffers_without_timestamps_are_said_once_with_the_fix(tmp_path):
     said = [w for w in run.warnings if "buffers without timestamps" in w]
     assert sorted(w.split(": ")[1] for w in said) == ["speedometer", "tracker"], run.warnings
     assert all('multifilesrc ... caps="image/jpeg,framerate=25/1"' in w for w in said)
+
+
+def test_a_pipeline_started_again_measures_as_a_new_one(tmp_path):
+    """The same pipeline run twice (NULL, then PLAYING again: an NVR reconnecting) gives the second run what a new
+    pipeline would: vpdetect learns the calibration again and the same vehicles get the same speeds. (Before, every
+    element kept its last run's state: vpdetect announced nothing in run 2, so nothing was measured.)"""
+    from gst_trafficcal.gst._gi import Gst
+
+    from .test_vanishing import FPS, H, W, cached_scene
+
+    for name in ("vpdetect", "tracker"):
+        register_plugin_file(ELEMENTS / f"{name}.py")
+    frames = [cv2.cvtColor(f, cv2.COLOR_GRAY2BGR) for f in cached_scene(24.0)]
+    caps = f"video/x-raw,format=I420,width={W},height={H},framerate=15/1"
+    events_file = tmp_path / "events.jsonl"
+    pipeline = Gst.parse_launch("appsrc name=src ! vpdetect min-duration=8 max-duration=60 ! vehicledetect ! tracker ! "
+                                f"speedometer scale=7 events-file={events_file} ! appsink name=sink")
+    runs = []
+    for _ in range(2):
+        run = run_pipeline(pipeline, frames, caps, fps=FPS)
+        runs.append((run, read_events(events_file).events))
+    (first, first_events), (second, second_events) = runs
+    assert [c.state for c in first.calibrations] == ["learning", "calibrated"]
+    assert [c.id for c in second.calibrations] == [c.id for c in first.calibrations]
+    assert sum(e.measured for e in first_events) >= 3, first_events
+    assert same_events(second_events, first_events)
+    assert second_events[0].run != first_events[0].run  # a run of its own all the same
+    assert second.warnings == first.warnings and len(second.frames) == len(frames)

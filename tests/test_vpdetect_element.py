@@ -262,3 +262,24 @@ def test_a_second_vpdetect_says_it_replaces_the_calibration_from_upstream(learnt
     alone = run_pipeline(f"appsrc name=src ! vpdetect mode=fixed calibration-file={learnt} ! appsink name=sink",
                          frames[:30], CAPS, fps=FPS)
     assert not [w for w in alone.warnings if "from upstream" in w]
+
+
+def test_started_again_it_finds_the_known_view_as_a_new_one_would(learnt, frames, tmp_path):
+    """views-dir holds the scene's calibration: each run of the same pipeline (NULL, then PLAYING again: an NVR
+    reconnecting) recognises the view at the start (an INFO) and uses its calibration. Before, the second run took
+    the first run's view for the one in force and said the camera had moved "at 0.0 s" (a warning, with moved_at,
+    so speedometer discarded the tracks seen before)."""
+    from gst_trafficcal.calibration import save_view
+    from gst_trafficcal.gst._gi import Gst
+
+    known = load_calibration(learnt)
+    views = tmp_path / "views"
+    save_view(known, views)
+    pipeline = Gst.parse_launch(f"appsrc name=src ! vpdetect {FAST} views-dir={views} ! appsink name=sink")
+    first, second = (run_pipeline(pipeline, frames[:75], CAPS, fps=FPS) for _ in range(2))
+    for run in (first, second):
+        assert [c.moved_at for c in run.calibrations] == [None, None] and run.calibrations[-1].id == known.id
+        assert len(run.infos) == 1 and "the stream shows a view calibrated before" in run.infos[0], run.infos
+        assert run.warnings == []
+    assert [c.id for c in second.calibrations] == [c.id for c in first.calibrations]
+

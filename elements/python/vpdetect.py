@@ -21,6 +21,9 @@ back — that calibration is announced again at once (with ``moved_at``; bbscale
 for it), also while a new view is being learnt, instead of learning it anew for minutes.  With ``views-dir`` the
 views outlive the pipeline: every calibration in the folder (one JSON per view, ``calibration.save_view``) is
 known from the start — the stream's first seconds pick the one it shows — and each one learnt is added to it.
+
+Started again (NULL or READY, then PLAYING: an NVR reconnecting, or re-pointed at another camera) the element
+begins as a new one: what it keeps from a run is in ``calibration-file`` and ``views-dir``, read again at the start.
 """
 
 from gst_trafficcal.gst._gi import GObject, Gst
@@ -79,6 +82,13 @@ class VpDetect(TrafficcalTransform):
 
     def __init__(self):
         super().__init__()
+        self._reset()
+
+    def _reset(self):
+        """The state of one run, as a new element has it (at creation, start and stop): a pipeline started again
+        (NULL or READY, then PLAYING: an NVR reconnecting, or pointed at another camera) learns, loads and checks
+        its views as a new one would, instead of taking the last run's learner, views and calibration in force for
+        the new stream's (views-dir and calibration-file are read again: what outlives a run is in files)."""
         self._learner = None
         self._warned_view_of = None  # the learner whose view was said to pin the speeds down poorly
         self._frames = 0
@@ -106,7 +116,7 @@ class VpDetect(TrafficcalTransform):
         from gst_trafficcal.vanishing.calibrator import CalibratorConfig
         from gst_trafficcal.zone import parse_zone
 
-        self._said_upstream = False
+        self._reset()
         try:
             self._zone = parse_zone(self.zone)
             # durations that can only fail: now, not when learning starts (with a loaded file: after a camera move)
@@ -121,6 +131,10 @@ class VpDetect(TrafficcalTransform):
                 self.post_error(f"vpdetect: {exc}")
                 return False
         return True
+
+    def do_stop(self):
+        self._reset()  # the learner's frames and the views go now, not at the next start
+        return super().do_stop()
 
     def on_caps(self, info):
         from gst_trafficcal.calibration import Calibration, load_calibration
