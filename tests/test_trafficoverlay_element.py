@@ -303,19 +303,22 @@ def test_a_calibration_of_another_frame_size_is_an_error(tmp_path: Path) -> None
 
 def test_a_property_read_at_start_set_while_running_is_warned_about() -> None:
     """speed-limit is read when the element starts: set while the stream runs it is said to apply from the next
-    start (gst-inspect: "changeable only in NULL or READY state"); the draw-* toggles apply at once, silently."""
+    start (gst-inspect: "changeable only in NULL or READY state"), and so it does: get_property answers the new value
+    but the element goes on with the one it started with until it stops; the draw-* toggles apply at once, silently.
+    """
     pipeline = Gst.parse_launch(f"{GREY_SRC} ! trafficoverlay name=o ! fakesink")
     overlay = pipeline.get_by_name("o")
     assert int(overlay.find_property("speed-limit").flags) & Gst.PARAM_MUTABLE_READY
     assert int(overlay.find_property("draw-grid").flags) & Gst.PARAM_MUTABLE_PLAYING
     overlay.set_property("speed-limit", 80.0)  # before the start: read at start, nothing to say
-    done = []
+    done, kept = [], []
 
     def at_third_frame(pad, info):
         if not done and info.get_buffer().pts >= 3 * Gst.SECOND // 25:
             done.append(True)
             overlay.set_property("speed-limit", 50.0)
             overlay.set_property("draw-grid", False)
+            kept.append((overlay.speed_limit, overlay.get_property("speed-limit"), overlay.draw_grid))
         return Gst.PadProbeReturn.OK
 
     overlay.get_static_pad("sink").add_probe(Gst.PadProbeType.BUFFER, at_third_frame)
@@ -335,6 +338,8 @@ def test_a_property_read_at_start_set_while_running_is_warned_about() -> None:
     assert done and warnings == ["trafficoverlay: speed-limit was set to 50.0 while the stream runs; it is read when "
                                  "the element starts, so the change applies from the next start (set it before "
                                  "PLAYING)"]
+    assert kept == [(80.0, 50.0, False)]  # in force / answered / a live property
+    assert overlay.speed_limit == 50.0  # stopped: in force from the next start
 
 
 def test_started_again_without_a_calibration_it_draws_no_grid(tmp_path: Path) -> None:

@@ -283,3 +283,34 @@ def test_started_again_it_finds_the_known_view_as_a_new_one_would(learnt, frames
         assert run.warnings == []
     assert [c.id for c in second.calibrations] == [c.id for c in first.calibrations]
 
+
+def test_a_mode_set_while_running_applies_from_the_next_start_only():
+    """mode=fixed set while the stream runs is answered "applies from the next start", and so it does: a frame-size
+    change later in the run is a new view learnt, as in the mode the element started in (before, the new mode was
+    read there and the pipeline stopped: "... at 0.8 s;  is a calibration of 160x120 frames", naming no file); the
+    next start is in mode fixed (which needs a calibration-file)."""
+    from gst_trafficcal.gst._gi import Gst
+
+    pipeline = Gst.parse_launch("videotestsrc num-buffers=30 pattern=ball ! video/x-raw,format=I420,width=160,"
+                                "height=120,framerate=25/1 ! videoscale ! capsfilter name=cf caps=video/x-raw,"
+                                "width=160,height=120 ! vpdetect name=v ! appsink name=sink")
+    vpdetect, seen = pipeline.get_by_name("v"), []
+
+    def probe(pad, info):
+        seen.append(info.get_buffer().pts)
+        if len(seen) == 10:
+            vpdetect.set_property("mode", "fixed")
+        elif len(seen) == 20:
+            pipeline.get_by_name("cf").set_property("caps", Gst.Caps.from_string("video/x-raw,width=80,height=60"))
+        return Gst.PadProbeReturn.OK
+
+    vpdetect.get_static_pad("src").add_probe(Gst.PadProbeType.BUFFER, probe)
+    run = run_pipeline(pipeline)
+    assert run.frames[-1].frame_size == (80, 60)
+    assert run.warnings[0] == ("v: vpdetect: mode was set to 'fixed' while the stream runs; it is read when the "
+                               "element starts, so the change applies from the next start (set it before PLAYING)")
+    assert [w for w in run.warnings if "frame size changed" in w] == [
+        "v: vpdetect: the frame size changed from 160x120 to 80x60 at 0.8 s: another view; learning a new calibration"]
+    assert vpdetect.get_property("mode") == "fixed"
+    with pytest.raises(PipelineError, match="mode=fixed needs calibration-file"):
+        run_pipeline(pipeline)

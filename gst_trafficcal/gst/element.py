@@ -23,7 +23,9 @@ What the base does:
 - runs in place; passthrough off by default so buffers are writable (metadata, drawing); set the
   class attribute ``PASSTHROUGH = True`` in elements that only look at frames;
 - properties declared in ``__gproperties__`` are plain attributes initialised to their defaults
-  (``"min-score"`` <-> ``self.min_score``): no ``do_get_property``/``do_set_property`` needed;
+  (``"min-score"`` <-> ``self.min_score``): no ``do_get_property``/``do_set_property`` needed; a
+  :data:`READY_ONLY` one set while the stream runs is kept aside until the element stops, so ``self.<name>`` holds
+  the value the run started with all along the run;
 - ``self.video_info`` / ``self.frame_size`` cached from the negotiated caps (hook :meth:`on_caps`);
 - ``self.buffer_t``: the time of the buffer being transformed, in seconds — its timestamp, never going backwards
   (:class:`~gst_trafficcal.gst.buffers.StreamClock`: parts joined by ``concat``, a seek back), the same in every
@@ -91,6 +93,7 @@ class TrafficcalTransform(GstBase.BaseTransform):
         super().__init__()
         self.set_in_place(True)
         self.set_passthrough(self.PASSTHROUGH)
+        self._next_start: dict[str, Any] = {}  # READY_ONLY properties set while streaming: applied at the stop
         self._reset_run()
         for pspec in self.list_properties():  # property "min-score" <-> attribute self.min_score
             if pspec.owner_type.is_a(TrafficcalTransform.__gtype__):  # declared in Python, not by GstBaseTransform
@@ -114,14 +117,22 @@ class TrafficcalTransform(GstBase.BaseTransform):
     # ------------------------------------------------------------------ properties
 
     def do_get_property(self, prop: GObject.ParamSpec) -> Any:
-        """Properties declared in ``__gproperties__`` are plain attributes (dashes become underscores)."""
-        return getattr(self, _attr(prop.name))
+        """Properties declared in ``__gproperties__`` are plain attributes (dashes become underscores); a READY_ONLY
+        one set while the stream runs answers its new value, which the element reads from the next start."""
+        name = _attr(prop.name)
+        return self._next_start[name] if name in self._next_start else getattr(self, name)
 
     def do_set_property(self, prop: GObject.ParamSpec, value: Any) -> None:
+        """Set the attribute; a READY_ONLY property set while the stream runs is kept aside until the element stops
+        (the attribute, which the element may read at any time — after a camera move, at a size change, at the end —
+        keeps the value it started with), so that the change really applies from the next start, as warned."""
         if self._streaming and int(prop.flags) & Gst.PARAM_MUTABLE_READY:
             self.post_warning(f"{self.get_factory().get_name()}: {prop.name} was set to {value!r} while the stream "
                               "runs; it is read when the element starts, so the change applies from the next start "
                               "(set it before PLAYING)")
+            self._next_start[_attr(prop.name)] = value
+            return
+        self._next_start.pop(_attr(prop.name), None)
         setattr(self, _attr(prop.name), value)
 
     # ------------------------------------------------------------------ hooks for subclasses
@@ -315,9 +326,12 @@ class TrafficcalTransform(GstBase.BaseTransform):
             return Gst.FlowReturn.ERROR
 
     def do_stop(self) -> bool:
-        """The run is over: its state goes (a start again begins as a new element would). Subclasses that override
-        this call it last."""
+        """The run is over: its state goes (a start again begins as a new element would) and the READY_ONLY
+        properties set while it ran take effect. Subclasses that override this call it last."""
         self._reset_run()
+        while self._next_start:
+            name, value = self._next_start.popitem()
+            setattr(self, name, value)
         return True
 
 
