@@ -1168,6 +1168,18 @@ def test_a_pipeline_started_again_measures_as_a_new_one(tmp_path):
     assert [c.state for c in first.calibrations] == ["learning", "calibrated"]
     assert [c.id for c in second.calibrations] == [c.id for c in first.calibrations]
     assert sum(e.measured for e in first_events) >= 3, first_events
-    assert same_events(second_events, first_events)
+    assert _close([e.to_dict() | {"run": ""} for e in second_events], [e.to_dict() | {"run": ""} for e in first_events])
     assert second_events[0].run != first_events[0].run  # a run of its own all the same
     assert second.warnings == first.warnings and len(second.frames) == len(frames)
+
+
+def _close(a, b) -> bool:
+    """The same values, floats within 1e-9 relative: two runs' numbers as two new pipelines give them (their
+    multithreaded numerics agree to about 12 digits, not to the bit)."""
+    if isinstance(a, float) and isinstance(b, float):
+        return a == pytest.approx(b, rel=1e-9)
+    if isinstance(a, dict) and isinstance(b, dict):
+        return a.keys() == b.keys() and all(_close(a[k], b[k]) for k in a)
+    if isinstance(a, (list, tuple)) and isinstance(b, (list, tuple)):
+        return len(a) == len(b) and all(_close(x, y) for x, y in zip(a, b))
+    return a == b
