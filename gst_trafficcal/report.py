@@ -200,8 +200,8 @@ def speed_time_uri(events: Sequence[VehicleEvent], limit_kmh: "SpeedLimit | floa
     events are dated, else stream seconds), coloured by direction, the limit marked: congestion, a quiet night
     or a faster direction show at a glance.  None with fewer than two measured vehicles that say when they passed
     (an events file written by another tool may leave the times out)."""
-    measured = [e for e in events if e.measured and (e.first_time and e.last_time or
-                                                     e.first_timestamp_s is not None and e.last_timestamp_s is not None)]
+    measured = [e for e in events if e.measured and (
+        e.first_time and e.last_time or e.first_timestamp_s is not None and e.last_timestamp_s is not None)]
     if len(measured) < 2:
         return None
     dated = all(e.first_time and e.last_time for e in measured)

@@ -27,8 +27,8 @@ import numpy as np
               help="Calibration JSON to write.")
 @click.option("--image-size", default=None,
               help="Frame size WxH; the principal point is its centre (960.5, 540.5 for 1920x1080). Default: the "
-                   "measurements file's image_size, else the size of --image, else 1920x1080 (a BrnoCompSpeed gt_data.pkl holds "
-                   "no size: give one of these for another resolution).")
+                   "measurements file's image_size, else the size of --image, else 1920x1080 (a BrnoCompSpeed "
+                   "gt_data.pkl holds no size: give one of these for another resolution).")
 @click.option("--image", "image_path", type=click.Path(path_type=Path), default=None,
               help="A picture or video of the camera (its first frame): writes OUTPUT.png with the road grid, the "
                    "lane dividers and each segment with its measured and calibrated length.")
