@@ -373,7 +373,7 @@ def test_write_report_errors_name_the_file(tmp_path: Path) -> None:
     with pytest.raises(InputError, match=r"f/report\.html: cannot write report"):
         write_report(tmp_path / "f" / "report.html", ReportInputs([]))
     (tmp_path / "d.html").mkdir()
-    with pytest.raises(InputError, match=r"d\.html: cannot write report"):
+    with pytest.raises(InputError, match=r"d\.html: a folder, not a regular file: cannot write report"):
         write_report(tmp_path / "d.html", ReportInputs([]))
     assert sorted(p.name for p in tmp_path.iterdir()) == ["d.html", "f"]  # no temporary file left
 
