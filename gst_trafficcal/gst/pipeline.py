@@ -84,7 +84,7 @@ def run_pipeline(
 
     ``frames`` (pushed into ``appsrc name=src`` with ``caps``, timestamps i/fps) may be packed BGR
     images (converted to the caps' format), lists of planes (laid out with the caps' strides) or
-    ready ``Gst.Buffer`` objects. ``on_buffer(buffer, video_info)`` is called for each sink buffer
+    ready ``Gst.Buffer`` objects (which keep their own timestamps when they have them: timestamps going back). ``on_buffer(buffer, video_info)`` is called for each sink buffer
     while it is valid (do not keep the buffer). ``timeout`` (seconds) guards against hangs only.
     """
     if isinstance(description, Gst.Pipeline):
@@ -178,8 +178,9 @@ def _feed(src: Gst.Element, frames: Iterable[Any], caps: str, fps: float, errors
                     buf = buffer_from_planes([frame], info)  # a single-plane (grey) image
                 else:
                     buf = buffer_from_planes(list(frame), info)  # explicit planes
-            buf.pts = i * duration
-            buf.duration = duration
+            if not (isinstance(frame, Gst.Buffer) and frame.pts != Gst.CLOCK_TIME_NONE):  # a ready one keeps its own
+                buf.pts = i * duration
+                buf.duration = duration
             if src.emit("push-buffer", buf) != Gst.FlowReturn.OK:
                 return  # flushing or an error: the bus carries the reason
         src.emit("end-of-stream")
