@@ -21,11 +21,11 @@ def parse_image_size(value: str) -> tuple[int, int]:
     return w, h
 
 
-def frame_size(given: str | None, results, cal, cal_path: Path | None) -> tuple[tuple[int, int], str]:
-    """(frame size, where it came from): --image-size, else the results file's image_size (ours write it), else
-    the --calibration's (``cal``), else BrnoCompSpeed's 1920x1080 (its ground truth holds no size)."""
+def frame_size(given: tuple[int, int] | None, results, cal, cal_path: Path | None) -> tuple[tuple[int, int], str]:
+    """(frame size, where it came from): --image-size (``given``), else the results file's image_size (ours write
+    it), else the --calibration's (``cal``), else BrnoCompSpeed's 1920x1080 (its ground truth holds no size)."""
     if given is not None:
-        return parse_image_size(given), "--image-size"
+        return given, "--image-size"
     if results is not None and results.image_size is not None:
         return results.image_size, f"{results.source}'s image_size"
     if cal is not None:
@@ -110,30 +110,24 @@ def print_report(ev, console, mode: str = "median") -> None:
                    "image_size (trafficcal run writes it), else the --calibration's, else 1920x1080 (BrnoCompSpeed).")
 def command(gt_path: Path, results_path: Path | None, calibration_path: Path | None, json_path: Path | None,
             plot_path: Path | None, mode: str, image_size: str) -> None:
+    import numpy as np
     from rich.console import Console
 
     from ..brnocompspeed import load_gt_data, load_results
-    from ..evaluation import evaluate, plot_cumulative_errors, prepare_tracks
+    from ..calibration import load_calibration
+    from ..evaluation import evaluate, plot_cumulative_errors, plot_format, prepare_tracks
+    from ..manual_calibration import size_doubt
 
     if results_path is None and calibration_path is None:
         raise click.UsageError("give --results and/or --calibration")
-    from ..calibration import load_calibration
-
-    import numpy as np
-
-    if image_size is not None:
-        parse_image_size(image_size)  # a bad one: one line before any reading
+    given = parse_image_size(image_size) if image_size is not None else None  # a bad one: one line before reading
     if plot_path is not None:
-        from ..evaluation import plot_format
-
         plot_format(plot_path)  # a folder or no image format: one line now, not after the tables
     gt = load_gt_data(gt_path)
     results = load_results(results_path, cars_required=True) if results_path is not None else None
     cal = load_calibration(calibration_path) if calibration_path is not None else None
-    size, size_from = frame_size(image_size, results, cal, calibration_path)
+    size, size_from = frame_size(given, results, cal, calibration_path)
     camera = _camera(results, results_path, calibration_path, cal, size, size_from)
-    from ..manual_calibration import size_doubt
-
     doubt = size_doubt(np.concatenate([gt.distances_p1, gt.distances_p2]), size)
     if "outside" in doubt:  # the ground truth of another recording, or results of a scaled copy: meaningless errors
         raise InputError(f"{gt_path}: {doubt} ({size_from}): the ground truth and what is scored are of different "
