@@ -100,8 +100,8 @@ class Zone:
 
 def parse_zone(text: str, option: str = "") -> Zone | None:
     """The zone ``text`` describes (see the module docstring), None for an empty text or ``all`` (the whole frame);
-    InputError naming what is
-    wrong otherwise (after ``option``, e.g. "--zone", when it came from a command-line option)."""
+    InputError naming what is wrong otherwise (after ``option``, e.g. "--zone", when it came from a command-line
+    option)."""
     try:
         return _parse_zone(text)
     except InputError as exc:
@@ -178,3 +178,13 @@ def zone_of_file(path: str | Path) -> Zone | None:
     if not isinstance(text, str):
         raise InputError(f"{path}: field 'zone' must be a text {SYNTAX}")
     return parse_zone(text, f"{path}: field 'zone'")
+
+
+def given_or_kept(text: str, option: str, calibration: str | Path | None) -> Zone | None:
+    """The zone ``text`` gives (``option`` names it in errors); with none given (an empty text, not ``all``), the
+    one the ``calibration`` file keeps (:func:`zone_of_file`): a run or report given a camera's calibration keeps to
+    the road it was learnt on."""
+    where = parse_zone(text, option)
+    if where is None and not (text or "").strip() and calibration is not None:
+        where = zone_of_file(calibration)
+    return where

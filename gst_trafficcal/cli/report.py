@@ -14,7 +14,7 @@ def _frame(image: Path | None, video: str | None, at_s: float):
     (None when neither is given)."""
     import cv2
 
-    from .run import first_frame, is_uri, local_file, shown_source
+    from .run import first_frame, is_stream, local_file, shown_source
 
     from ..fileio import cannot_open_video, open_video, video_file
 
@@ -27,7 +27,7 @@ def _frame(image: Path | None, video: str | None, at_s: float):
         return frame
     if video is None:
         return None
-    if is_uri(video) and local_file(video) is None:
+    if is_stream(video):
         if at_s > 0:
             raise InputError("--frame-time is for a video file: a stream gives the frame it is at")
         frame = first_frame(video)
@@ -88,12 +88,10 @@ def command(events_path: Path, calibration_path: Path | None, frame_path: Path |
     from ..outputs import on_one_clock, read_events
     from ..report import ReportInputs, measured_paths, write_report
     from ..traffic_stats import interval_rows, parse_speed_limit, write_intervals_csv
-    from ..zone import parse_zone, zone_of_file
+    from ..zone import given_or_kept
 
     limit = parse_speed_limit(speed_limit, "--speed-limit")
-    where = parse_zone(zone, "--zone")
-    if where is None and not zone.strip() and calibration_path is not None:
-        where = zone_of_file(calibration_path)  # the run's calibration.json keeps the zone it measured in
+    where = given_or_kept(zone, "--zone", calibration_path)  # a run's calibration.json keeps the zone it measured in
     log = read_events(events_path)
     cal = load_calibration(calibration_path) if calibration_path is not None else None
     results = load_results(results_path) if results_path is not None else None

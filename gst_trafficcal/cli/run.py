@@ -758,14 +758,13 @@ def command(videos: tuple[str, ...], out_dir: Path, calibration_path: Path | Non
     from ..traffic_stats import parse_speed_limit
 
     limit = parse_speed_limit(speed_limit, "--speed-limit")  # a bad one: one line, before any work
-    from ..zone import parse_zone, zone_of_file
+    from ..zone import given_or_kept
 
-    where = parse_zone(zone, "--zone")  # a bad one: one line now, not an element error after the pipeline started
-    if where is None and not zone.strip() and calibration_path is not None:
-        where = zone_of_file(calibration_path)  # the zone the camera's calibration was learnt in
-        if where is not None:
-            console.print(f"[bold]Zone[/] kept in {calibration_path}: {where} (--zone all: the whole frame)",
-                          highlight=False)
+    # a bad one: one line now, not an element error after the pipeline started; none given: the calibration's
+    where = given_or_kept(zone, "--zone", calibration_path)
+    if where is not None and not zone.strip():
+        console.print(f"[bold]Zone[/] kept in {calibration_path}: {where} (--zone all: the whole frame)",
+                      highlight=False)
     zone = "" if where is None else str(where)
     if reconnect and not is_uri(inputs[0]):
         raise InputError("--reconnect is for a live stream (a URI): a file is read to its end once")
@@ -895,10 +894,15 @@ def local_file(uri: str) -> str | None:
     return unquote(parts.path)
 
 
+def is_stream(text: str | Path) -> bool:
+    """Whether ``text`` is a URI read as a stream: any but a ``file://`` URI of this machine (:func:`local_file`)."""
+    return is_uri(text) and local_file(str(text)) is None
+
+
 def check_input(video: str) -> Path | str:
     """A URI as it is, a ``file://`` URI as the file it names; a file as a Path (click's usage error when it is
     missing or a directory)."""
-    if is_uri(video) and local_file(video) is None:
+    if is_stream(video):
         return video
     video = local_file(video) or video
     if not Path(video).is_file():
@@ -955,10 +959,11 @@ def run_one(console, video: Path | str, out_dir: Path, calibration_path: Path | 
 
         shown = shown.replace(events_url, redacted(events_url))
     console.print(f"[bold]Pipeline[/] {shown}", highlight=False, soft_wrap=True)
-    frame = None if is_uri(video) else readable_video(video, out_dir, parse_zone(options.zone))
+    zone = parse_zone(options.zone)
+    frame = None if is_uri(video) else readable_video(video, out_dir, zone)
     summary = measure_video(video, out_dir, description, console,
                             keep=(calibration_path,) if calibration_path is not None else (), stop_after_s=duration_s,
-                            status=options.status, zone=parse_zone(options.zone))
+                            status=options.status, zone=zone)
     if live_clock:  # the speedometer took the clock at the first frame: the events say when that was
         start = stream_start(summary.events)
     if summary.stopped:
@@ -1015,7 +1020,7 @@ def run_one(console, video: Path | str, out_dir: Path, calibration_path: Path | 
             covered=[(0.0, summary.watched_s)] if summary.watched_s else None,
             remeasured=(summary.remeasured, summary.remeasured_speeds), not_counted=summary.not_counted,
             paths=() if summary.moves else lane_paths(paths.results, summary.events),  # moved: not on this frame
-            zone=parse_zone(options.zone)))
+            zone=zone))
     except InputError as exc:
         summary.errors.append(str(exc))
     written = [n for n in OUTPUTS if (out_dir / n).exists()]
