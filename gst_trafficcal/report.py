@@ -200,18 +200,22 @@ def speed_time_uri(events: Sequence[VehicleEvent], limit_kmh: "SpeedLimit | floa
     events are dated, else stream seconds), coloured by direction, the limit marked: congestion, a quiet night
     or a faster direction show at a glance.  None with fewer than two measured vehicles that say when they passed
     (an events file written by another tool may leave the times out)."""
-    measured = [e for e in events if e.measured and (
-        e.first_time and e.last_time or e.first_timestamp_s is not None and e.last_timestamp_s is not None)]
+    def on_clock(e: VehicleEvent) -> bool:
+        return bool(e.first_time and e.last_time)
+
+    def in_stream(e: VehicleEvent) -> bool:
+        return e.first_timestamp_s is not None and e.last_timestamp_s is not None
+
+    measured = [e for e in events if e.measured and (on_clock(e) or in_stream(e))]
+    dated = all(on_clock(e) for e in measured)
+    if not dated:
+        measured = [e for e in measured if in_stream(e)]
     if len(measured) < 2:
         return None
-    dated = all(e.first_time and e.last_time for e in measured)
     if dated:
         first = [datetime.fromisoformat(e.first_time) for e in measured]
         when = [f + (datetime.fromisoformat(e.last_time) - f) / 2 for f, e in zip(first, measured)]
     else:
-        measured = [e for e in measured if e.first_timestamp_s is not None and e.last_timestamp_s is not None]
-        if len(measured) < 2:
-            return None
         when = [(e.first_timestamp_s + e.last_timestamp_s) / 2 for e in measured]
     plt = _plt()
     fig, ax = plt.subplots(figsize=(7, 3.6))
