@@ -351,10 +351,16 @@ def _parse_results(raw: Any) -> Results:
         cars.append(Track(id=c["id"], frames=frames, pos=np.column_stack([x, y]),
                           scalar_positions=s2 or s3 or s1))
     size = raw.get("image_size")
-    if size is not None and not (isinstance(size, list) and len(size) == 2 and
-                                 all(isinstance(v, int) and not isinstance(v, bool) and v > 0 for v in size)):
-        raise ValueError(f"'image_size' must be [width, height], got {size!r}")
-    return Results(calib, tuple(cars), image_size=None if size is None else (size[0], size[1]))
+    return Results(calib, tuple(cars), image_size=None if size is None else image_size_field(size))
+
+
+def image_size_field(value: Any) -> tuple[int, int]:
+    """An ``image_size`` field (of results or calibration files) as (width, height); ValueError unless it is two
+    positive whole numbers (true/false are not numbers here)."""
+    if not (isinstance(value, (list, tuple)) and len(value) == 2 and
+            all(isinstance(v, int) and not isinstance(v, bool) and v > 0 for v in value)):
+        raise ValueError(f"'image_size' must be [width, height], got {value!r}")
+    return int(value[0]), int(value[1])
 
 
 def load_results(path: str | Path, cars_required: bool = False) -> Results:

@@ -205,10 +205,12 @@ def _point(d: dict, key: str, where: str) -> np.ndarray:
 
 
 def _size(d: dict, where: str) -> tuple[int, int]:
-    v = d.get("image_size", [1920, 1080])
-    if not (isinstance(v, (list, tuple)) and len(v) == 2 and all(isinstance(x, int) and x > 0 for x in v)):
-        raise InputError(f"{where}: field 'image_size' must be [width, height], got {v!r}")
-    return int(v[0]), int(v[1])
+    from .brnocompspeed import image_size_field  # one check for the field in both kinds of file
+
+    try:
+        return image_size_field(d.get("image_size", [1920, 1080]))
+    except ValueError as exc:
+        raise InputError(f"{where}: field {exc}") from None
 
 
 def load_calibration(path: str | Path) -> Calibration:

@@ -71,6 +71,9 @@ def test_reads_brnocompspeed_results_file():
     ('{"format": "gst-trafficcal-calibration", "version": 1, "vp1": [1, 2], "vp2": "x", "pp": [960, 540]}',
      "'vp2' must be a list of two numbers"),
     ('{"format": "gst-trafficcal-calibration", "version": 1, "state": "bogus"}', "unknown calibration state"),
+    ('{"format": "gst-trafficcal-calibration", "version": 1, "vp1": [100, 500], "vp2": [3000, 600], '
+     '"pp": [960, 540], "image_size": [true, 1080]}',
+     re.escape("field 'image_size' must be [width, height], got [True, 1080]")),
 ])
 def test_corrupt_files_give_clear_errors(tmp_path, content, message):
     path = tmp_path / "bad.json"
