@@ -159,21 +159,30 @@ class RoadMarkings:
                    gt.distances_m, gt.distances_to_vp1, str(gt.source or "ground truth"))
 
 
-def size_doubt(points: np.ndarray, size: tuple[int, int]) -> str:
+@dataclass(frozen=True)
+class SizeDoubt:
+    """Why road markings look measured in frames of another size: ``text`` says it, ``outside`` when some lie
+    outside the frame (certainly another size) rather than all in its top-left quarter (perhaps)."""
+    text: str
+    outside: bool
+
+
+def size_doubt(points: np.ndarray, size: tuple[int, int]) -> SizeDoubt | None:
     """Why road markings at image ``points`` (N x 2 pixels) look measured in frames of another size than ``size``
-    ("" when they fit): some lie outside it, or all in its top-left quarter (a smaller recording's, read as
+    (None when they fit): some lie outside it, or all in its top-left quarter (a smaller recording's, read as
     1920x1080 — BrnoCompSpeed's ground truth holds no frame size)."""
     pts = np.asarray(points, float).reshape(-1, 2)
     pts = pts[np.all(np.isfinite(pts), axis=1)]
     w, h = size
     if not len(pts):
-        return ""
+        return None
     out = pts[(pts[:, 0] < -1) | (pts[:, 0] > w + 1) | (pts[:, 1] < -1) | (pts[:, 1] > h + 1)]
     if len(out):
-        return f"a road marking at ({out[0, 0]:.0f}, {out[0, 1]:.0f}) lies outside the {w}x{h} frame"
+        return SizeDoubt(f"a road marking at ({out[0, 0]:.0f}, {out[0, 1]:.0f}) lies outside the {w}x{h} frame",
+                         outside=True)
     if np.all(pts[:, 0] <= w / 2) and np.all(pts[:, 1] <= h / 2):
-        return f"every road marking lies in the top-left quarter of the {w}x{h} frame"
-    return ""
+        return SizeDoubt(f"every road marking lies in the top-left quarter of the {w}x{h} frame", outside=False)
+    return None
 
 
 def calibrate_manual(gt: GroundTruth, image_size: tuple[int, int] = (1920, 1080), pp=None,

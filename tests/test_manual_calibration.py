@@ -15,7 +15,7 @@ from gst_trafficcal.errors import GeometryError, InputError
 from gst_trafficcal.evaluation import ErrorStats, evaluate_calibration
 from gst_trafficcal.geometry import Camera, line_through, rotation_matrix
 from gst_trafficcal.manual_calibration import (batch_plane_distances, calibrate_manual, image_centre,
-                                               intersect_lines_lsq, manual_scale)
+                                               intersect_lines_lsq, manual_scale, size_doubt)
 
 from .conftest import BRNO, RECORDINGS, ROOT, require_shared
 
@@ -192,3 +192,14 @@ def test_cli_calibrate_manual_of_a_smaller_recording(cuboid_clip, tmp_path):
     proc = _run("calibrate-manual", "--gt", str(cuboid_clip / "gt_data.pkl"), "--image",
                 str(cuboid_clip / "video.mp4"), "-o", str(png))
     assert proc.returncode == 2 and "name the calibration .json" in proc.stderr and not png.exists()
+
+
+def test_size_doubt_tells_markings_outside_the_frame_from_markings_in_its_corner() -> None:
+    """Outside the frame: certainly measured in another size; all in its top-left quarter: perhaps; else none."""
+    outside = size_doubt(np.array([[100.0, 100.0], [2000.0, 500.0]]), (1920, 1080))
+    assert outside is not None and outside.outside
+    assert outside.text == "a road marking at (2000, 500) lies outside the 1920x1080 frame"
+    corner = size_doubt(np.array([[100.0, 100.0], [900.0, 500.0]]), (1920, 1080))
+    assert corner is not None and not corner.outside and "top-left quarter" in corner.text
+    assert size_doubt(np.array([[100.0, 100.0], [1500.0, 900.0], [np.nan, 5.0]]), (1920, 1080)) is None
+    assert size_doubt(np.empty((0, 2)), (1920, 1080)) is None

@@ -64,7 +64,7 @@ def command(gt_path: Path | None, measurements_path: Path | None, out_path: Path
     size = size or ((frame.shape[1], frame.shape[0]) if frame is not None else (1920, 1080))
     doubt = size_doubt(np.concatenate([markings.p1, markings.p2]), size)
     if doubt:
-        Console(stderr=True).print(f"[yellow]warning[/]: {doubt}: is the recording of another size? Give its size "
+        Console(stderr=True).print(f"[yellow]warning[/]: {doubt.text}: is the recording of another size? Give its size "
                                    "(--image-size) or a frame of it (--image), or the calibration is wrong",
                                    highlight=False)
     result = calibrate_markings(markings, image_size=size)

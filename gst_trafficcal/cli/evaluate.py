@@ -129,11 +129,11 @@ def command(gt_path: Path, results_path: Path | None, calibration_path: Path | N
     size, size_from = frame_size(given, results, cal, calibration_path)
     camera = _camera(results, results_path, calibration_path, cal, size, size_from)
     doubt = size_doubt(np.concatenate([gt.distances_p1, gt.distances_p2]), size)
-    if "outside" in doubt:  # the ground truth of another recording, or results of a scaled copy: meaningless errors
-        raise InputError(f"{gt_path}: {doubt} ({size_from}): the ground truth and what is scored are of different "
-                         "frame sizes")
+    if doubt and doubt.outside:  # the ground truth of another recording, or results of a scaled copy: meaningless
+        raise InputError(f"{gt_path}: {doubt.text} ({size_from}): the ground truth and what is scored are of "
+                         "different frame sizes")
     if doubt:
-        Console(stderr=True).print(f"[yellow]warning[/]: {gt_path}: {doubt} ({size_from}): is the recording "
+        Console(stderr=True).print(f"[yellow]warning[/]: {gt_path}: {doubt.text} ({size_from}): is the recording "
                                    "smaller? (--image-size)", highlight=False)
     prepared = None
     if results is not None:
