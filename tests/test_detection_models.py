@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import hashlib
 import os
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -85,6 +86,22 @@ def test_install_from_file_url(cache, model_file):
 def test_resolve_errors(cache):
     with pytest.raises(InputError, match="model file not found: nothing.onnx"):
         models.resolve_model("nothing.onnx")
+
+
+def test_resolve_says_which_place_it_could_not_search(cache, monkeypatch):
+    """A cache folder this user may not search (root is never refused, so the refusal is the file system's answer
+    given by hand): one line naming the place, not a PermissionError traceback."""
+    real = Path.is_file
+
+    def refused(self: Path) -> bool:
+        if self.parent == cache:
+            raise PermissionError(13, "Permission denied", str(self))
+        return real(self)
+
+    monkeypatch.setattr(Path, "is_file", refused)
+    with pytest.raises(InputError, match=re.escape(f"{cache / 'fd.onnx'}: cannot look for model fd.onnx there "
+                                                   "(Permission denied)")):
+        models.resolve_model("fd.onnx")
 
 
 def test_cli_install_and_list(cache, model_file, capsys):

@@ -208,9 +208,11 @@ def list_models() -> list[ModelEntry]:
 def resolve_model(model: str | Path) -> Path:
     """A model given as a path, or as the name of an installed model; InputError when neither exists."""
     p = Path(model).expanduser()
-    if p.is_file():
-        return p
-    cached = cache_dir() / str(model)
-    if not p.is_absolute() and "/" not in str(model) and cached.is_file():
-        return cached
+    places = [p] if p.is_absolute() or "/" in str(model) else [p, cache_dir() / str(model)]
+    for path in places:
+        try:
+            if path.is_file():
+                return path
+        except OSError as exc:  # a folder on the way that this user may not search (Python 3.11 raises it)
+            raise InputError(f"{path}: cannot look for model {model} there ({_os_error(exc, path)})") from None
     raise InputError(f"model file not found: {model} (neither a file nor a model installed in {cache_dir()})")
