@@ -147,21 +147,24 @@ class Calibration:
         camera = None
         if "vp1" in d:
             scale = d.get("scale")
-            if scale is not None and (not isinstance(scale, (int, float)) or not math.isfinite(scale)):
+            if scale is not None and (not _is_number(scale) or not math.isfinite(scale)):
                 raise InputError(f"{where}: field 'scale' must be a number or null")
             try:
                 camera = Camera(_point(d, "vp1", where), _point(d, "vp2", where), _point(d, "pp", where), scale)
             except GeometryError as exc:
                 raise GeometryError(f"{where}: {exc}") from None
+        if camera is None and state in ("vps", "calibrated"):  # else Calibration says so without the file's name
+            raise InputError(f"{where}: state {state!r} needs the vanishing points (fields 'vp1', 'vp2' and 'pp'), "
+                             "but the file has no 'vp1'")
         conf = d.get("confidence", {})
-        if not isinstance(conf, dict):
-            raise InputError(f"{where}: field 'confidence' must be an object")
+        if not (isinstance(conf, dict) and all(_is_number(v) for v in conf.values())):
+            raise InputError(f"{where}: field 'confidence' must be an object of numbers, got {conf!r}")
         view = d.get("view")
         if view is not None and not (isinstance(view, dict) and isinstance(view.get("png"), str)
-                                     and isinstance(view.get("frame_width"), int)):
+                                     and _is_number(view.get("frame_width"), whole=True)):
             raise InputError(f"{where}: field 'view' must be an object with 'png' and 'frame_width'")
         moved_at = d.get("moved_at")
-        if moved_at is not None and not (isinstance(moved_at, (int, float)) and math.isfinite(moved_at)):
+        if moved_at is not None and not (_is_number(moved_at) and math.isfinite(moved_at)):
             raise InputError(f"{where}: field 'moved_at' must be a number (seconds) or null")
         return cls(camera=camera, image_size=_size(d, where), state=state, source=str(d.get("source", "unknown")),
                    confidence={str(k): float(v) for k, v in conf.items()}, reason=str(d.get("reason", "")),
@@ -174,6 +177,8 @@ class Calibration:
         if not isinstance(block, dict):
             raise InputError(f"{where}: 'camera_calibration' must be an object")
         scale = block.get("scale")
+        if scale is not None and not _is_number(scale):
+            raise InputError(f"{where}: field 'camera_calibration.scale' must be a number or null, got {scale!r}")
         try:
             cam = Camera.from_brno(_point(block, "vp1", where), _point(block, "vp2", where),
                                    _point(block, "pp", where), None if scale is None else float(scale))
@@ -197,9 +202,15 @@ def latest_per_view(cals: list[Calibration], cal: Calibration) -> list[Calibrati
     return [c for c in cals if not same_vanishing_points(c, cal)] + [cal]
 
 
+def _is_number(x: Any, whole: bool = False) -> bool:
+    """Whether a JSON value is a number (a whole one with ``whole``); true and false are not, though Python
+    counts them as ints: ``[true, 0]`` is no image point, ``true`` no scale."""
+    return isinstance(x, int if whole else (int, float)) and not isinstance(x, bool)
+
+
 def _point(d: dict, key: str, where: str) -> np.ndarray:
     v = d.get(key)
-    if not (isinstance(v, (list, tuple)) and len(v) == 2 and all(isinstance(x, (int, float)) for x in v)):
+    if not (isinstance(v, (list, tuple)) and len(v) == 2 and all(_is_number(x) for x in v)):
         raise InputError(f"{where}: field {key!r} must be a list of two numbers, got {v!r}")
     return np.asarray(v, dtype=np.float64)
 

@@ -71,9 +71,22 @@ def test_reads_brnocompspeed_results_file():
     ('{"format": "gst-trafficcal-calibration", "version": 1, "vp1": [1, 2], "vp2": "x", "pp": [960, 540]}',
      "'vp2' must be a list of two numbers"),
     ('{"format": "gst-trafficcal-calibration", "version": 1, "state": "bogus"}', "unknown calibration state"),
-    ('{"format": "gst-trafficcal-calibration", "version": 1, "vp1": [100, 500], "vp2": [3000, 600], '
-     '"pp": [960, 540], "image_size": [true, 1080]}',
-     re.escape("field 'image_size' must be [width, height], got [True, 1080]")),
+    # found by QA: each was a ValueError/TypeError traceback, a message without the file's name, or a boolean
+    # taken for the number 1 (an image 1 pixel wide, a scale of 1 m)
+    ('{"format": "gst-trafficcal-calibration", "version": 1}', "state 'calibrated' needs the vanishing points"),
+    ('{"format": "gst-trafficcal-calibration", "version": 1, "state": "vps", "vp2": [1, 2]}', "has no 'vp1'"),
+    ('{"format": "gst-trafficcal-calibration", "version": 1, "state": "learning", "confidence": {"vp1": "high"}}',
+     "'confidence' must be an object of numbers"),
+    ('{"format": "gst-trafficcal-calibration", "version": 1, "state": "learning", "confidence": {"vp1": null}}',
+     "'confidence' must be an object of numbers"),
+    ('{"format": "gst-trafficcal-calibration", "version": 1, "state": "learning", "image_size": [true, 1080]}',
+     "'image_size' must be"),
+    ('{"format": "gst-trafficcal-calibration", "version": 1, "vp1": [3000, 200], "vp2": [-1500, 250], '
+     '"pp": [960, 540], "scale": true}', "'scale' must be a number or null"),
+    ('{"camera_calibration": {"vp1": [3000, 200], "vp2": [-1500, 250], "pp": [960, 540], "scale": "abc"}}',
+     "'camera_calibration.scale' must be a number or null"),
+    ('{"camera_calibration": {"vp1": [3000, 200], "vp2": [-1500, 250], "pp": [960, 540], "scale": [1]}}',
+     "'camera_calibration.scale' must be a number or null"),
 ])
 def test_corrupt_files_give_clear_errors(tmp_path, content, message):
     path = tmp_path / "bad.json"
