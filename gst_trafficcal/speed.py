@@ -29,15 +29,30 @@ class SpeedMeasurement:
         return self.speed_kmh is not None
 
 
+def track_arrays(points_px, times_s, tau: int) -> tuple[np.ndarray, np.ndarray]:
+    """One track's reference points as (N, 2) pixels and its times as (N,) seconds, both float; ValueError naming the
+    problem for a ``tau`` under 1 (τ = 0 was a numpy broadcasting error, a negative τ a speed from the track's
+    ends), points that are not pairs of pixels (an (N, 3) array was read as 1.5 N points) or a count of times that
+    does not match."""
+    if isinstance(tau, bool) or not isinstance(tau, (int, np.integer)) or tau < 1:
+        raise ValueError(f"tau must be a whole number of observations from 1, got {tau!r}")
+    px = np.asarray(points_px, dtype=np.float64)
+    if px.size == 0:
+        px = px.reshape(0, 2)
+    if px.ndim != 2 or px.shape[1] != 2:
+        raise ValueError(f"points must be an (N, 2) array of image pixels, got shape {px.shape}")
+    times = np.asarray(times_s, dtype=np.float64).reshape(-1)
+    if len(px) != len(times):
+        raise ValueError(f"track has {len(px)} points but {len(times)} timestamps")
+    return px, times
+
+
 def pair_samples(camera: Camera, points_px: np.ndarray, times_s: np.ndarray, tau: int = DEFAULT_TAU,
                  checks: SpeedChecks | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Speeds in km/h between observations i and i+τ of one track (points (N, 2) pixels, times (N,) seconds) and
     each pair's mid-time (s); pairs without a finite speed are left out.  With ``checks`` the pairs of a vehicle
     that covers less than ``checks.min_pair_m`` in τ observations are taken further apart (:func:`pair_step`)."""
-    points_px = np.asarray(points_px, dtype=np.float64)
-    times_s = np.asarray(times_s, dtype=np.float64)
-    if len(points_px) != len(times_s):
-        raise ValueError(f"track has {len(points_px)} points but {len(times_s)} timestamps")
+    points_px, times_s = track_arrays(points_px, times_s, tau)
     if len(points_px) <= tau:
         return np.empty(0), np.empty(0)
     metres = camera.distance(points_px[tau:], points_px[:-tau])
@@ -59,6 +74,7 @@ def pairwise_speeds(camera: Camera, points_px: np.ndarray, times_s: np.ndarray, 
 def track_speed(camera: Camera | None, points_px: np.ndarray, times_s: np.ndarray,
                 tau: int = DEFAULT_TAU) -> SpeedMeasurement:
     """Median speed of one track, with a reason when it cannot be measured."""
+    points_px, times_s = track_arrays(points_px, times_s, tau)
     if camera is None or camera.scale is None:
         return SpeedMeasurement(None, 0, "no calibration with scale")
     if len(points_px) <= tau:
@@ -223,13 +239,10 @@ def vehicle_speed(camera: Camera | None, points_px: np.ndarray, times_s: np.ndar
     """A vehicle's speed as the product publishes it: the paper's median of τ-pair speeds over the reference
     points that are the vehicle's own (:func:`consistent_chain`), preferring the near road where a pixel is
     short, and only when the samples agree and span enough road (:class:`SpeedChecks`); else None and why."""
-    px = np.asarray(points_px, np.float64).reshape(-1, 2)
-    times = np.asarray(times_s, np.float64).reshape(-1)
+    px, times = track_arrays(points_px, times_s, tau)
     none = np.zeros(len(px), bool)
     if camera is None or camera.scale is None:
         return VehicleSpeed(None, 0, "no calibration with scale", none)
-    if len(px) != len(times):
-        raise ValueError(f"track has {len(px)} points but {len(times)} timestamps")
     if len(px) <= tau:
         return VehicleSpeed(None, 0, f"track too short ({len(px)} points, needs more than {tau})", none)
     world = camera.to_world(px)[:, :2]

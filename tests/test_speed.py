@@ -51,6 +51,23 @@ def test_unmeasurable_tracks_say_why():
     assert not track_speed(cam, _track(cam, 50, np.arange(10) / 25), times).measured
 
 
+@pytest.mark.parametrize("measure", [track_speed, vehicle_speed, pairwise_speeds])
+def test_a_wrong_track_or_tau_is_a_clear_value_error(measure):
+    """A τ under 1 was a numpy broadcasting error (τ = 0) or a speed from the track's two ends (τ = -1); an (N, 3)
+    array of points (homogeneous pixels) was read by vehicle_speed as 1.5 N points ("45 points but 30 timestamps")."""
+    cam = _camera()
+    times = np.arange(30) / 25.0
+    pts = _track(cam, 72.0, times)
+    for tau in (0, -1, 2.5):
+        with pytest.raises(ValueError, match=f"tau must be a whole number of observations from 1, got {tau}"):
+            measure(cam, pts, times, tau=tau)
+    with pytest.raises(ValueError, match=r"points must be an \(N, 2\) array of image pixels, got shape \(30, 3\)"):
+        measure(cam, np.column_stack([pts, np.ones(30)]), times)
+    with pytest.raises(ValueError, match="track has 30 points but 29 timestamps"):
+        measure(cam, pts, times[:-1])
+    assert np.allclose(getattr(measure(cam, pts, times, tau=np.int64(5)), "speed_kmh", 72.0), 72.0)
+
+
 # --------------------------------------------------------------------------- the product's checks (vehicle_speed)
 
 
