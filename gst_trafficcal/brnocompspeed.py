@@ -149,6 +149,15 @@ def _point(value: Any, what: str) -> np.ndarray:
     return arr
 
 
+def _finite(value: Any, what: str, positive: bool = False) -> float:
+    """``value`` as a float; ValueError naming ``what`` when it is NaN or infinite (or not positive): one such car
+    made every speed statistic NaN, one such crossing time dropped every system car as seen too late."""
+    v = float(value)
+    if not math.isfinite(v) or (positive and not v > 0):
+        raise ValueError(f"{what} must be a {'positive' if positive else 'finite'} number, got {v}")
+    return v
+
+
 def _parse_gt(raw: Any) -> GroundTruth:
     if not isinstance(raw, dict):
         raise ValueError("top level is not a dict")
@@ -164,10 +173,11 @@ def _parse_gt(raw: Any) -> GroundTruth:
         distances.append(DistanceMeasurement(
             p1=_point(d["p1"], f"distanceMeasurement[{i}].p1"),
             p2=_point(d["p2"], f"distanceMeasurement[{i}].p2"),
-            distance=float(d["distance"]), to_vp1=bool(d["toVP1"])))
+            distance=_finite(d["distance"], f"distanceMeasurement[{i}].distance", positive=True),
+            to_vp1=bool(d["toVP1"])))
     cars = []
     for i, c in enumerate(raw["cars"]):
-        crossings = tuple(LineCrossing(int(x["measurementLineId"]), float(x["videoTime"]))
+        crossings = tuple(LineCrossing(int(x["measurementLineId"]), _finite(x["videoTime"], f"cars[{i}] videoTime"))
                           for x in c["intersections"])
         if not crossings:
             raise ValueError(f"cars[{i}] has no line intersections")
@@ -175,7 +185,7 @@ def _parse_gt(raw: Any) -> GroundTruth:
         accel = c.get("acceleration")
         cars.append(GtCar(
             car_id=int(c["carId"]), lanes=frozenset(int(v) for v in c["laneIndex"]),
-            valid=bool(c["valid"]), speed=float(c["speed"]), intersections=crossings,
+            valid=bool(c["valid"]), speed=_finite(c["speed"], f"cars[{i}].speed"), intersections=crossings,
             time_intersection_last_shifted=None if shifted is None else float(shifted),
             acceleration=None if accel is None else float(accel)))
     return GroundTruth(

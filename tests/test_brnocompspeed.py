@@ -10,7 +10,8 @@ import numpy as np
 import pytest
 
 from gst_trafficcal.brnocompspeed import (BrnoCalibration, DistanceMeasurement, GroundTruth, GtCar, LineCrossing,
-                                          Results, Track, load_gt_data, load_results, save_gt_data, save_results)
+                                          Results, Track, gt_to_raw, load_gt_data, load_results, save_gt_data,
+                                          save_results)
 from gst_trafficcal.errors import InputError
 
 from .conftest import BRNO, RECORDINGS, require_shared
@@ -93,6 +94,25 @@ def test_gt_errors(tmp_path):
     wrong.write_bytes(pickle.dumps({"fps": 50.0, "cars": []}, protocol=2))
     with pytest.raises(InputError, match=r"wrong.pkl: not a BrnoCompSpeed gt_data.pkl \(missing key"):
         load_gt_data(wrong)
+
+
+@pytest.mark.parametrize("change, message", [
+    (lambda raw: raw["cars"][0].update(speed=np.float64("nan")), r"cars\[0\].speed must be a finite number, got nan"),
+    (lambda raw: raw["cars"][0]["intersections"][-1].update(videoTime=np.float64("inf")),
+     r"cars\[0\] videoTime must be a finite number, got inf"),
+    (lambda raw: raw["distanceMeasurement"][1].update(distance=0.0),
+     r"distanceMeasurement\[1\].distance must be a positive number, got 0.0"),
+])
+def test_gt_with_values_no_measurement_has_is_refused(tmp_path, change, message):
+    """Found by QA: one car's NaN speed made every speed statistic of the evaluation NaN (printed as nothing), one NaN
+    crossing time dropped every system car as seen after the last ground-truth car (recall 0), and a segment 0 m
+    long gave infinite relative errors -- each without a word."""
+    raw = gt_to_raw(_tiny_gt())
+    change(raw)
+    path = tmp_path / "gt_data.pkl"
+    path.write_bytes(pickle.dumps(raw, protocol=2))
+    with pytest.raises(InputError, match=rf"gt_data.pkl: not a BrnoCompSpeed gt_data.pkl \({message}\)"):
+        load_gt_data(path)
 
 
 class _Evil:
