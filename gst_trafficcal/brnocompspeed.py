@@ -24,7 +24,7 @@ from typing import Any
 import numpy as np
 
 from .errors import InputError
-from .fileio import read_json
+from .fileio import atomic_write, read_json
 
 __all__ = [
     "BrnoCalibration",
@@ -246,11 +246,15 @@ def gt_to_raw(gt: GroundTruth) -> dict[str, Any]:
 
 
 def save_gt_data(gt: GroundTruth, path: str | Path) -> None:
-    """Write ``gt`` as a ``gt_data.pkl`` in the dataset's structure (pickle protocol 2)."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    with open(path, "wb") as f:
-        pickle.dump(gt_to_raw(gt), f, protocol=2)
+    """Write ``gt`` as a ``gt_data.pkl`` in the dataset's structure (pickle protocol 2), atomically
+    (:func:`gst_trafficcal.fileio.atomic_write`: InputError naming the file when it cannot be written)."""
+    raw = gt_to_raw(gt)
+
+    def write(tmp: Path) -> None:
+        with open(tmp, "wb") as f:
+            pickle.dump(raw, f, protocol=2)
+
+    atomic_write(path, write, "ground truth")
 
 
 # --------------------------------------------------------------------------- results JSON
@@ -411,11 +415,13 @@ def results_to_dict(res: Results) -> dict[str, Any]:
 def save_results(res: Results, path: str | Path) -> None:
     """Write ``res`` as a BrnoCompSpeed results JSON — the text of ``json.dumps(results_to_dict(res))`` — a car at
     a time: a long run's file is never whole in memory (at once it took 4.5 times the file's size, 430 MB for a
-    busy camera's day)."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    with path.open("w", encoding="utf-8") as out:
-        write_results_text(out, res.calibration, (car_json(t) for t in res.cars))
+    busy camera's day), atomically (:func:`gst_trafficcal.fileio.atomic_write`: an interrupted write leaves the
+    earlier file, and one that cannot be written is an InputError naming it)."""
+    def write(tmp: Path) -> None:
+        with tmp.open("w", encoding="utf-8") as out:
+            write_results_text(out, res.calibration, (car_json(t) for t in res.cars))
+
+    atomic_write(path, write, "BrnoCompSpeed results")
 
 
 def car_json(track: Track) -> str:

@@ -84,6 +84,10 @@ def atomic_write(path: str | Path, write: Callable[[Path], None], what: str) -> 
         with contextlib.suppress(OSError):
             tmp.unlink(missing_ok=True)
         raise InputError(f"{path}: cannot write {what} ({exc.strerror or exc})") from None
+    except BaseException:  # write() failed otherwise (a value it cannot encode, Ctrl-C): no temporary file left
+        with contextlib.suppress(OSError):
+            tmp.unlink(missing_ok=True)
+        raise
     return path
 
 

@@ -115,6 +115,24 @@ def test_gt_with_values_no_measurement_has_is_refused(tmp_path, change, message)
         load_gt_data(path)
 
 
+def test_files_are_written_whole_or_not_at_all(tmp_path):
+    """save_results and save_gt_data write through fileio.atomic_write: a write that fails half-way leaves the
+    earlier file as it was (it was cut to '{"cars": [' ), and a folder at the path is an InputError naming it
+    (was IsADirectoryError)."""
+    out = tmp_path / "system.json"
+    good = Results(None, (Track(7, np.array([1, 2, 3]), np.ones((3, 2))),))
+    save_results(good, out)
+    before = out.read_text()
+    with pytest.raises(TypeError):  # a car id json cannot write
+        save_results(Results(None, (good.cars[0], Track(object(), np.array([1]), np.ones((1, 2))))), out)
+    assert out.read_text() == before and sorted(p.name for p in tmp_path.iterdir()) == ["system.json"]
+    (tmp_path / "folder").mkdir()
+    with pytest.raises(InputError, match="folder: a folder, not a regular file: cannot write BrnoCompSpeed results"):
+        save_results(good, tmp_path / "folder")
+    with pytest.raises(InputError, match="folder: a folder, not a regular file: cannot write ground truth"):
+        save_gt_data(_tiny_gt(), tmp_path / "folder")
+
+
 class _Evil:
     def __reduce__(self):
         return (os.system, ("echo pwned",))
