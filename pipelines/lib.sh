@@ -25,8 +25,23 @@ input_uri() {  # INPUT: prints the URI uridecodebin plays (a file becomes file:/
         echo "$1"
     else
         [[ -f "$1" ]] || die "$1: no such file (give a file or a URI such as rtsp://camera/stream)"
-        echo "file://$(realpath "$1")"
+        echo "file://$(uri_path "$(realpath "$1")")"
     fi
+}
+
+uri_path() {  # PATH: PATH percent-encoded for a file:// URI, byte by byte (RFC 3986)
+    # A file name with '#' (cut off as the URI's fragment), '%' (read as an escape), '?' or a space is a file
+    # uridecodebin would not find: "cam #1.mp4" was opened as "cam ". Letters, digits, "/._~-" stay as they are.
+    local LC_ALL=C
+    local s="$1" out="" c i
+    for ((i = 0; i < ${#s}; i++)); do
+        c="${s:i:1}"
+        case "$c" in
+            [A-Za-z0-9/._~-]) out+="$c" ;;
+            *) printf -v c '%%%02X' "'$c"; out+="$c" ;;
+        esac
+    done
+    echo "$out"
 }
 
 analysis_queue() {  # URI: prints the queue in front of the analysis, one word per line (for mapfile)

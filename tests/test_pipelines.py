@@ -127,6 +127,24 @@ def test_calibrate_says_why_when_the_video_has_no_traffic(tmp_path):
     assert not list(tmp_path.glob(".calibrate.*"))
 
 
+def test_files_whose_names_a_uri_escapes_are_played(tmp_path):
+    """A file name with '#', '%' or a space, in a folder with a space: input_uri writes the file:// URI
+    percent-encoded, as Gst.filename_to_uri does. "cam #1.mp4" was opened as "cam " (the rest read as the URI's
+    fragment) and "50%.mp4" as an escape: the pipeline failed with gst-launch-1.0's "Resource not found"."""
+    from gst_trafficcal.gst._gi import Gst
+
+    folder = tmp_path / "camera one"
+    folder.mkdir()
+    video = static_video(folder / "cam #1 50% é.mp4")
+    uri = subprocess.run(["bash", "-c", '. "$0/lib.sh"; input_uri "$1"', PIPELINES, video], capture_output=True,
+                         text=True, check=True).stdout.strip()
+    assert uri == Gst.filename_to_uri(str(video))
+    out = tmp_path / "out"
+    proc = script("measure.sh", video, out)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    assert f"measure: 0 vehicles (0 with a speed) in {out / 'vehicles.jsonl'}" in proc.stdout
+
+
 def test_measure_writes_vehicles_and_matches_trafficcal_run(clip, tmp_path):
     """The product card's chain from a URI with the true calibration; the same numbers as `trafficcal run`."""
     out = tmp_path / "measure"
