@@ -113,14 +113,17 @@ if [[ -n "$calibration" ]]; then
 fi
 
 if [[ $default_analysis == 1 ]]; then
-    analysis="vpdetect ${cal_prop[*]} ! vehicledetect ! tracker"
+    # an array, not a string split again: a calibration path with a space stays one property
+    chain=(vpdetect "${cal_prop[@]}" ! vehicledetect ! tracker)
     if gst-inspect-1.0 --exists speedometer 2>/dev/null; then
-        analysis="$analysis ! speedometer"
+        chain+=(! speedometer)
     else
         echo "nvr-overlay: note: element 'speedometer' is not installed: vehicles are drawn without speeds" >&2
     fi
     overlay_cal=()
 else
+    # shellcheck disable=SC2206  # word splitting of the user's ANALYSIS is intended
+    chain=($analysis)
     overlay_cal=("${cal_prop[@]}")  # no vpdetect: the overlay draws the given calibration itself
 fi
 
@@ -128,9 +131,8 @@ mapfile -t queue < <(analysis_queue "$uri")  # leaky for a live source (lib.sh)
 set_stall_watchdog "$uri"  # a live source that stops sending ends the run (lib.sh)
 # shellcheck disable=SC2206  # word splitting of the user's property lists is intended
 pipeline=(uridecodebin "uri=$uri" ! videoconvert ! "${stall[@]}" video/x-raw,format=I420 ! "${queue[@]}")
-if [[ -n "${analysis// }" ]]; then
-    # shellcheck disable=SC2206
-    pipeline+=(! $analysis)
+if [[ ${#chain[@]} -gt 0 ]]; then
+    pipeline+=(! "${chain[@]}")
 fi
 # shellcheck disable=SC2206
 pipeline+=(! trafficoverlay "${overlay_cal[@]}" ${OVERLAY_OPTS:-} ! videoconvert ! video/x-raw,format=I420

@@ -12,7 +12,8 @@ import numpy as np
 import pytest
 
 from gst_trafficcal.brnocompspeed import load_results
-from gst_trafficcal.calibration import load_calibration
+from gst_trafficcal.calibration import Calibration, load_calibration, save_calibration
+from gst_trafficcal.geometry import Camera
 from gst_trafficcal.outputs import read_events, read_events_csv
 
 pytestmark = pytest.mark.gst
@@ -143,6 +144,20 @@ def test_files_whose_names_a_uri_escapes_are_played(tmp_path):
     proc = script("measure.sh", video, out)
     assert proc.returncode == 0, proc.stderr[-2000:]
     assert f"measure: 0 vehicles (0 with a speed) in {out / 'vehicles.jsonl'}" in proc.stdout
+
+
+def test_nvr_overlay_takes_a_calibration_in_a_folder_with_a_space(tmp_path):
+    """The default analysis chain was a string split again into words: calibration-file=/my cam/cal.json became
+    two words and gst-launch-1.0 said 'no element "cam"'."""
+    folder = tmp_path / "my cam"
+    folder.mkdir()
+    video = static_video(folder / "in.mp4")
+    cam = Camera([160.0 + 3000.0, 40.0], [160.0 - 900.0, 60.0], [160.5, 120.5], 8.0)
+    cal = save_calibration(Calibration(cam, (320, 240)), folder / "cal.json")
+    proc = script("nvr-overlay.sh", video, folder / "overlay.mkv", cal)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    assert f"vpdetect calibration-file={cal} ! vehicledetect" in proc.stderr
+    assert (folder / "overlay.mkv").stat().st_size > 1000
 
 
 def test_measure_writes_vehicles_and_matches_trafficcal_run(clip, tmp_path):
