@@ -82,12 +82,14 @@ VEHICLE_CLASSES = ("car", "van", "bus", "truck", "motorcycle")
 
 def parse_speed_limit(text: str | float | None, what: str = "speed limit", classes_only: bool = False) -> SpeedLimit:
     """``80``, ``80,truck=60,bus=60`` or ``truck=60`` (km/h; 0 or empty: none) as a :class:`SpeedLimit`;
-    InputError naming ``what`` for anything else (``classes_only``: only ``CLASS=KMH`` pairs are valid)."""
+    InputError naming ``what`` for anything else (``classes_only``: only ``CLASS=KMH`` pairs are valid), also for a
+    limit given twice (``80,90`` held every vehicle to 90 without a word; ``truck=60,truck=50`` described both and
+    applied 50)."""
     if text is None or isinstance(text, (int, float)):
         return SpeedLimit(check_limit(text))
     form = ("CLASS=KMH,... (e.g. truck=60,bus=60)" if classes_only
             else "KMH or KMH,CLASS=KMH,... (e.g. 80,truck=60,bus=60)")
-    kmh, by_class = None, []
+    kmh, by_class, general = None, [], False
     for part in (p.strip() for p in str(text).split(",")):
         if not part:
             continue
@@ -101,8 +103,12 @@ def parse_speed_limit(text: str | float | None, what: str = "speed limit", class
         except InputError:
             raise InputError(f"{what}: {part!r}: a limit is a positive number of km/h (0: none)") from None
         if not sep:
-            kmh = v
+            if general:
+                raise InputError(f"{what}: {text!r} gives the limit for every vehicle twice")
+            kmh, general = v, True
         elif v is not None and name.strip().lower() in VEHICLE_CLASSES:
+            if name.strip().lower() in dict(by_class):
+                raise InputError(f"{what}: {text!r} gives the limit for {name.strip().lower()} twice")
             by_class.append((name.strip().lower(), v))
         elif v is not None and name.strip():  # a typo ("lorry", "trucks") would leave that class unchecked
             raise InputError(f"{what}: {name.strip()!r} is no vehicle class (classes: {', '.join(VEHICLE_CLASSES)})")

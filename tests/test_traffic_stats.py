@@ -60,6 +60,11 @@ def test_a_limit_with_classes_of_their_own() -> None:
         parse_speed_limit("80,lorry=60", "--speed-limit")
     with pytest.raises(InputError, match=r"--speed-limit: '-50': a limit is a positive number of km/h \(0: none\)"):
         parse_speed_limit("-50", "--speed-limit")
+    # a limit given twice was taken silently: 80,90 held everyone to 90; truck=60,truck=50 said both, applied 50
+    with pytest.raises(InputError, match="--speed-limit: '80,90' gives the limit for every vehicle twice"):
+        parse_speed_limit("80,90", "--speed-limit")
+    with pytest.raises(InputError, match="class-limits: 'truck=60,Truck=50' gives the limit for truck twice"):
+        parse_speed_limit("truck=60,Truck=50", "class-limits", classes_only=True)
     from gst_trafficcal.vehicles.classify import LABEL_OF_STYLE
 
     assert set(VEHICLE_CLASSES) == set(LABEL_OF_STYLE.values())  # every class the vehicles are reported as
