@@ -20,6 +20,7 @@ camera centre at ``(pp, 0)`` and the road plane ``[n, 10]``; :meth:`Camera.from_
 
 from __future__ import annotations
 
+import numbers
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -31,9 +32,18 @@ BRNO_PLANE_OFFSET = 10.0  # BrnoCompSpeed's constant term of the road plane
 
 def _as_points(a, name: str) -> np.ndarray:
     arr = np.asarray(a, dtype=np.float64)
-    if arr.shape[-1] != 2:
+    if arr.ndim == 0 or arr.shape[-1] != 2:
         raise GeometryError(f"{name} must have 2 coordinates in its last axis, got shape {arr.shape}")
     return arr
+
+
+def _as_point(a, name: str) -> np.ndarray:
+    """One image point (2,) of ``a``; GeometryError naming it for anything else (2x2 was numpy's 'cannot reshape',
+    a single number an IndexError)."""
+    arr = np.asarray(a, dtype=np.float64)
+    if arr.size != 2:
+        raise GeometryError(f"{name} must be one image point (x, y), got shape {arr.shape}")
+    return arr.reshape(2)
 
 
 def homogeneous(points: np.ndarray) -> np.ndarray:
@@ -83,12 +93,13 @@ class Camera:
     _R: np.ndarray = field(init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
-        vp1, vp2, pp = (_as_points(v, name).reshape(2) for v, name in
-                        ((self.vp1, "vp1"), (self.vp2, "vp2"), (self.pp, "pp")))
+        vp1, vp2, pp = (_as_point(v, name) for v, name in ((self.vp1, "vp1"), (self.vp2, "vp2"), (self.pp, "pp")))
         if not (np.all(np.isfinite(vp1)) and np.all(np.isfinite(vp2)) and np.all(np.isfinite(pp))):
             raise GeometryError("vanishing points and principal point must be finite")
-        if self.scale is not None and not (np.isfinite(self.scale) and self.scale > 0):
-            raise GeometryError(f"scale must be a positive number, got {self.scale}")
+        if self.scale is not None and not (isinstance(self.scale, numbers.Real) and not isinstance(self.scale, bool)
+                                           and np.isfinite(self.scale) and self.scale > 0):
+            shown = self.scale if isinstance(self.scale, numbers.Real) else repr(self.scale)
+            raise GeometryError(f"scale must be a positive number, got {shown}")
         dot = float(np.dot(vp1 - pp, vp2 - pp))
         if not dot < 0:
             raise GeometryError(

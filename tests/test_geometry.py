@@ -107,6 +107,23 @@ def test_rejects_impossible_vanishing_points(vp1, vp2, message):
         Camera(vp1, vp2, [960.0, 540.0])
 
 
+@pytest.mark.parametrize("kwargs, message", [
+    (dict(vp1=[[1000.0, 100.0], [1.0, 2.0]]), r"vp1 must be one image point \(x, y\), got shape \(2, 2\)"),
+    (dict(pp=960.0), r"pp must be one image point \(x, y\), got shape \(\)"),
+    (dict(scale="8"), "scale must be a positive number, got '8'"),
+    (dict(scale=True), "scale must be a positive number, got True"),
+])
+def test_a_camera_of_wrong_shapes_or_types_is_a_geometry_error(kwargs, message):
+    """Found by QA: a 2x2 vanishing point was numpy's 'cannot reshape', a single number an IndexError, a scale given
+    as text a TypeError from np.isfinite, and True a scale of 1 m."""
+    args = dict(vp1=[1000.0, 100.0], vp2=[-3000.0, 200.0], pp=[960.0, 540.0], scale=None) | kwargs
+    with pytest.raises(GeometryError, match=message):
+        Camera(**args)
+    with pytest.raises(GeometryError, match=r"points must have 2 coordinates in its last axis, got shape \(\)"):
+        Camera([1000.0, 100.0], [-3000.0, 200.0], [960.0, 540.0]).to_road(5.0)
+    assert Camera(np.array([1000, 100]), [-3000, 200], np.array([[960, 540]]), np.int64(8)).scale == 8.0
+
+
 def test_rejects_camera_below_road_and_vp_at_infinity():
     K, R, t, C = make_pinhole(20, 10, 0, 1000, 5, 0)
     with pytest.raises(GeometryError, match="not above the road"):
