@@ -56,8 +56,9 @@ def clip_segments(segments: np.ndarray, width: int, height: int, margin: float =
     return out, idx
 
 
-def _world_camera(camera: Camera) -> Camera:
-    """The camera with a scale (ASSUMED_HEIGHT_M when it has none) for laying out the grid in metres."""
+def world_camera(camera: Camera) -> Camera:
+    """The camera with a scale (ASSUMED_HEIGHT_M when it has none): for laying out the grid in metres, and for
+    trafficoverlay's counter to tell a parked car from a passing one before the scale is known."""
     return camera if camera.scale is not None else camera.with_scale(ASSUMED_HEIGHT_M)
 
 
@@ -65,7 +66,7 @@ def visible_road_box(camera: Camera, image_size: tuple[int, int], horizon_margin
                      max_range_m: float = MAX_RANGE_M) -> tuple[float, float, float, float] | None:
     """(x_min, x_max, y_min, y_max) in world metres of the road seen at least ``horizon_margin``·height
     below the horizon; None when no part of the frame shows the road."""
-    cam = _world_camera(camera)
+    cam = world_camera(camera)
     w, h = image_size
     xs, ys = np.meshgrid(np.linspace(0, w - 1, 33), np.linspace(0, h - 1, 33))
     pts = np.stack([xs.ravel(), ys.ravel()], axis=1)
@@ -116,7 +117,7 @@ def road_grid_segments(camera: Camera, image_size: tuple[int, int], spacing_m: f
     box = visible_road_box(camera, image_size)
     if box is None:
         return empty
-    cam = _world_camera(camera)
+    cam = world_camera(camera)
     x0, x1, y0, y1 = box
     # widen the spacing if the road box would need too many lines
     step = spacing_m * max(1.0, np.ceil(max((x1 - x0), (y1 - y0)) / spacing_m / max_lines))

@@ -551,12 +551,9 @@ class SpeedMeter:
         cam = self.camera
         seen_s = rec.observations[-1].t - rec.observations[0].t
         if len(px) >= 2 and cam is not None and cam.scale is not None and seen_s >= self.min_seen_s:
-            # metres along the road between where it was in its first and its last quarter (medians): a parked
-            # car's point jumps by its length when its front is not known, and back.  Only for a track seen long
-            # enough to tell (a vehicle the end of the stream cut after a moment has not gone far yet)
-            along = cam.to_world(px)[:, 0]
-            q = max(1, len(along) // 4)
-            moved = float(abs(np.median(along[-q:]) - np.median(along[:q])))
+            # only for a track seen long enough to tell (a vehicle the end of the stream cut after a moment has not
+            # gone far yet)
+            moved = moved_along_road(cam, px)
         why = not_a_vehicle(np.inf if rec.cut else seen_s, moved, self.min_seen_s, self.min_passing_m)
         if why:
             self.not_counted[why] += 1
@@ -568,6 +565,16 @@ class SpeedMeter:
         a counter downstream takes them out."""
         ids, self.not_counted_ids = self.not_counted_ids, []
         return ids
+
+
+def moved_along_road(camera: Camera, px: np.ndarray) -> float:
+    """Metres along the road (world x; ``camera`` has a scale) between where a track was in its first and in its last
+    quarter: the medians of its reference points ``px`` (N x 2 pixels in time order, N >= 1) in each.  The medians
+    ride out a parked car's point, which jumps by the car's length when its front is not known, and back.  The
+    measure of :func:`not_a_vehicle`'s ``moved_m``, for speedometer and for trafficoverlay's own counter."""
+    along = camera.to_world(np.asarray(px, np.float64).reshape(-1, 2))[:, 0]
+    q = max(1, len(along) // 4)
+    return float(abs(np.median(along[-q:]) - np.median(along[:q])))
 
 
 def not_a_vehicle(seen_s: float, moved_m: float | None, min_seen_s: float = MIN_SEEN_S,

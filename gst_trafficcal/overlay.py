@@ -20,9 +20,10 @@ import cv2
 import numpy as np
 
 from .drawing import (GRID_ACROSS_BGR, GRID_ALONG_BGR, HORIZON_BGR, ZONE_BGR, RoadGrid, clip_segments,
-                      grid_min_cell_px, horizon_segment, road_grid_segments, zone_segments)
+                      grid_min_cell_px, horizon_segment, road_grid_segments, world_camera, zone_segments)
 from .geometry import Camera
 from .lanes import DEFAULT_LANE_WIDTH_M, lane_centres
+from .measurement import moved_along_road, not_a_vehicle
 from .outputs import AWAY_FROM_VP1, TOWARDS_VP1, direction_name
 from .traffic_stats import SpeedLimit, as_limit, is_over_limit
 
@@ -285,10 +286,15 @@ class VehicleCounter:
     "unknown" until :meth:`left` gives its final values (speedometer measures it then, and says so downstream);
     :meth:`left` moves it to its direction, lane and, over the limit, the speeding count.
 
-    With ``min_seen_s`` (for a chain without speedometer, whose "no vehicle passing" events otherwise take them out)
-    a track counts only once it has been in view that long (stream seconds, the ``t`` of :meth:`update`): a
-    detector's flicker or a fragment of a vehicle another track follows is not counted (the speedometer's rule,
-    :func:`gst_trafficcal.measurement.not_a_vehicle`'s "brief").
+    With ``min_seen_s`` and ``min_passing_m`` (for a chain without speedometer, whose "no vehicle passing" events
+    otherwise take them out) a track counts only once speedometer's rule,
+    :func:`gst_trafficcal.measurement.not_a_vehicle`, says it is a vehicle passing, judged on what was seen of it so
+    far: in view ``min_seen_s`` (stream seconds, the ``t`` of :meth:`update`; a detector's flicker or a fragment of
+    a vehicle another track follows is not counted) and moved ``min_passing_m`` along the road
+    (:func:`gst_trafficcal.measurement.moved_along_road` over its reference points; a parked vehicle is not counted,
+    nor counted again each time it is occluded and found again).  Without a scale the distance is taken with
+    :data:`gst_trafficcal.drawing.ASSUMED_HEIGHT_M`, as the grid is; a track without reference points (before the
+    vanishing points) is counted on the time in view alone, as speedometer reports one.
     """
 
     seen: dict[int, tuple[str | None, int | None]] = field(default_factory=dict)  # vehicles still around
@@ -313,8 +319,11 @@ class VehicleCounter:
     _done_ids: OrderedDict[int, tuple[str | None, int | None, bool]] = field(default_factory=OrderedDict,
                                                                              repr=False)
     min_seen_s: float = 0.0  # a track counts once in view this long (0: at once)
+    min_passing_m: float = 0.0  # ... and once it moved this far along the road (0: however little)
     _first_seen: dict[int, tuple[float, float, int, VehicleMark]] = field(default_factory=dict, repr=False)  # not
     # yet counted: (first t, last t, last update, last mark)
+    _trails: dict[int, _Trail] = field(default_factory=dict, repr=False)  # their reference points
+    _camera: Camera | None = field(default=None, repr=False)  # the latest update's
 
     MAX_OFFSETS = 64  # per vehicle (its median is all that is used)
     LANE_REFRESH = 25  # per-lane counts are recounted at most every this many updates (or on a new vehicle)
@@ -326,8 +335,9 @@ class VehicleCounter:
         """Count the vehicles of one frame (``t``: its stream time in seconds, for ``min_seen_s``)."""
         metric = camera is not None and camera.scale is not None
         self._updates += 1
+        self._camera = camera
         for m in marks:
-            if m.track_id is None or not self._long_enough(m, t):
+            if m.track_id is None or not self._counts_now(m, t):
                 continue
             old_dir, old_lane = self.seen.get(m.track_id, (None, None))
             self.seen[m.track_id] = (m.direction or old_dir, m.lane if m.lane is not None else old_lane)
@@ -343,32 +353,49 @@ class VehicleCounter:
         if self._updates % 50 == 0:
             self._forget(self._updates - self.FORGET_AFTER)
 
-    def _long_enough(self, m: VehicleMark, t: float | None) -> bool:
-        """Whether the track of ``m`` is counted now: it is already, or it has been in view ``min_seen_s`` by ``t``."""
+    def _counts_now(self, m: VehicleMark, t: float | None) -> bool:
+        """Whether the track of ``m`` is counted now: it is already, or what was seen of it by ``t`` makes it a
+        vehicle passing (see the class docstring)."""
         i = m.track_id
-        if i in self.seen or self.min_seen_s <= 0 or t is None:
+        if i in self.seen or (self.min_seen_s <= 0 and self.min_passing_m <= 0) or t is None:
             return True
         first = self._first_seen.get(i, (t,))[0]
-        if t - first >= self.min_seen_s:
+        trail = self._trails.setdefault(i, _Trail())
+        if m.ref_point is not None:
+            trail.add(m.ref_point)
+        if not self._why_not(t - first, trail, cut=False):
             self._first_seen.pop(i, None)
+            del self._trails[i]
             return True
         self._first_seen[i] = (first, t, self._updates, m)
         return False
 
+    def _why_not(self, seen_s: float, trail: _Trail | None, cut: bool) -> str:
+        """Why a track seen ``seen_s`` seconds along ``trail`` is no vehicle passing (yet), as speedometer judges the
+        tracks it leaves unmeasured ("": it is one); ``cut``: the end of the stream cut it short."""
+        moved = None
+        if (self.min_passing_m > 0 and seen_s >= self.min_seen_s and trail is not None and len(trail.points) >= 2
+                and self._camera is not None):
+            moved = moved_along_road(world_camera(self._camera), np.array(trail.points))
+        return not_a_vehicle(np.inf if cut else seen_s, moved, self.min_seen_s, self.min_passing_m)
+
     def end(self, t: float | None, still_in_view_s: float) -> None:
         """End of the stream: the tracks not yet counted that were seen in its last ``still_in_view_s`` seconds (to
-        ``t``) count — the end cut them short, as speedometer counts them."""
-        for i, (_, last, u, m) in list(self._first_seen.items()):
-            if t is not None and last >= t - still_in_view_s:
+        ``t``) count unless they stood still — the end cut them short, as speedometer counts them."""
+        for i, (first, last, u, m) in list(self._first_seen.items()):
+            if t is not None and last >= t - still_in_view_s and not self._why_not(last - first, self._trails.get(i),
+                                                                                   cut=True):
                 self.seen[i] = (m.direction, m.lane)
                 self._last_seen[i] = u
                 if m.speed_kmh is not None:
                     self._speed[i] = (m.speed_kmh, m.label)
         self._first_seen.clear()
+        self._trails.clear()
 
     def _forget(self, before: int) -> None:
         for i in [i for i, (_, _, u, _) in self._first_seen.items() if u < before]:  # never counted: gone for good
             del self._first_seen[i]
+            self._trails.pop(i, None)
         gone = [i for i, t in self._last_seen.items() if t < before]
         for i in gone:
             direction, lane = self.seen[i]
@@ -512,6 +539,27 @@ class VehicleCounter:
         if limit:
             out.append(f"over {limit.describe()}: {self.speeding}")
         return out
+
+
+@dataclass
+class _Trail:
+    """A track's reference points (pixels, in time order) for :func:`~gst_trafficcal.measurement.moved_along_road`:
+    every ``stride``-th one, at most ``MAX``, so that a parked car in view for hours keeps an even sample of its whole
+    stay in bounded memory and time."""
+
+    points: list[tuple[float, float]] = field(default_factory=list)
+    stride: int = 1
+    seen: int = 0
+
+    MAX = 128
+
+    def add(self, point: tuple[float, float]) -> None:
+        if self.seen % self.stride == 0:
+            self.points.append(point)
+            if len(self.points) > self.MAX:
+                del self.points[1::2]
+                self.stride *= 2
+        self.seen += 1
 
 
 def _count(counts: dict, key, delta: int, count_none: bool) -> None:

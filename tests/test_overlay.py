@@ -414,6 +414,43 @@ def test_text_is_drawn_in_luma_on_a_neutral_box(fmt: str) -> None:
         assert (c == 128).all()  # grey background and black/white label: no chroma anywhere
 
 
+def test_vehicle_counter_counts_only_vehicles_that_moved() -> None:
+    """min_passing_m (trafficoverlay without speedometer): a track counts once its reference points moved that far
+    along the road (speedometer's min-moved, first against last quarter): a parked car is never counted, however long
+    it stands in view and though its point jumps by its length now and then, nor when the end of the stream cuts it;
+    a passing car is, within its first second.  Without a scale the distance assumes a camera 7 m up (the grid's)."""
+    cam = _camera()
+    rng = np.random.default_rng(5)
+
+    def ref(x: float, y: float, camera: Camera = cam) -> tuple[float, float]:
+        return tuple(float(v) for v in camera.world_to_image(np.array([x, y, 0.0])))
+
+    c = VehicleCounter(min_seen_s=0.5, min_passing_m=3.0)
+    for k in range(25 * 120):  # 2 minutes: #1 parked at x = 12 m (its point 4.5 m further in one frame in ten)
+        parked = VehicleMark((0, 0, 1, 1), 1, ref_point=ref(12.0 + 4.5 * (k % 10 == 0) + rng.normal(0, 0.1), 2.0))
+        passing = [VehicleMark((0, 0, 1, 1), 2, ref_point=ref(5.0 + 0.5 * (k - 100), -1.75))] if k >= 100 else []
+        c.update([parked] + passing, cam, k / 25)
+        if k == 100 + 25:  # #2 at 12.5 m/s for a second
+            assert set(c.seen) == {2}
+    assert c.total == 1 and set(c.seen) == {2}
+    assert len(c._trails[1].points) <= 128  # an even sample of the parked car's whole stay
+    c.end(120.0, 1.0)
+    assert c.total == 1
+    # no scale: the same picture read with a camera 7 m above the road
+    unscaled = Camera(cam.vp1, cam.vp2, cam.pp)
+    c2 = VehicleCounter(min_seen_s=0.5, min_passing_m=3.0)
+    seven = unscaled.with_scale(7.0)
+    for k in range(50):
+        c2.update([VehicleMark((0, 0, 1, 1), 1, ref_point=ref(12.0, 2.0, seven)),
+                   VehicleMark((0, 0, 1, 1), 2, ref_point=ref(5.0 + 0.5 * k, -1.75, seven))], unscaled, k / 25)
+    assert set(c2.seen) == {2}
+    # no reference points (before the vanishing points): counted on the time in view, as speedometer reports it
+    c3 = VehicleCounter(min_seen_s=0.5, min_passing_m=3.0)
+    for k in range(15):
+        c3.update([VehicleMark((0, 0, 1, 1), 1)], None, k / 25)
+    assert c3.total == 1
+
+
 def test_vehicle_counter_derives_lanes_from_reference_points() -> None:
     """Without lanes in the metadata, the lanes come from where the reference points lie on the road."""
     cam = _camera()

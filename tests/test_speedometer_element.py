@@ -280,10 +280,11 @@ def test_the_overlay_counts_every_vehicle_as_the_files_do(clip, limit, tmp_path,
                          "over_limit": sum(e.speed_kmh is not None and e.speed_kmh > limit for e in events)}
 
 
-def test_the_overlay_without_speedometer_counts_the_tracks_in_view_long_enough(clip, tmp_path):
+def test_the_overlay_without_speedometer_counts_by_speedometers_rule(clip, tmp_path):
     """``vehicledetect ! tracker ! trafficoverlay`` (no speedometer to say which tracks were no vehicle passing): the
     overlay counts a track once it has been in view for speedometer's ``min-seen`` (0.5 s), so a detector's flicker
-    or a fragment of a vehicle is not counted; its total is then the count speedometer writes from the same
+    or a fragment of a vehicle is not counted (and once it moved ``min-moved``, which every vehicle here does: parked
+    ones, tests/test_trafficoverlay_element.py); its total is then the count speedometer writes from the same
     detections, not every track.  Tracks the end of the stream cut short count, as speedometer counts them."""
     from gst_trafficcal.measurement import DEFAULT_END_AFTER, MIN_SEEN_S
 

@@ -22,7 +22,7 @@ from gst_trafficcal.gst.env import gst_environment  # noqa: E402
 from gst_trafficcal.gst.pipeline import PipelineError, run_pipeline  # noqa: E402
 from gst_trafficcal.overlay import Style  # noqa: E402
 
-from .conftest import serve_rtsp  # noqa: E402
+from .conftest import DETECTORS, VIDEOS, require_shared, serve_rtsp  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 PLUGINS = Path(__file__).resolve().parent / "gst_plugins"
@@ -273,6 +273,46 @@ def test_plain_detections_without_ids() -> None:
     f = frames[0]
     yellow = _near(f, STYLE.box_unknown_bgr, 60)
     assert yellow[int(BOX[1]), int(BOX[0]) + 5:int(BOX[2]) - 5].mean() > 0.9
+
+
+def _kraten_still(tmp_path: Path, frame: int = 1000) -> tuple[Path, Path]:
+    """One frame of kraten_cars.mp4 as a PNG (its cars then stand still, as parked cars do) and the clip's
+    calibration (tests/test_speedometer_element.py's)."""
+    from .test_speedometer_element import KRATEN_CALIBRATION
+
+    cap = cv2.VideoCapture(str(require_shared(VIDEOS / "kraten_cars.mp4")))
+    cap.set(cv2.CAP_PROP_POS_FRAMES, frame)
+    ok, image = cap.read()
+    cap.release()
+    assert ok
+    still, cal = tmp_path / "still.png", tmp_path / "kraten.json"
+    cv2.imwrite(str(still), image)
+    cal.write_text(json.dumps(KRATEN_CALIBRATION))
+    return still, cal
+
+
+@pytest.mark.shared
+def test_parked_vehicles_are_not_counted_without_speedometer(tmp_path: Path) -> None:
+    """``vehicledetect ! tracker ! trafficoverlay``, no speedometer: 3 s of a still of kraten_cars.mp4, whose cars
+    NanoDet finds though they stand (as parked cars do).  The tracker follows them for the whole 3 s, but the overlay
+    counts none of them — they moved under speedometer's ``min-moved`` (3 m along the road); before, every track in
+    view 0.5 s was counted, parked cars once per time they were found again."""
+    register_plugin_file(ROOT / "elements" / "python" / "vpdetect.py")
+    register_plugin_file(ROOT / "elements" / "python" / "vehicledetect.py")
+    register_plugin_file(ROOT / "elements" / "python" / "tracker.py")
+    still, cal = _kraten_still(tmp_path)
+    run = run_pipeline(f"filesrc location={still} ! pngdec ! imagefreeze num-buffers=75 ! video/x-raw,framerate=25/1 ! "
+                       f"videoconvert ! video/x-raw,format=I420 ! vpdetect calibration-file={cal} ! vehicledetect "
+                       f"model={require_shared(DETECTORS / 'nanodet_hpc203.onnx')} ! tracker ! trafficoverlay ! "
+                       "appsink name=sink")
+    spans: dict[int, list[float]] = {}
+    for f in run.frames:
+        for r in f.rois:
+            if r.object_id is not None:
+                spans.setdefault(r.object_id, [f.pts, f.pts])[1] = f.pts
+    assert sum(b - a >= 2.0 for a, b in spans.values()) >= 3, spans  # parked cars, tracked
+    counts = [m.fields for m in run.messages if m.name == "trafficcal-overlay-counts"]
+    assert len(counts) == 1 and counts[0]["total"] == 0, counts
 
 
 @pytest.mark.parametrize("fmt", ["GRAY8", "I420"])

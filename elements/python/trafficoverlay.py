@@ -181,9 +181,9 @@ class TrafficOverlay(TrafficcalTransform):
             self._tracked_upstream = any(upstream_element(self, name) is not None
                                          for name in ("tracker", "speedometer"))
             if upstream_element(self, "speedometer") is None:  # nobody says which tracks were no vehicle passing:
-                from gst_trafficcal.measurement import MIN_SEEN_S  # count only those in view long enough
+                from gst_trafficcal.measurement import MIN_PASSING_M, MIN_SEEN_S  # count by speedometer's rule
 
-                self._counter.min_seen_s = MIN_SEEN_S
+                self._counter.min_seen_s, self._counter.min_passing_m = MIN_SEEN_S, MIN_PASSING_M
         t = self.buffer_t
         if self._tracked_upstream and t is not None:
             warning = self._untracked.check(t, len(marks), sum(m.track_id is not None for m in marks), True)
