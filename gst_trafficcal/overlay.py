@@ -232,6 +232,7 @@ class VehicleMark:
     ref_point: tuple[float, float] | None = None  # reference point (bottom-front edge centre), pixels
     direction: str | None = None  # outputs.TOWARDS_VP1 / AWAY_FROM_VP1 / None
     lane: int | None = None
+    tentative: bool = False  # a detection no track holds yet (a tracker runs upstream): drawn faint, without label
 
 
 @dataclass(frozen=True)
@@ -253,6 +254,7 @@ class Style:
     box_towards_bgr: tuple[int, int, int] = (0, 255, 0)  # green: moving towards VP1
     box_away_bgr: tuple[int, int, int] = (255, 0, 255)  # magenta: moving away from VP1
     box_unknown_bgr: tuple[int, int, int] = (0, 255, 255)  # yellow: direction unknown / plain detection
+    tentative_bgr: tuple[int, int, int] = (170, 170, 170)  # light grey, 1 px: a detection no track holds yet
     ref_point_bgr: tuple[int, int, int] = (0, 0, 255)
     grid_along_bgr: tuple[int, int, int] = GRID_ALONG_BGR
     grid_across_bgr: tuple[int, int, int] = GRID_ACROSS_BGR
@@ -768,7 +770,8 @@ def draw_overlay(canvas: Canvas, marks: Sequence[VehicleMark], camera: Camera | 
                  options: OverlayOptions = OverlayOptions(), counter_lines: Sequence[str] = (),
                  style: Style = Style(), grid_cache: GridCache | None = None, status: str | None = None,
                  placer: PanelPlacer | None = None, zone: Sequence[np.ndarray] = ()) -> None:
-    """Draw everything ``options`` asks for; vehicles with 3D corners get their 3D box, others their 2D box.
+    """Draw everything ``options`` asks for; vehicles with 3D corners get their 3D box, others their 2D box,
+    tentative ones (a detection the tracker upstream has not confirmed as a vehicle yet) a thin grey 2D box only.
     ``status`` (:func:`calibration_status`): one line, at the bottom left unless ``placer`` (which sees this frame's
     vehicles and labels) puts it and the counters panel (top left) in corners the traffic leaves freer. ``zone``: the
     detection zone's polygons (pixels, :meth:`gst_trafficcal.zone.Zone.pixels`), outlined."""
@@ -791,6 +794,10 @@ def draw_overlay(canvas: Canvas, marks: Sequence[VehicleMark], camera: Camera | 
             return style.speeding_bgr
         return style.box_color(m.direction)
 
+    tentative = [m.box for m in marks if m.tentative]
+    marks = [m for m in marks if not m.tentative]
+    if options.boxes and tentative:  # first: a vehicle's box drawn over it stays whole
+        canvas.rectangles(np.array(tentative, np.float64), style.tentative_bgr, 1)
     if options.boxes:
         for color in {box_color(m) for m in marks}:
             group = [m for m in marks if box_color(m) == color]
@@ -813,6 +820,7 @@ def draw_overlay(canvas: Canvas, marks: Sequence[VehicleMark], camera: Camera | 
     labelled = [(m, lines) for m in marks if (lines := mark_label(m, options))] \
         if options.labels or options.speeds else []
     extents = {id(m): mark_extent(m) for m in marks}
+    traffic = list(extents.values()) + tentative  # where the panel should not be
     # nearest vehicles (lowest in the picture) first: theirs stay at their boxes, farther ones give way
     labelled.sort(key=lambda ml: -extents[id(ml[0])][3])
     wanted = []
@@ -822,7 +830,7 @@ def draw_overlay(canvas: Canvas, marks: Sequence[VehicleMark], camera: Camera | 
         wanted.append((left, top - 2 - bh, bw + 1, bh + 1))  # + 1: the even rounding of Canvas.label
     corners = ("top-left", "bottom-left")
     if placer is not None:
-        regions = list(extents.values()) + [(x, y, x + w, y + h) for x, y, w, h in wanted]
+        regions = traffic + [(x, y, x + w, y + h) for x, y, w, h in wanted]
         placer.observe(np.array(regions).reshape(-1, 4), canvas.size)
         corners = placer.place(panel_size, status_size, canvas.size)
     taken = []  # where the counters panel and the status line will be: labels keep off them

@@ -275,6 +275,23 @@ def test_plain_detections_without_ids() -> None:
     assert yellow[int(BOX[1]), int(BOX[0]) + 5:int(BOX[2]) - 5].mean() > 0.9
 
 
+def test_detections_no_track_holds_yet_are_drawn_faint_and_unlabelled() -> None:
+    """A tracker upstream that has not confirmed a detection (min-hits not reached): the overlay draws its box thin and
+    grey, without the class label a tracked vehicle gets, so that it does not look like a confirmed vehicle; without
+    a tracker (test_plain_detections_without_ids) the same detection is a vehicle: yellow box and label."""
+    register_plugin_file(ROOT / "elements" / "python" / "tracker.py")
+    frames = []
+    run_pipeline(f"{GREY_SRC},format=BGR ! tcroisource {_rois_prop([_roi_2d(object_id=None, speed=None)])} ! "
+                 "tracker min-hits=1000 background=false ! trafficoverlay draw-counters=false ! appsink name=sink",
+                 on_buffer=lambda b, i: frames.append(_bgr(b, i)))
+    f = frames[-1]
+    x0, y0, x1, y1 = (int(v) for v in BOX)
+    assert not _near(f, STYLE.box_unknown_bgr, 60).any()
+    grey = _near(f, STYLE.tentative_bgr, 12)
+    assert grey[y0, x0 + 5:x1 - 5].mean() > 0.9 and not grey[y0 + 3, x0 + 5:x1 - 5].any()  # a 1 px line
+    assert np.abs(f.astype(int) - 128)[:y0 - 1].max() <= 2  # nothing above the box: no label
+
+
 def _kraten_still(tmp_path: Path, frame: int = 1000) -> tuple[Path, Path]:
     """One frame of kraten_cars.mp4 as a PNG (its cars then stand still, as parked cars do) and the clip's
     calibration (tests/test_speedometer_element.py's)."""

@@ -4,7 +4,8 @@ Draws, in place and straight into the frame's planes (I420/NV12 luma and chroma,
 conversion of the whole frame): the road-plane grid towards VP1/VP2 and the horizon of the calibration (the
 sticky "trafficcal-calibration" event from upstream, or ``calibration-file``), each vehicle's 3D box (from
 the tracker's "trafficcal-vehicle" structure) or its 2D box (plain "detection" ROIs), its track id, label
-and speed (the "speed" structure), and counters of distinct vehicles per direction and lane; with
+and speed (the "speed" structure) — with a tracker upstream, a detection no track holds yet only as a thin grey box
+without label —, and counters of distinct vehicles per direction and lane; with
 ``speed-limit``, vehicles over it in red and their count. A vehicle that left before the calibration (so without
 direction or lane while in view) is counted by the values speedometer gives it when it measures it later (its
 ``trafficcal-speed`` custom event, ``gst_trafficcal.gst.vehicle_event``). At end of stream a
@@ -147,6 +148,8 @@ class TrafficOverlay(TrafficcalTransform):
                            "element drops the vehicles' ids and speeds")
 
     def transform_frame(self, buffer):
+        from dataclasses import replace
+
         from gst_trafficcal.gst.buffers import format_name
         from gst_trafficcal.gst.meta import read_vehicle_rois
         from gst_trafficcal.overlay import (OverlayOptions, calibration_status, canvas_for_planes, draw_overlay,
@@ -156,6 +159,8 @@ class TrafficOverlay(TrafficcalTransform):
         marks = [marks_from_params(r.box, r.label, r.object_id, r.params, self._given)
                  for r in read_vehicle_rois(buffer, self.frame_size, only=(VEHICLE, "speed"))]
         self._check_tracked(marks)
+        if self._tracked_upstream:  # a detection no track holds yet is no vehicle yet: faint, no label, not in view
+            marks = [replace(m, tentative=True) if m.track_id is None else m for m in marks]
         cal = self.calibration
         camera = cal.camera if cal is not None else None
         self._counter.update(marks, camera, self.buffer_t)
@@ -163,7 +168,7 @@ class TrafficOverlay(TrafficcalTransform):
                                  labels=self.draw_labels, speeds=self.draw_speeds, counters=self.draw_counters,
                                  grid_spacing_m=self.grid_spacing, thickness=self.line_thickness,
                                  font_scale=self.font_scale, speed_limit_kmh=self._limit)
-        counter_lines = self._counter.lines() + [f"in view: {len(marks)}"]
+        counter_lines = self._counter.lines() + [f"in view: {sum(not m.tentative for m in marks)}"]
         with self.planes(buffer, writable=True) as planes:
             canvas = canvas_for_planes(planes, format_name(self.video_info), *self._yuv)
             draw_overlay(canvas, marks, camera, options, counter_lines, grid_cache=self._grid_cache,
