@@ -260,6 +260,26 @@ def save_gt_data(gt: GroundTruth, path: str | Path) -> None:
 # --------------------------------------------------------------------------- results JSON
 
 
+def block_point(d: dict, key: str, where: str = "camera_calibration") -> tuple[float, float]:
+    """Point ``key`` of a ``camera_calibration`` block: [x, y] or homogeneous [x, y, w] (both are found in
+    BrnoCompSpeed's files); ValueError naming ``where.key`` when it is missing, not numbers, at infinity or not
+    finite."""
+    if key not in d:
+        raise ValueError(f"{where} has no '{key}'")
+    v = d[key]
+    if not (isinstance(v, (list, tuple)) and len(v) in (2, 3)
+            and all(isinstance(x, (int, float)) and not isinstance(x, bool) for x in v)):
+        raise ValueError(f"{where}.{key} must be a list of 2 numbers")
+    v = [float(x) for x in v]
+    if len(v) == 3:
+        if v[2] == 0:
+            raise ValueError(f"{where}.{key} is a point at infinity")
+        v = [v[0] / v[2], v[1] / v[2]]
+    if not all(math.isfinite(x) for x in v):
+        raise ValueError(f"{where}.{key} is not finite")
+    return v[0], v[1]
+
+
 @dataclass(frozen=True)
 class BrnoCalibration:
     """The ``camera_calibration`` block: vanishing points, principal point, BrnoCompSpeed scale."""
@@ -276,22 +296,7 @@ class BrnoCalibration:
     def from_dict(cls, d: Any, where: str = "camera_calibration") -> "BrnoCalibration":
         if not isinstance(d, dict):
             raise ValueError(f"{where} is not an object")
-        pts = {}
-        for key in ("vp1", "vp2", "pp"):
-            if key not in d:
-                raise ValueError(f"{where} has no '{key}'")
-            v = d[key]
-            if not (isinstance(v, (list, tuple)) and len(v) in (2, 3)
-                    and all(isinstance(x, (int, float)) and not isinstance(x, bool) for x in v)):
-                raise ValueError(f"{where}.{key} must be a list of 2 numbers")
-            v = [float(x) for x in v]
-            if len(v) == 3:
-                if v[2] == 0:
-                    raise ValueError(f"{where}.{key} is a point at infinity")
-                v = [v[0] / v[2], v[1] / v[2]]
-            if not all(math.isfinite(x) for x in v):
-                raise ValueError(f"{where}.{key} is not finite")
-            pts[key] = (v[0], v[1])
+        pts = {key: block_point(d, key, where) for key in ("vp1", "vp2", "pp")}
         if "scale" not in d:
             raise ValueError(f"{where} has no 'scale'")
         scale = d["scale"]

@@ -179,9 +179,15 @@ class Calibration:
         scale = block.get("scale")
         if scale is not None and not _is_number(scale):
             raise InputError(f"{where}: field 'camera_calibration.scale' must be a number or null, got {scale!r}")
+        from .brnocompspeed import block_point  # one reading of the block's points, [x, y] or [x, y, w]
+
         try:
-            cam = Camera.from_brno(_point(block, "vp1", where), _point(block, "vp2", where),
-                                   _point(block, "pp", where), None if scale is None else float(scale))
+            vp1, vp2, pp = (np.array(block_point(block, key, f"{where}: camera_calibration"))
+                            for key in ("vp1", "vp2", "pp"))
+        except ValueError as exc:
+            raise InputError(str(exc)) from None
+        try:
+            cam = Camera.from_brno(vp1, vp2, pp, None if scale is None else float(scale))
         except GeometryError as exc:
             raise GeometryError(f"{where}: {exc}") from None
         return cls(camera=cam, image_size=image_size, state="calibrated" if scale is not None else "vps",

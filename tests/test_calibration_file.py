@@ -87,6 +87,10 @@ def test_reads_brnocompspeed_results_file():
      "'camera_calibration.scale' must be a number or null"),
     ('{"camera_calibration": {"vp1": [3000, 200], "vp2": [-1500, 250], "pp": [960, 540], "scale": [1]}}',
      "'camera_calibration.scale' must be a number or null"),
+    ('{"camera_calibration": {"vp2": [-1500, 250], "pp": [960, 540], "scale": 0.01}}',
+     "camera_calibration has no 'vp1'"),
+    ('{"camera_calibration": {"vp1": [3000, 200, 0], "vp2": [-1500, 250], "pp": [960, 540], "scale": 0.01}}',
+     "camera_calibration.vp1 is a point at infinity"),
 ])
 def test_corrupt_files_give_clear_errors(tmp_path, content, message):
     path = tmp_path / "bad.json"
@@ -154,3 +158,14 @@ def test_a_calibration_file_keeps_the_zone_it_was_learnt_in(tmp_path) -> None:
     (tmp_path / "broken.json").write_text(text)
     with pytest.raises(InputError, match=re.escape(f"{tmp_path / 'broken.json'}: field 'zone': zone '0.1,0.4 7")):
         zone_of_file(tmp_path / "broken.json")
+
+
+def test_brnocompspeed_points_may_be_homogeneous(tmp_path):
+    """A camera_calibration block's points as [x, y, w] (as BrnoCompSpeed's results reader takes them) give the
+    same camera as [x, y]."""
+    block = {"vp1": [3000, 200], "vp2": [-1500, 250], "pp": [960, 540], "scale": 0.01}
+    plain, homogeneous = tmp_path / "plain.json", tmp_path / "homogeneous.json"
+    plain.write_text(json.dumps({"camera_calibration": block}))
+    homogeneous.write_text(json.dumps({"camera_calibration": {**block, "vp1": [6000, 400, 2], "pp": [960, 540, 1]}}))
+    a, b = load_calibration(plain).camera, load_calibration(homogeneous).camera
+    assert np.allclose(a.vp1, b.vp1) and np.allclose(a.vp2, b.vp2) and a.focal == pytest.approx(b.focal)
