@@ -70,15 +70,21 @@ def atomic_write(path: str | Path, write: Callable[[Path], None], what: str) -> 
 
     A symlink at ``path`` is followed: the temporary file is made beside its target and renamed over the target
     (atomic on the target's file system), the link is kept.  Anything else that is not a regular file is refused
-    (:func:`replace_target`).  Returns ``path``."""
+    (:func:`replace_target`).  The new file keeps the permission bits (rwx of owner, group and others) of the file
+    it replaces — a report made readable for a web server stays readable — and a new one gets those of any new
+    file (0666 less the umask), whatever mode ``write`` gave ``tmp``.  What a rename cannot keep is not kept: a
+    hard link to the earlier file goes on holding the earlier text, and the new file belongs to whoever wrote it.
+    Returns ``path``."""
     path = Path(path)
     target = replace_target(path, what)
     tmp = target.with_name(f".{target.name}.{os.getpid()}.tmp")
     try:
         target.parent.mkdir(parents=True, exist_ok=True)
+        mode = _mode_for(target, tmp)
         write(tmp)
         with open(tmp, "rb") as fh:
             os.fsync(fh.fileno())
+        os.chmod(tmp, mode)  # after the fsync, which must open it: an earlier file may have been unreadable
         os.replace(tmp, target)
     except OSError as exc:
         with contextlib.suppress(OSError):
@@ -89,6 +95,23 @@ def atomic_write(path: str | Path, write: Callable[[Path], None], what: str) -> 
             tmp.unlink(missing_ok=True)
         raise
     return path
+
+
+def _mode_for(target: Path, tmp: Path) -> int:
+    """The permission bits the file replacing ``target`` gets: the earlier file's, else a new file's (``tmp`` is
+    created empty with 0666, which the kernel reduces by the umask: no process-wide umask call, which another
+    thread creating a file meanwhile would see)."""
+    with contextlib.suppress(FileNotFoundError):
+        tmp.unlink()  # a leftover of a crashed writer of the same pid: its mode would be taken for a new file's
+    fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o666)
+    try:
+        new = stat.S_IMODE(os.fstat(fd).st_mode)
+    finally:
+        os.close(fd)
+    try:
+        return stat.S_IMODE(target.stat().st_mode) & 0o777
+    except FileNotFoundError:
+        return new & 0o777
 
 
 def atomic_write_text(path: str | Path, text: str, what: str) -> Path:
@@ -118,23 +141,34 @@ def writable_dir(path: str | Path, what: str) -> Path:
 
 def writable_file(path: str | Path, what: str) -> Path:
     """``path``, checked before any work that a file written whole and renamed into place (:func:`atomic_write`)
-    can go there: its folder (a symlink's: its target's) made or writable, and nothing but a regular file already
-    there (no folder, named pipe, device: :func:`replace_target`), which is not touched; InputError naming ``what``
-    otherwise."""
+    can go there: its folder (a symlink's: its target's) writable — a file is made and removed there — and nothing
+    but a regular file already there (no folder, named pipe, device: :func:`replace_target`), which is not touched;
+    InputError naming ``what`` otherwise.  Folders missing on the way are made for the check and removed again:
+    a run that then writes nothing (it failed, or it found nothing to write) leaves no empty folders behind, and
+    the writer makes them when it writes."""
     import tempfile
 
     path = Path(path)
     if path.is_dir():
         raise InputError(f"{path}: a folder, so it cannot be the {what}")
     folder = replace_target(path, f"the {what}").parent
+    made: list[Path] = []  # the folders this check made, deepest last
     try:
-        if folder.exists() and not folder.is_dir():
+        missing = [folder, *folder.parents]
+        missing = missing[:next((k for k, f in enumerate(missing) if f.exists() or f.is_symlink()), len(missing))]
+        for f in reversed(missing):
+            f.mkdir()
+            made.append(f)
+        if not folder.is_dir():
             raise NotADirectoryError(20, f"{folder} is not a folder")
-        folder.mkdir(parents=True, exist_ok=True)
         with tempfile.NamedTemporaryFile(dir=folder, prefix=".write-check-"):
             pass
     except OSError as exc:
         raise InputError(f"{path}: cannot write the {what} there ({exc.strerror or exc})") from None
+    finally:
+        for f in reversed(made):
+            with contextlib.suppress(OSError):  # something put there meanwhile (another writer) stays
+                f.rmdir()
     return path
 
 
@@ -148,6 +182,22 @@ def free_path(path: str | Path) -> Path:
         free = path.with_name(f"{path.stem}-{k}{path.suffix}")
         k += 1
     return free
+
+
+def remove_earlier(path: str | Path) -> None:
+    """Remove an earlier run's file at ``path`` before a new run writes it, so that it is not taken for the new
+    run's (a file the new run does not write is then missing, not stale).  A symlink stays — it is where the user
+    wants the file, as for every file written whole (:func:`atomic_write`) — and the file it leads to is removed,
+    so the link dangles until the new file is written through it.  A link to something else than a regular file
+    (a folder, a named pipe) is left alone: writing there is refused with its own error."""
+    path = Path(path)
+    if path.is_symlink():
+        target = Path(os.path.realpath(path))
+        with contextlib.suppress(OSError):
+            if not stat.S_ISREG(target.lstat().st_mode):
+                return
+        path = target
+    path.unlink(missing_ok=True)
 
 
 def keep_aside(path: str | Path) -> Path | None:

@@ -13,7 +13,8 @@ import pytest
 
 from gst_trafficcal.errors import InputError
 from gst_trafficcal.fileio import (
-    atomic_write_text, free_path, keep_aside, open_video, replace_target, writable_dir, writable_file,
+    atomic_write, atomic_write_text, free_path, keep_aside, open_video, remove_earlier, replace_target, writable_dir,
+    writable_file,
 )
 
 
@@ -141,3 +142,82 @@ def test_keep_aside_through_a_symlink_keeps_the_link(tmp_path: Path) -> None:
     assert link.is_symlink() and not target.exists()
     atomic_write_text(link, "new", "results")
     assert link.is_symlink() and target.read_text() == "new"
+
+
+def test_a_file_written_whole_keeps_the_permissions_of_the_one_it_replaces(tmp_path: Path) -> None:
+    """A report made readable for a web server's group (or a calibration made read-only) keeps its mode when it is
+    rewritten, also through a symlink; a new file gets a new file's mode (0666 less the umask) even when the writer
+    made its temporary file 0600. A hard link cannot follow a rename: it keeps the earlier text (documented)."""
+    report = tmp_path / "report.html"
+    report.write_text("old")
+    os.chmod(report, 0o640)
+    atomic_write_text(report, "new", "report")
+    assert report.read_text() == "new" and stat.S_IMODE(report.stat().st_mode) == 0o640
+    os.chmod(report, 0o444)
+    link = tmp_path / "served.html"
+    link.symlink_to(report.name)
+    atomic_write_text(link, "newer", "report")
+    assert link.is_symlink() and report.read_text() == "newer" and stat.S_IMODE(report.stat().st_mode) == 0o444
+
+    def private(tmp: Path) -> None:  # as tempfile.mkstemp would make it
+        os.close(os.open(tmp, os.O_WRONLY | os.O_CREAT, 0o600))
+        os.chmod(tmp, 0o600)
+        tmp.write_text("made 0600")
+
+    umask = os.umask(0o027)
+    try:
+        atomic_write(tmp_path / "new.json", private, "results")
+        atomic_write(report, private, "report")
+    finally:
+        os.umask(umask)
+    assert stat.S_IMODE((tmp_path / "new.json").stat().st_mode) == 0o640  # 0666 less the umask 027
+    assert stat.S_IMODE(report.stat().st_mode) == 0o444 and report.read_text() == "made 0600"
+    hard = tmp_path / "hard.html"
+    os.link(report, hard)
+    atomic_write_text(report, "newest", "report")
+    assert hard.read_text() == "made 0600" and report.read_text() == "newest"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["hard.html", "new.json", "report.html", "served.html"]
+
+
+def test_writable_file_checks_new_folders_without_leaving_them(tmp_path: Path) -> None:
+    """The check at start makes the missing folders to write a file there, then removes them: a run that writes
+    nothing leaves no empty folders; the writer makes them when it writes. A folder that existed stays."""
+    deep = tmp_path / "cams" / "cam1" / "cal.json"
+    assert writable_file(deep, "calibration file") == deep
+    assert list(tmp_path.iterdir()) == []
+    (tmp_path / "cams").mkdir()
+    (tmp_path / "cams" / "notes.txt").write_text("kept")
+    writable_file(deep, "calibration file")
+    assert sorted(p.name for p in (tmp_path / "cams").iterdir()) == ["notes.txt"]
+    link = tmp_path / "cal.json"  # a symlink into folders not made yet: checked at its target, nothing left either
+    link.symlink_to("real/sub/cal.json")
+    writable_file(link, "calibration file")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["cal.json", "cams"]
+    atomic_write_text(link, "{}", "calibration")  # the writer makes them
+    assert (tmp_path / "real" / "sub" / "cal.json").read_text() == "{}"
+    (tmp_path / "plain").write_text("a file")
+    with pytest.raises(InputError, match=r"plain/x/c\.json: cannot write the calibration file there \(Not a dir"):
+        writable_file(tmp_path / "plain" / "x" / "c.json", "calibration file")
+    assert (tmp_path / "plain").read_text() == "a file"
+
+
+def test_remove_earlier_keeps_a_symlink_and_removes_its_target(tmp_path: Path) -> None:
+    """An earlier run's output is removed before a new run; a symlink (to where the user wants the file, e.g. a web
+    server's folder) stays, its target goes, and the next file is written through it."""
+    (tmp_path / "www").mkdir()
+    target = tmp_path / "www" / "report.html"
+    target.write_text("the earlier run's")
+    link = tmp_path / "report.html"
+    link.symlink_to(target)
+    plain = tmp_path / "system.json"
+    plain.write_text("{}")
+    for path in (link, plain, tmp_path / "missing.json"):
+        remove_earlier(path)
+    assert link.is_symlink() and not link.exists() and not target.exists() and not plain.exists()
+    remove_earlier(link)  # dangling already: nothing to do
+    atomic_write_text(link, "this run's", "report")
+    assert link.is_symlink() and target.read_text() == "this run's"
+    folder = tmp_path / "folder.json"  # a link to a folder: nothing removed (writing there is refused on its own)
+    folder.symlink_to(tmp_path / "www")
+    remove_earlier(folder)
+    assert folder.is_symlink() and target.read_text() == "this run's"
