@@ -551,6 +551,30 @@ def test_an_earlier_live_runs_outputs_are_kept_a_files_are_replaced(clip, tmp_pa
     assert again.returncode == 0 and "Kept" not in again.stdout and len(list(out.glob("earlier-*"))) == 1
 
 
+def test_an_earlier_runs_outputs_that_are_symlinks_stay_links(clip, tmp_path):
+    """Outputs linked elsewhere (a web server's folder) stay links when a run replaces the earlier run's outputs:
+    the file a link leads to is removed before the run (nothing stale passes for this run's) and this run's file
+    written through the link; a file this run does not write (evaluation.json without --gt, overlay.mp4 with
+    --no-overlay) is then missing behind its link, not the earlier run's."""
+    www, out = tmp_path / "www", tmp_path / "out"
+    www.mkdir()
+    out.mkdir()
+    names = ("report.html", "system.json", "calibration.json", "intervals.csv", "evaluation.json", "overlay.mp4")
+    for name in names:
+        (www / name).write_text(f"the earlier run's {name}\n")
+        (out / name).symlink_to(www / name)
+    proc = trafficcal("run", clip / "video.mp4", "--out", out, "--calibration", clip / "calibration.json",
+                      "--duration", "3", "--no-overlay")
+    assert proc.returncode == 0, proc.stdout[-2000:] + proc.stderr[-2000:]
+    assert all((out / name).is_symlink() and os.readlink(out / name) == str(www / name) for name in names)
+    for name in ("report.html", "system.json", "calibration.json", "intervals.csv"):
+        assert "the earlier run's" not in (www / name).read_text(), name
+    assert load_calibration(out / "calibration.json").camera is not None
+    assert not (www / "evaluation.json").exists() and not (www / "overlay.mp4").exists()
+    wrote = " ".join(proc.stdout.split()).split("Wrote ")[1]
+    assert "evaluation.json" not in wrote and "overlay.mp4" not in wrote and "report.html" in wrote
+
+
 def test_an_out_folder_another_run_is_writing_into_is_refused(clip, tmp_path):
     """Two runs into one --out would overwrite each other's files: while the run whose status.json is there goes on
     (its process alive: here this test's), a second one is refused in one line; once it ended, it is not."""

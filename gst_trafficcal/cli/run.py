@@ -356,21 +356,23 @@ def measure_video(video: Path | str, out_dir: Path, description: str, console, l
     the calibration.  ``zone``: the detection zone of the run (gst_trafficcal.zone.Zone), kept in calibration.json.
 
     Earlier outputs in ``out_dir`` are removed first, except the files in ``keep`` (inputs of this run, such as a
-    calibration file given inside ``out_dir``).
+    calibration file given inside ``out_dir``); an output that is a symlink stays one: the file it leads to is
+    removed and the new one written through it (:func:`~gst_trafficcal.fileio.remove_earlier`).
     On an element error the vehicles already written stay in the files; the error is raised as InputError
     after ``calibration.json`` got the calibration known by then.
     """
     from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
 
     from ..calibration import save_calibration
+    from ..fileio import remove_earlier
     from ..gst.runner import PipelineError, RunFailed, run_pipeline_file
 
     paths = RunPaths(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
-    for name in OUTPUTS:  # nothing stale from an earlier run (speedometer truncates the event files itself)
-        stale = out_dir / name
+    for name in OUTPUTS:  # nothing stale from an earlier run (speedometer truncates the event files itself); a
+        stale = out_dir / name  # symlink stays, the file it leads to goes (written through the link again)
         if name not in (paths.events.name, paths.csv.name) and not any(_same(stale, k) for k in keep):
-            stale.unlink(missing_ok=True)
+            remove_earlier(stale)
     earlier = {p: _stamp(p) for p in (paths.events, paths.csv)}  # a run that fails before the speedometer replaced
     # them must not report the earlier run's vehicles as its own
     def hidden(text: str) -> str:  # a message without the URI's password

@@ -197,8 +197,10 @@ class _AllVehicles:
         from ..outputs import EventWriters
 
         self.console, self.reference, self.writers = console, reference, None
+        from ..fileio import remove_earlier
+
         for name in ("vehicles.jsonl", "vehicles.csv"):
-            (out_dir / name).unlink(missing_ok=True)
+            remove_earlier(out_dir / name)  # a symlink stays: the table is written through it
         try:
             self.writers = EventWriters.open(out_dir / "vehicles.jsonl", out_dir / "vehicles.csv",
                                              extra_columns=("part",))
