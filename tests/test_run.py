@@ -179,15 +179,20 @@ def test_without_a_scale_vehicles_are_written_and_the_command_says_so(clip, tmp_
 def test_not_a_video(clip, tmp_path):
     """A file that is not a video, and a zone that covers none of a video's frame, are refused before anything in
     --out is replaced: an earlier run's outputs there stay as they were (its vehicles are not passed off as this
-    run's)."""
+    run's), and so does its status.json — what an operator's monitoring reads still describes the outputs in --out
+    (the refusal is the command's one line and exit code); it once said "failed" with the refusal instead."""
+    from gst_trafficcal.run_status import StatusFile
+
     bad = tmp_path / "notes.mp4"
     bad.write_text("this is not a video\n" * 50)
     out = tmp_path / "out"
     out.mkdir()
+    StatusFile(out / "status.json", str(clip / "video.mp4")).update(state="finished", vehicles=7, measured=6)
     earlier = {name: f"the earlier run's {name}\n" for name in ("vehicles.jsonl", "vehicles.csv", "calibration.json",
                                                                  "system.json", "report.html")}
     for name, text in earlier.items():
         (out / name).write_text(text)
+    earlier["status.json"] = (out / "status.json").read_text()
     line = one_line_error(trafficcal("run", bad, "--out", out, "--no-overlay"))
     assert str(bad) in line and "not a video" in line and f"the earlier outputs in {out} are left as they were" in line
     assert {name: (out / name).read_text() for name in earlier} == earlier

@@ -784,6 +784,9 @@ def command(videos: tuple[str, ...], out_dir: Path, calibration_path: Path | Non
     writable_dir(out_dir, "output folder (--out)")  # one line now, not a traceback or an error after the video
     earlier = earlier_status(out_dir)
     refuse_a_busy_out(out_dir, earlier)
+    first = None  # one file: checked before anything in --out changes, status.json included (an operator watching
+    if len(inputs) == 1 and not is_uri(inputs[0]):  # it keeps the earlier run's; the refusal is the exit code's)
+        first = readable_video(inputs[0], out_dir, where)
     kept = set_aside_earlier_live_run(out_dir, is_uri(inputs[0]), earlier, (calibration_path, gt_path, regression_path))
     if kept is not None:
         console.print(f"[bold]Kept[/] the earlier run's outputs ({kept[1]} vehicles of a live stream, which cannot be "
@@ -794,7 +797,7 @@ def command(videos: tuple[str, ...], out_dir: Path, calibration_path: Path | Non
     options = RunOptions(detector, regression_path, body_shapes, limit, interval_min, duration_s, events_url,
                          no_overlay, gt_path, live_clock, start, status=status, split_every_s=split_s, zone=zone)
     with sigterm_as_ctrl_c():  # a service stopped (systemctl/docker stop, Kubernetes) loses nothing either
-        failed = _run_inputs(console, inputs, out_dir, calibration_path, options, starts, reconnect, status)
+        failed = _run_inputs(console, inputs, out_dir, calibration_path, options, starts, reconnect, status, first)
     status.update(state="interrupted" if failed == "interrupted" else "failed" if failed else "finished",
                   error=failed if failed and failed != "interrupted" else status.status.error,
                   next_attempt_at=None, force=True)
@@ -806,17 +809,17 @@ def command(videos: tuple[str, ...], out_dir: Path, calibration_path: Path | Non
 
 
 def _run_inputs(console: Any, inputs: list[str], out_dir: Path, calibration_path: Path | None, options: RunOptions,
-                starts: list, reconnect: bool, status: Any) -> str:
+                starts: list, reconnect: bool, status: Any, first: Any = None) -> str:
     """The run itself: a live stream with reconnection, one file or URI, or several files; "" when it ended by
     itself, "interrupted", or what failed.  status.json says "failed" or "interrupted" before an error or a second
-    Ctrl-C leaves."""
+    Ctrl-C leaves.  ``first``: the first frame of a single file, checked already (:func:`readable_video`)."""
     try:
         if reconnect:
             from .run_parts import run_stream
 
             return run_stream(console, inputs[0], out_dir, calibration_path, options)
         if len(inputs) == 1:
-            summary = run_one(console, inputs[0], out_dir, calibration_path, options)
+            summary = run_one(console, inputs[0], out_dir, calibration_path, options, first=first)
             return "interrupted" if summary.stopped == "interrupted" else ""
         from .run_parts import run_files
 
@@ -935,9 +938,10 @@ class RunOptions:
 
 
 def run_one(console, video: Path | str, out_dir: Path, calibration_path: Path | None, options: RunOptions,
-            calibration_mode: str = "fixed") -> "RunSummary":
+            calibration_mode: str = "fixed", first: Any = None) -> "RunSummary":
     """One input of ``trafficcal run``: play it, print what it found, write intervals.csv and report.html;
-    returns what it produced (InputError when an output could not be written)."""
+    returns what it produced (InputError when an output could not be written).  ``first``: the file's first frame
+    when the caller checked it already (:func:`readable_video`), else it is checked here."""
     from ..clock import NOW
     from ..gst.env import elements_dir
     from ..outputs import stream_start
@@ -962,7 +966,7 @@ def run_one(console, video: Path | str, out_dir: Path, calibration_path: Path | 
         shown = shown.replace(events_url, redacted(events_url))
     console.print(f"[bold]Pipeline[/] {shown}", highlight=False, soft_wrap=True)
     zone = parse_zone(options.zone)
-    frame = None if is_uri(video) else readable_video(video, out_dir, zone)
+    frame = first if first is not None or is_uri(video) else readable_video(video, out_dir, zone)
     summary = measure_video(video, out_dir, description, console,
                             keep=(calibration_path,) if calibration_path is not None else (), stop_after_s=duration_s,
                             status=options.status, zone=zone)
