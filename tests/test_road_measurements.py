@@ -164,6 +164,32 @@ def test_bad_invocations(tmp_path):
     unreadable = _run("calibrate-manual", "--measurements", path, "-o", out, "--image", junk)
     assert unreadable.returncode == 2 and "neither a picture nor a video" in unreadable.stderr
     assert not out.exists()  # every one of them before any output
+
+
+def test_an_output_that_cannot_be_written_is_refused_before_the_calibration(tmp_path):
+    """-o and its picture are checked at start (fileio.writable_file, as fit-scale and run do): a path that cannot
+    be written is one line naming it, before the grid search, and no calibration is left without its picture.
+    Before, the calibration was computed and written first, then the picture failed."""
+    import os
+
+    path = tmp_path / "road.yaml"
+    path.write_text(yaml.safe_dump(_measurements(_camera())))
+    picture = tmp_path / "frame.png"
+    cv2.imwrite(str(picture), np.zeros((SIZE[1], SIZE[0], 3), np.uint8))
+    out = tmp_path / "cal.json"
+    (tmp_path / "cal.png").mkdir()  # where the picture would go
+    proc = _run("calibrate-manual", "--measurements", path, "-o", out, "--image", picture)
+    assert proc.returncode == 2 and proc.stderr.strip().splitlines() == [
+        f"trafficcal: error: {tmp_path / 'cal.png'}: a folder, so it cannot be the picture"], proc.stderr
+    assert not out.exists() and not proc.stdout.strip()
+    (tmp_path / "plain").write_text("a file, not a folder")
+    link = tmp_path / "linked.json"  # a symlink into a folder that cannot be made: checked at its target
+    link.symlink_to("plain/cal.json")
+    proc = _run("calibrate-manual", "--measurements", path, "-o", link)
+    assert proc.returncode == 2 and proc.stderr.strip().splitlines() == [
+        f"trafficcal: error: {link}: cannot write the calibration file (-o) there ({tmp_path / 'plain'} is not a "
+        "folder)"], proc.stderr
+    assert os.readlink(link) == "plain/cal.json" and not proc.stdout.strip()
     broken = tmp_path / "broken.yaml"
     broken.write_text("lane_dividers: [[1, 2]\n")
     with pytest.raises(InputError, match="broken.yaml: not a readable road measurements file"):

@@ -246,8 +246,9 @@ def test_an_output_folder_that_cannot_be_made_is_refused_before_the_run(clip, tm
     """Not a traceback, and not an error once the whole video was read: one line naming the folder."""
     args = {"run": ["--out", "/proc/trafficcal-out"], "calibrate": ["-o", "/proc/trafficcal-out/cal.json"]}[command]
     line = one_line_error(trafficcal(command, clip / "video.mp4", *args))
-    assert line == "trafficcal: error: /proc/trafficcal-out: cannot create the output folder" + (
-        " (--out)" if command == "run" else "") + " (No such file or directory)"
+    assert line == ("trafficcal: error: /proc/trafficcal-out: cannot create the output folder (--out)"
+                    if command == "run" else "trafficcal: error: /proc/trafficcal-out/cal.json: cannot write the "
+                    "calibration file (-o) there") + " (No such file or directory)"
 
 
 def test_bad_speed_limit_is_refused_before_the_run(clip, tmp_path):

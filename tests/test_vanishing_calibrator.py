@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -202,6 +203,20 @@ def test_cli_errors_are_one_line(tmp_path):
     r = _cli("calibrate", str(static), "-o", str(tmp_path), "--no-progress")  # a folder: refused before the pass
     assert r.returncode == 2 and r.stderr.strip().splitlines() == [
         f"trafficcal: error: {tmp_path}: a folder, so it cannot be the calibration file (-o)"]
+    fifo = tmp_path / "grid.png"  # a named pipe (or a symlink into a folder that cannot be made): said before the
+    os.mkfifo(fifo)  # pass, as any path fileio.writable_file refuses; before, the pass ran and wrote the calibration
+    (tmp_path / "plain").write_text("a file, not a folder")
+    link = tmp_path / "linked.json"
+    link.symlink_to("plain/c.json")
+    for out, png, error in (
+            (tmp_path / "p.json", fifo, f"{fifo}: a named pipe, not a regular file: cannot write the grid picture "
+                                        "there (it is written whole, then renamed into place)"),
+            (link, None, f"{link}: cannot write the calibration file (-o) there ({tmp_path / 'plain'} is not a "
+                         "folder)")):
+        r = _cli("calibrate", str(static), "-o", str(out), "--no-progress", "--min-duration", "1",
+                 *(["--png", str(png)] if png else []))
+        assert r.returncode == 2 and r.stderr.strip().splitlines() == [f"trafficcal: error: {error}"], r.stderr
+        assert not (tmp_path / "p.json").exists() and not r.stdout.strip()
     r = _cli("calibrate", str(static), "-o", str(tmp_path / "s.json"), "--no-progress", "--min-duration", "1")
     assert r.returncode == 1 and "no traffic" in r.stdout
     assert json.loads((tmp_path / "s.json").read_text())["state"] == "failed"

@@ -92,15 +92,13 @@ def command(video: Path, out_path: Path, png_path: Path | None, method: str, min
     cfg = CalibratorConfig(method=method, min_duration=min_duration, max_duration=max_duration,
                            focal_range=parse_focal_range(focal_range), horizon_max_deg=horizon_max,
                            vp1_constant_speed=constant_speed, zone=where)
-    from ..fileio import open_video, writable_dir
+    from ..fileio import open_video, writable_file
 
     cap = open_video(video)  # a missing or unreadable video: its one line before anything is created
     size = (int(cap.get(cv2.CAP_PROP_FRAME_WIDTH)), int(cap.get(cv2.CAP_PROP_FRAME_HEIGHT)))
     cap.release()
     for path, what in ((out_path, "calibration file (-o)"), (png_path or out_path.with_suffix(".png"), "grid picture")):
-        if path.is_dir():  # now (after the inputs were checked), not after the whole video
-            raise InputError(f"{path}: a folder, so it cannot be the {what}")
-        writable_dir(path.parent, "output folder")
+        writable_file(path, what)  # now (after the inputs were checked), not after the whole video
     console = Console(stderr=True)
     doubt = where.doubt(size) if where is not None and min(size) > 0 else None
     if doubt:  # a zone in pixels of another resolution, perhaps: said before the long pass, as trafficcal run does
