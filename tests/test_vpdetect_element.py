@@ -37,7 +37,7 @@ def _states(run):
 
 
 def test_learns_passes_frames_through_and_announces_each_state(frames, tmp_path):
-    out = tmp_path / "cal.json"
+    out = tmp_path / "cams" / "cam1" / "cal.json"  # its folders made when the calibration is saved
     run = run_pipeline(f"appsrc name=src ! vpdetect {FAST} calibration-file={out} ! appsink name=sink",
                        frames, CAPS, fps=FPS)
     assert len(run.frames) == len(frames)
@@ -80,16 +80,19 @@ def test_loads_an_existing_file_without_learning(tmp_path):
 
 
 def test_static_video_fails_at_eos_with_the_reason(tmp_path):
+    """Nothing learnt, nothing saved — and no folder left behind: the calibration file's folders, checked writable
+    at start (made and removed again), are made only when a calibration is saved (once, every run that learnt
+    nothing left them empty)."""
     import cv2
 
     static = [cv2.cvtColor(f, cv2.COLOR_GRAY2BGR) for f in render_scene(3.0, traffic=False)]
-    out = tmp_path / "never.json"
+    out = tmp_path / "cams" / "cam1" / "never.json"
     run = run_pipeline(f"appsrc name=src ! vpdetect min-duration=1 calibration-file={out} ! appsink name=sink",
                        static, CAPS, fps=FPS)
     assert _states(run) == ["learning", "failed"]
     failed = run.calibrations[-1]
     assert failed.state == "failed" and failed.reason.startswith("no traffic")
-    assert not out.exists()  # nothing learnt, nothing saved
+    assert not out.exists() and list(tmp_path.iterdir()) == []  # nothing learnt, nothing saved, no empty folders
 
 
 def test_bad_configuration_and_caps_are_clear_errors(tmp_path):
