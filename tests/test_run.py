@@ -540,6 +540,9 @@ def test_an_earlier_live_runs_outputs_are_kept_a_files_are_replaced(clip, tmp_pa
     StatusFile(out / "status.json", "rtsp://admin:***@cam/1").update(state="failed", error="the machine rebooted")
     (out / "vehicles.jsonl").write_text('{"id": 1}\n{"id": 2}\n')
     (out / "report.html").write_text("the earlier report")
+    (tmp_path / "www").mkdir()  # an output linked elsewhere: its content is kept, the link stays for this run's
+    (tmp_path / "www" / "system.json").write_text('{"the earlier": "results"}')
+    (out / "system.json").symlink_to(tmp_path / "www" / "system.json")
     shutil.copy(clip / "calibration.json", out / "calibration.json")
     args = ("run", clip / "video.mp4", "--out", out, "--calibration", out / "calibration.json", "--duration", "3",
             "--no-overlay")
@@ -549,6 +552,10 @@ def test_an_earlier_live_runs_outputs_are_kept_a_files_are_replaced(clip, tmp_pa
     assert len(kept) == 1 and f"Kept the earlier run's outputs (2 vehicles of a live stream" in proc.stdout
     assert (kept[0] / "vehicles.jsonl").read_text() == '{"id": 1}\n{"id": 2}\n'
     assert (kept[0] / "report.html").read_text() == "the earlier report"
+    assert (kept[0] / "system.json").read_text() == '{"the earlier": "results"}'
+    assert not (kept[0] / "system.json").is_symlink() and (out / "system.json").is_symlink()
+    assert "the earlier" not in (tmp_path / "www" / "system.json").read_text()  # this run's, through the link
+    assert load_results(tmp_path / "www" / "system.json").cars
     assert read_status(kept[0] / "status.json").error == "the machine rebooted"
     assert (kept[0] / "calibration.json").read_bytes() == (out / "calibration.json").read_bytes()  # copied
     assert read_status(out / "status.json").source == str(clip / "video.mp4")  # this run's own outputs

@@ -313,7 +313,8 @@ def set_aside_earlier_live_run(out_dir: Path, live: bool, earlier=None,
     live stream (``earlier``, its status: the source is a URI; without one: when this run reads one, ``live``), its
     outputs move to ``out_dir/earlier-<its start>/`` instead of being replaced, so a service restarted after a
     crash or a reboot keeps what it measured.  A file's run is replaced as before (it can be run again).  Files
-    that are ``inputs`` of this run (``--calibration OUT/calibration.json``) are copied there, not moved.  Returns
+    that are ``inputs`` of this run (``--calibration OUT/calibration.json``) are copied there, not moved; of an
+    output that is a symlink the file it leads to is moved, the link stays (this run's file is written through it).  Returns
     the folder and the number of vehicles kept there, or None."""
     import shutil
     from datetime import datetime
@@ -341,6 +342,9 @@ def set_aside_earlier_live_run(out_dir: Path, live: bool, earlier=None,
         if path.exists():
             if any(_same(path, given) for given in inputs if given is not None):
                 shutil.copy2(path, folder / name)
+            elif path.is_symlink():  # the link stays for this run's file, what it leads to is kept
+                if Path(os.path.realpath(path)).is_file():
+                    shutil.move(os.path.realpath(path), folder / name)
             else:
                 path.rename(folder / name)
     return folder, count
