@@ -314,8 +314,8 @@ def set_aside_earlier_live_run(out_dir: Path, live: bool, earlier=None,
     outputs move to ``out_dir/earlier-<its start>/`` instead of being replaced, so a service restarted after a
     crash or a reboot keeps what it measured.  A file's run is replaced as before (it can be run again).  Files
     that are ``inputs`` of this run (``--calibration OUT/calibration.json``) are copied there, not moved; of an
-    output that is a symlink the file it leads to is moved, the link stays (this run's file is written through it).  Returns
-    the folder and the number of vehicles kept there, or None."""
+    output that is a symlink the file it leads to is moved, the link stays (this run's file is written through
+    it).  Returns the folder and the number of vehicles kept there, or None."""
     import shutil
     from datetime import datetime
 
