@@ -111,6 +111,16 @@ def cuboid_clip_dense(tmp_path_factory) -> Path:
     return _render_cuboid_clip(tmp_path_factory, 1500)
 
 
+def track_spans(frames) -> dict[int, list[float]]:
+    """[first, last] PTS of each track id in the frames of a :func:`gst_trafficcal.gst.pipeline.run_pipeline` run."""
+    spans: dict[int, list[float]] = {}
+    for f in frames:
+        for r in f.rois:
+            if r.object_id is not None:
+                spans.setdefault(r.object_id, [f.pts, f.pts])[1] = f.pts
+    return spans
+
+
 def count_frames(path: Path) -> int:
     """How many frames OpenCV decodes from a video file (0 for one it cannot read, e.g. an MP4 without its index)."""
     import cv2

@@ -22,7 +22,7 @@ from gst_trafficcal.gst.pipeline import PipelineError, run_pipeline  # noqa: E40
 from gst_trafficcal.outputs import read_events, read_events_csv  # noqa: E402
 from gst_trafficcal.synth.groundtruth import read_jsonl  # noqa: E402
 
-from .conftest import VIDEOS, require_shared  # noqa: E402
+from .conftest import VIDEOS, require_shared, track_spans  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 ELEMENTS = ROOT / "elements" / "python"
@@ -293,11 +293,7 @@ def test_the_overlay_without_speedometer_counts_by_speedometers_rule(clip, tmp_p
     cal = f"calibration-file={clip / 'calibration.json'}"
     run = run_pipeline(f"{source(clip)} ! vpdetect {cal} ! vehicledetect ! tracker ! trafficoverlay ! "
                        "appsink name=sink")
-    spans: dict[int, list[float]] = {}
-    for f in run.frames:
-        for r in f.rois:
-            if r.object_id is not None:
-                spans.setdefault(r.object_id, [f.pts, f.pts])[1] = f.pts
+    spans = track_spans(run.frames)
     end = run.frames[-1].pts
     long = [i for i, (a, b) in spans.items() if b - a >= MIN_SEEN_S - 1e-6 or b >= end - DEFAULT_END_AFTER]
     counts = [m.fields for m in run.messages if m.name == "trafficcal-overlay-counts"]

@@ -22,7 +22,7 @@ from gst_trafficcal.gst.env import gst_environment  # noqa: E402
 from gst_trafficcal.gst.pipeline import PipelineError, run_pipeline  # noqa: E402
 from gst_trafficcal.overlay import Style  # noqa: E402
 
-from .conftest import DETECTORS, VIDEOS, require_shared, serve_rtsp  # noqa: E402
+from .conftest import DETECTORS, VIDEOS, require_shared, serve_rtsp, track_spans  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 PLUGINS = Path(__file__).resolve().parent / "gst_plugins"
@@ -322,11 +322,7 @@ def test_parked_vehicles_are_not_counted_without_speedometer(tmp_path: Path) -> 
                        f"videoconvert ! video/x-raw,format=I420 ! vpdetect calibration-file={cal} ! vehicledetect "
                        f"model={require_shared(DETECTORS / 'nanodet_hpc203.onnx')} ! tracker ! trafficoverlay ! "
                        "appsink name=sink")
-    spans: dict[int, list[float]] = {}
-    for f in run.frames:
-        for r in f.rois:
-            if r.object_id is not None:
-                spans.setdefault(r.object_id, [f.pts, f.pts])[1] = f.pts
+    spans = track_spans(run.frames)
     assert sum(b - a >= 2.0 for a, b in spans.values()) >= 3, spans  # parked cars, tracked
     counts = [m.fields for m in run.messages if m.name == "trafficcal-overlay-counts"]
     assert len(counts) == 1 and counts[0]["total"] == 0, counts
