@@ -109,6 +109,10 @@ class VehicleEvent:
         object.__setattr__(self, "n_samples", int(self.n_samples or 0))
         for name in ("first_time", "last_time", "run"):
             object.__setattr__(self, name, str(getattr(self, name)) if getattr(self, name) else None)
+        for name in ("first_time", "last_time"):  # refused here, where the file is named (from_dict), not later
+            value = getattr(self, name)
+            if value is not None and _iso_time(value) is None:
+                raise ValueError(f"{name} {value!r} is not an ISO 8601 date and time")
         reason = str(self.reason or "")
         if self.speed_kmh is None and not reason:
             reason = "not measured"
@@ -161,6 +165,14 @@ class VehicleEvent:
             return cls(**kwargs)
         except (TypeError, ValueError) as exc:
             raise InputError(f"{where}: bad vehicle event ({exc})") from None
+
+
+def _iso_time(text: str) -> datetime | None:
+    """``text`` as a date and time (as :func:`~gst_trafficcal.clock.parse_start_time` reads it), else None."""
+    try:
+        return parse_start_time(text)
+    except InputError:
+        return None
 
 
 def new_run_id(now: datetime | None = None) -> str:

@@ -302,6 +302,23 @@ def test_reading_bad_event_files(tmp_path: Path) -> None:
         read_events(tmp_path / "other.jsonl")
 
 
+@pytest.mark.parametrize("field", ["first_time", "last_time"])
+def test_an_events_file_with_a_bad_date_is_named(tmp_path: Path, field: str) -> None:
+    """A date that is no ISO 8601 time is refused where the file is read, with the file and its line: it used to
+    pass, and the report then failed with "start time: 'yesterday' is not ..." naming no file."""
+    from datetime import datetime, timezone
+
+    good = {"id": 1, "label": "car", "first_timestamp_s": 1.0, "last_timestamp_s": 2.0, "speed_kmh": 50.0,
+            "first_time": "2026-12-05T08:00:01.000+00:00", "last_time": "2026-12-05T08:00:02.000+00:00"}
+    path = tmp_path / "vehicles.jsonl"
+    path.write_text(json.dumps(good) + "\n" + json.dumps({**good, "id": 2, field: "yesterday"}) + "\n")
+    with pytest.raises(InputError, match=rf"vehicles\.jsonl:2: bad vehicle event \({field} 'yesterday' is not an "
+                                         r"ISO 8601 date and time"):
+        on_one_clock(read_events(path).events)
+    path.write_text(json.dumps(good) + "\n")
+    assert on_one_clock(read_events(path).events)[0] == datetime(2026, 12, 5, 8, 0, tzinfo=timezone.utc)
+
+
 # --------------------------------------------------------------------------- BrnoCompSpeed results
 
 
