@@ -7,7 +7,7 @@
 #   pipelines/nvr-overlay.sh --help             # print this text
 #
 # INPUT        a video file or any URI uridecodebin plays: file:///..., http(s)://..., rtsp://user:pw@cam/stream
-# OUTPUT       the recording; its extension picks the container:
+# OUTPUT       the recording; its extension (in any case: .MP4 too) picks the container:
 #                .mp4  fragmented MP4 (playable while being written and after a crash or power loss)
 #                .mkv  Matroska      .ts  MPEG transport stream
 #              or a live stream in MPEG-TS for an NVR/VMS or a media server (e.g. to re-serve it as RTSP):
@@ -76,9 +76,9 @@ case "$output" in
         muxer="mpegtsmux alignment=7" ; mux_element=mpegtsmux ; sink=(srtsink "uri=$output")
         need+=(srtsink) ;;
     *://*) die "$output: unsupported output URI (use udp://HOST:PORT or srt://HOST:PORT, or a file)" ;;
-    *.mp4) muxer="mp4mux fragment-duration=1000" ; mux_element=mp4mux ;;
-    *.mkv) muxer="matroskamux" ; mux_element=matroskamux ;;
-    *.ts)  muxer="mpegtsmux" ; mux_element=mpegtsmux ;;
+    *.[mM][pP]4) muxer="mp4mux fragment-duration=1000" ; mux_element=mp4mux ;;
+    *.[mM][kK][vV]) muxer="matroskamux" ; mux_element=matroskamux ;;
+    *.[tT][sS]) muxer="mpegtsmux" ; mux_element=mpegtsmux ;;
     *) die "$output: unknown container (use .mp4, .mkv or .ts, or udp:// / srt://)" ;;
 esac
 need+=("$mux_element")

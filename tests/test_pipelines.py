@@ -160,6 +160,16 @@ def test_nvr_overlay_takes_a_calibration_in_a_folder_with_a_space(tmp_path):
     assert (folder / "overlay.mkv").stat().st_size > 1000
 
 
+@pytest.mark.parametrize("name, muxer", [("o.MP4", "mp4mux fragment-duration=1000"), ("o.Mkv", "matroskamux"),
+                                         ("o.TS", "mpegtsmux")])
+def test_nvr_overlay_takes_the_container_from_the_extension_in_any_case(tmp_path, name, muxer):
+    """A camera's recording named rec.MP4 was refused as an "unknown container" (exit code 2): the extension is
+    read whatever its case. (The input does not exist: the pipeline is started with that muxer, then fails.)"""
+    proc = script("nvr-overlay.sh", "file:///nonexistent/nope.mp4", tmp_path / name)
+    assert proc.returncode not in (0, 2), proc.stderr[-2000:]
+    assert f"! h264parse ! {muxer} ! filesink location={tmp_path / name}" in proc.stderr.splitlines()[0]
+
+
 def test_measure_writes_vehicles_and_matches_trafficcal_run(clip, tmp_path):
     """The product card's chain from a URI with the true calibration; the same numbers as `trafficcal run`."""
     out = tmp_path / "measure"
