@@ -7,7 +7,8 @@
 #
 # INPUT        a video file or any URI uridecodebin plays: file:///..., http(s)://..., rtsp://user:pw@cam/stream
 # CALIBRATION  where to write the calibration (our calibration JSON, state "vps": vanishing points, no scale yet).
-#              Written only once the calibration converged; an earlier file there is replaced only then.
+#              Written only once the calibration converged; an earlier file there is replaced only then (written
+#              whole, then renamed: a symlink is followed and stays, an earlier file's permissions are kept).
 #
 # The pipeline (printed before it runs):
 #   uridecodebin ! videoconvert ! I420 ! vpdetect mode=learn calibration-file=... ! fakesink
@@ -54,8 +55,16 @@ input="$1"
 output="$2"
 
 uri="$(input_uri "$input")"
-out_dir="$(dirname "$output")"
 [[ -d "$output" ]] && die "$output: a folder, not a calibration file (e.g. ${output%/}/calibration.json)"
+# Written whole beside the file, then renamed over it, as the Python side's fileio.atomic_write does: a symlink is
+# followed (the link stays, the file it leads to gets the calibration) and an earlier file's permissions are kept.
+target="$output"
+if [[ -L "$output" ]]; then
+    target="$(readlink -m -- "$output")" || die "$output: a symlink that cannot be followed (a loop?)"
+fi
+[[ -e "$target" && ! -f "$target" ]] && die "$output: not a regular file: cannot write the calibration there (it" \
+    "is written whole, then renamed into place)"
+out_dir="$(dirname "$target")"
 [[ -d "$out_dir" && -w "$out_dir" ]] || die "$output: directory $out_dir does not exist or is not writable"
 
 missing="$(check_elements "${need[@]}")"
@@ -82,7 +91,10 @@ rc=0
 launch --until "$tmp" "${pipeline[@]}" >"$log" 2>&1 || rc=$?
 
 if [[ -s "$tmp" ]]; then
-    mv -f "$tmp" "$output"
+    if [[ -f "$target" ]]; then  # its permission bits (rwx of owner, group, others), not a new file's
+        chmod "$(printf '%o' $((0$(stat -c '%a' -- "$target") & 0777)))" "$tmp"
+    fi
+    mv -f -- "$tmp" "$target"
     echo "calibrate: wrote $output"
     exit 0
 fi

@@ -81,15 +81,21 @@ set_stall_watchdog() {  # URI: sets the array `stall` to (watchdog timeout=MS !)
 keep_earlier_live() {  # URI OUT_DIR: prints the folder a live stream's earlier results in OUT_DIR were moved to
     # A stream cannot be measured again: a recipe started again (a service after a crash or a reboot) into the
     # same OUT_DIR keeps what it measured before in OUT_DIR/earlier-<time of its last vehicle>/ instead of
-    # overwriting it. A file can be run again: its results are replaced.
-    local uri="$1" out="$2" kept base n=2 f
+    # overwriting it. A file can be run again: its results are replaced. Of an output that is a symlink the file
+    # it leads to is moved and the link stays for the new run's file (written through it), as `trafficcal run` does.
+    local uri="$1" out="$2" kept base n=2 f real
     [[ "$uri" == file://* || ! -s "$out/vehicles.jsonl" ]] && return 0
     base="$out/earlier-$(date -r "$out/vehicles.jsonl" +%Y%m%d-%H%M%S)"
     kept="$base"
     while [[ -e "$kept" ]]; do kept="$base-$n"; n=$((n + 1)); done
     mkdir -p "$kept" || return 1
     for f in vehicles.jsonl vehicles.csv system.json intervals.csv; do
-        if [[ -e "$out/$f" ]]; then mv "$out/$f" "$kept/" || return 1; fi
+        if [[ -L "$out/$f" ]]; then
+            real="$(readlink -f -- "$out/$f")" || continue  # a link that leads nowhere: nothing to keep
+            if [[ -f "$real" ]]; then mv -- "$real" "$kept/$f" || return 1; fi
+        elif [[ -e "$out/$f" ]]; then
+            mv -- "$out/$f" "$kept/" || return 1
+        fi
     done
     echo "$kept"
 }

@@ -238,6 +238,55 @@ def test_measure_started_again_on_a_live_source_keeps_the_earlier_results(clip, 
     assert read_events(rec / "vehicles.jsonl").events[0].label  # this run's vehicles
 
 
+def test_measure_started_again_on_a_live_source_keeps_what_a_symlinked_output_leads_to(tmp_path):
+    """An output that is a symlink (OUT_DIR/vehicles.jsonl -> a file elsewhere, as `trafficcal run` allows): the file
+    it leads to is moved to OUT_DIR/earlier-<time>/ and the link stays for this run's file, as `trafficcal run` does.
+    Before, the link itself was moved: earlier-*/vehicles.jsonl was a link (a relative one then led nowhere) and the
+    new run wrote a regular file where the user's link had been."""
+    live, data = tmp_path / "live", tmp_path / "data"
+    live.mkdir()
+    data.mkdir()
+    (data / "today.jsonl").write_text('{"id": 1}\n{"id": 2}\n')
+    (live / "vehicles.jsonl").symlink_to(Path("..") / "data" / "today.jsonl")  # relative, as ln -s makes it
+    proc = script("measure.sh", "rtsp://127.0.0.1:9/none", live)  # nothing listens: fails fast, after keeping
+    kept = list(live.glob("earlier-*"))
+    assert len(kept) == 1, proc.stderr
+    assert not (kept[0] / "vehicles.jsonl").is_symlink(), proc.stderr
+    assert (kept[0] / "vehicles.jsonl").read_text() == '{"id": 1}\n{"id": 2}\n'
+    assert (live / "vehicles.jsonl").is_symlink() and os.readlink(live / "vehicles.jsonl") == "../data/today.jsonl"
+    assert f"measure: kept the earlier run's 2 vehicles of a live stream in {kept[0]}" in proc.stderr
+
+
+def test_calibrate_writes_through_a_symlink_and_keeps_the_files_permissions(cuboid_video, tmp_path):
+    """CALIBRATION given as a symlink (a camera's current calibration, linked from where a service reads it) and an
+    earlier file there readable by its group only: the new calibration goes to the file the link leads to, the
+    link stays and the mode stays, as the Python side's atomic_write does. Before, `mv -f` replaced the link with
+    a regular file of a new file's mode."""
+    store = tmp_path / "store"
+    store.mkdir()
+    (store / "cam1.json").write_text("an earlier calibration\n")
+    (store / "cam1.json").chmod(0o640)
+    link = tmp_path / "cal.json"
+    link.symlink_to(store / "cam1.json")
+    proc = script("calibrate.sh", cuboid_video, link, VPDETECT_OPTS="min-duration=8")
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    assert f"wrote {link}" in proc.stdout
+    assert link.is_symlink() and os.readlink(link) == str(store / "cam1.json")
+    assert load_calibration(store / "cam1.json").state == "vps"
+    assert (store / "cam1.json").stat().st_mode & 0o777 == 0o640
+    assert not list(tmp_path.glob(".calibrate.*")) and not list(store.glob(".calibrate.*"))
+
+
+def test_calibrate_refuses_a_named_pipe_as_its_output_at_once(clip, tmp_path):
+    """Something other than a regular file at CALIBRATION (a named pipe) is one line at the start, as the Python
+    side's writable_file says it; before, the whole video was calibrated and `mv` then replaced the pipe."""
+    fifo = tmp_path / "cal.json"
+    os.mkfifo(fifo)
+    proc = script("calibrate.sh", clip / "video.mp4", fifo)
+    assert proc.returncode == 2 and len(proc.stderr.strip().splitlines()) == 1, proc.stderr[-2000:]
+    assert proc.stderr.startswith(f"calibrate: error: {fifo}: not a regular file: cannot write the calibration")
+
+
 def test_measure_without_a_scale_keeps_vehicles_and_says_why(clip, tmp_path):
     d = json.loads((clip / "calibration.json").read_text())
     d.update(scale=None, state="vps")
