@@ -119,6 +119,35 @@ def atomic_write_text(path: str | Path, text: str, what: str) -> Path:
     return atomic_write(path, lambda tmp: tmp.write_text(text, encoding="utf-8"), what)
 
 
+def atomic_write_image(path: str | Path, image: Any, what: str) -> Path:
+    """Write the BGR picture ``image`` whole, then rename it into place (:func:`atomic_write`): a crash or a full
+    disk leaves the earlier picture, never half of one.  The format is the name's extension (.png, .jpg, ...);
+    InputError "<path>: cannot write <what> (...)" when OpenCV cannot encode it so."""
+    import cv2
+
+    path = Path(path)
+    try:
+        ok, data = cv2.imencode(path.suffix, image)
+    except cv2.error:  # no encoder for that extension
+        ok = False
+    if not ok:
+        raise InputError(f"{path}: cannot write {what} (OpenCV writes no picture named "
+                         f"{path.suffix or 'without an extension'}: name it .png or .jpg)")
+    return atomic_write(path, lambda tmp: tmp.write_bytes(data.tobytes()), what)
+
+
+def writable_image(path: str | Path, what: str) -> Path:
+    """``path`` checked before any work as a picture :func:`atomic_write_image` can write: an extension OpenCV has
+    an encoder for, and a place :func:`writable_file` accepts; InputError naming ``what`` otherwise."""
+    import cv2
+
+    path = Path(path)
+    if not path.is_dir() and not cv2.haveImageWriter(str(path)):
+        raise InputError(f"{path}: cannot write the {what} (OpenCV writes no picture named "
+                         f"{path.suffix or 'without an extension'}: name it .png or .jpg)")
+    return writable_file(path, what)
+
+
 def writable_dir(path: str | Path, what: str) -> Path:
     """The folder ``path``, created if missing and checked writable before any work is done; InputError
     "<path>: cannot create <what> (...)" / "cannot write in <what> (...)" otherwise."""

@@ -221,3 +221,34 @@ def test_remove_earlier_keeps_a_symlink_and_removes_its_target(tmp_path: Path) -
     folder.symlink_to(tmp_path / "www")
     remove_earlier(folder)
     assert folder.is_symlink() and target.read_text() == "this run's"
+
+
+def test_pictures_are_written_whole_in_their_names_format_or_refused(tmp_path: Path) -> None:
+    """atomic_write_image encodes in the extension's format and renames into place (the mode of the earlier picture
+    kept); an extension OpenCV has no encoder for, or a folder in the way, is an InputError naming the file —
+    cv2.imwrite raised a cv2.error for the one and returned False, unread, for the other."""
+    import cv2
+    import numpy as np
+
+    from gst_trafficcal.fileio import atomic_write_image, writable_image
+    from gst_trafficcal.synth.groundtruth import contact_sheet
+
+    image = np.zeros((20, 30, 3), np.uint8)
+    image[5:15, 10:20] = (0, 0, 255)
+    png = tmp_path / "grid.PNG"
+    png.write_bytes(b"earlier")
+    png.chmod(0o640)
+    assert atomic_write_image(png, image, "grid picture") == png
+    assert np.array_equal(cv2.imread(str(png)), image) and stat.S_IMODE(png.stat().st_mode) == 0o640
+    jpg = atomic_write_image(tmp_path / "grid.jpg", image, "grid picture")
+    assert jpg.read_bytes()[:2] == b"\xff\xd8"  # a JPEG
+    for name in ("grid.xyz", "grid"):
+        with pytest.raises(InputError, match=rf"{name}: cannot write the grid picture \(OpenCV writes no picture "
+                                             r"named (\.xyz|without an extension): name it \.png or \.jpg\)"):
+            writable_image(tmp_path / name, "grid picture")
+        with pytest.raises(InputError, match=rf"{name}: cannot write grid picture \(OpenCV writes no picture"):
+            atomic_write_image(tmp_path / name, image, "grid picture")
+    (tmp_path / "preview.png").mkdir()  # synth's preview: an error said, no longer a False ignored
+    with pytest.raises(InputError, match=r"preview\.png: a folder, not a regular file: cannot write preview picture"):
+        contact_sheet([(0.0, image, [])], tmp_path / "preview.png")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["grid.PNG", "grid.jpg", "preview.png"]  # no temporary file

@@ -6,6 +6,7 @@ import json
 import subprocess
 import sys
 
+import cv2
 import numpy as np
 import pytest
 
@@ -192,6 +193,30 @@ def test_cli_calibrate_manual_of_a_smaller_recording(cuboid_clip, tmp_path):
     proc = _run("calibrate-manual", "--gt", str(cuboid_clip / "gt_data.pkl"), "--image",
                 str(cuboid_clip / "video.mp4"), "-o", str(png))
     assert proc.returncode == 2 and "name the calibration .json" in proc.stderr and not png.exists()
+
+
+def test_cli_calibrate_manual_writes_its_picture_whole_or_not_at_all(cuboid_clip, tmp_path):
+    """The picture beside the calibration is written whole, then renamed (fileio.atomic_write_image): a disk that
+    fills up meanwhile (a file-size limit below the picture's size) leaves the earlier picture as it was, no
+    temporary file, and one line saying so; before, cv2.imwrite left the first part of a picture in its place."""
+    import resource
+
+    out, png = tmp_path / "manual.json", tmp_path / "manual.png"
+    png.write_bytes(b"the earlier picture")
+    exe = ROOT / ".venv" / "bin" / "trafficcal"
+    cmd = [str(exe)] if exe.exists() else [sys.executable, "-m", "gst_trafficcal"]
+    limit = 32 * 1024  # the calibration (~2 kB) fits, the picture (480x270) does not
+    proc = subprocess.run(cmd + ["calibrate-manual", "--gt", str(cuboid_clip / "gt_data.pkl"), "--image",
+                                 str(cuboid_clip / "video.mp4"), "-o", str(out)], capture_output=True, text=True,
+                          timeout=300, preexec_fn=lambda: resource.setrlimit(resource.RLIMIT_FSIZE, (limit, limit)))
+    assert proc.returncode == 2 and "Traceback" not in proc.stderr, proc.stderr[-2000:]
+    assert proc.stderr.strip().splitlines()[-1] == f"trafficcal: error: {png}: cannot write picture (File too large)"
+    assert load_calibration(out).state == "calibrated"
+    assert png.read_bytes() == b"the earlier picture"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["manual.json", "manual.png"]  # no temporary file
+    proc = _run("calibrate-manual", "--gt", str(cuboid_clip / "gt_data.pkl"), "--image",
+                str(cuboid_clip / "video.mp4"), "-o", str(out))
+    assert proc.returncode == 0 and cv2.imread(str(png)).shape == (270, 480, 3), proc.stderr[-2000:]
 
 
 def test_size_doubt_tells_markings_outside_the_frame_from_markings_in_its_corner() -> None:

@@ -226,6 +226,43 @@ def test_cli_errors_are_one_line(tmp_path):
         " ".join(r.stderr.split())
 
 
+def _limited_to(size: int):
+    """A child process's preexec_fn: no file it writes grows beyond ``size`` bytes (a disk that fills up); Python
+    ignores SIGXFSZ, so a write beyond fails with EFBIG ("File too large")."""
+    import resource
+
+    return lambda: resource.setrlimit(resource.RLIMIT_FSIZE, (size, size))
+
+
+def test_cli_grid_picture_is_written_whole_or_not_at_all(tmp_path):
+    """The grid picture is encoded, written beside and renamed into place (fileio.atomic_write_image): a disk that
+    fills up while it is written (here a file-size limit below the picture's ~170 kB) leaves the earlier picture
+    as it was and no temporary file, and says so in one line; before, cv2.imwrite left the first 64 kB of a picture
+    in its place. A name OpenCV has no encoder for is one line before the pass (before: a cv2.error traceback
+    after it)."""
+    from .test_vanishing import FPS, H, W, cached_scene
+
+    clip = _write_video(tmp_path / "cuboids.avi", list(cached_scene(24.0)), FPS)
+    png = tmp_path / "grid.png"
+    cv2.imwrite(str(png), np.full((H, W, 3), 90, np.uint8))  # the earlier picture
+    earlier = png.read_bytes()
+    out = tmp_path / "cal.json"
+    r = subprocess.run([sys.executable, "-m", "gst_trafficcal", "calibrate", str(clip), "-o", str(out), "--png",
+                        str(png), "--min-duration", "8", "--no-progress"], capture_output=True, text=True, cwd=ROOT,
+                       timeout=300, preexec_fn=_limited_to(64 * 1024))
+    assert r.returncode == 2 and "Traceback" not in r.stderr, r.stderr[-2000:]
+    assert r.stderr.strip().splitlines() == [f"trafficcal: error: {png}: cannot write grid picture (File too large)"]
+    assert load_calibration(out).state == "vps"  # written before the picture, as it was
+    assert png.read_bytes() == earlier
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["cal.json", "cuboids.avi", "grid.png"]  # no temporary file
+    r = _cli("calibrate", str(clip), "-o", str(tmp_path / "c2.json"), "--png", str(tmp_path / "grid.xyz"),
+             "--no-progress")
+    assert r.returncode == 2 and r.stderr.strip().splitlines() == [
+        f"trafficcal: error: {tmp_path / 'grid.xyz'}: cannot write the grid picture (OpenCV writes no picture named "
+        ".xyz: name it .png or .jpg)"], r.stderr[-2000:]
+    assert not (tmp_path / "c2.json").exists()
+
+
 def test_cli_constant_speed_switch(tmp_path):
     """`trafficcal calibrate` moves VP1 along the lanes by default and says so in the calibration's confidence;
     --no-constant-speed keeps the lines' meeting point."""

@@ -92,13 +92,14 @@ def command(video: Path, out_path: Path, png_path: Path | None, method: str, min
     cfg = CalibratorConfig(method=method, min_duration=min_duration, max_duration=max_duration,
                            focal_range=parse_focal_range(focal_range), horizon_max_deg=horizon_max,
                            vp1_constant_speed=constant_speed, zone=where)
-    from ..fileio import open_video, writable_file
+    from ..fileio import atomic_write_image, open_video, writable_file, writable_image
 
     cap = open_video(video)  # a missing or unreadable video: its one line before anything is created
     size = (int(cap.get(cv2.CAP_PROP_FRAME_WIDTH)), int(cap.get(cv2.CAP_PROP_FRAME_HEIGHT)))
     cap.release()
-    for path, what in ((out_path, "calibration file (-o)"), (png_path or out_path.with_suffix(".png"), "grid picture")):
-        writable_file(path, what)  # now (after the inputs were checked), not after the whole video
+    # now (after the inputs were checked), not after the whole video
+    writable_file(out_path, "calibration file (-o)")
+    writable_image(png_path or out_path.with_suffix(".png"), "grid picture")  # a format OpenCV writes, too
     console = Console(stderr=True)
     doubt = where.doubt(size) if where is not None and min(size) > 0 else None
     if doubt:  # a zone in pixels of another resolution, perhaps: said before the long pass, as trafficcal run does
@@ -131,8 +132,7 @@ def command(video: Path, out_path: Path, png_path: Path | None, method: str, min
         if where is not None:
             draw_segments(image, zone_segments(where.pixels(image.shape[1::-1]), image.shape[1::-1]), ZONE_BGR,
                           2 if image.shape[1] < 1280 else 3)
-        if not cv2.imwrite(str(png), image):
-            raise InputError(f"{png}: cannot write the grid image")
+        atomic_write_image(png, image, "grid picture")  # whole or not at all (a full disk, a crash)
     c = cal.camera
     out.print(f"VP1 ({c.vp1[0]:.1f}, {c.vp1[1]:.1f})  VP2 ({c.vp2[0]:.1f}, {c.vp2[1]:.1f})  f {c.focal:.1f} px  "
               f"after {cal.confidence.get('seconds', 0):.1f} s of video ({result.frames_read} frames, "

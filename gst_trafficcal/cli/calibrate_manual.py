@@ -61,11 +61,11 @@ def command(gt_path: Path | None, measurements_path: Path | None, out_path: Path
                              f"--image-size {size[0]}x{size[1]}")
         size = size or file_size
     frame = _frame(image_path, size) if image_path is not None else None  # bad picture: an error before any work
-    from ..fileio import writable_file
+    from ..fileio import atomic_write_image, writable_file, writable_image
 
     writable_file(out_path, "calibration file (-o)")  # a wrong path: one line now, not after the grid search
     if frame is not None:
-        writable_file(out_path.with_suffix(".png"), "picture")
+        writable_image(out_path.with_suffix(".png"), "picture")
     size = size or ((frame.shape[1], frame.shape[0]) if frame is not None else (1920, 1080))
     doubt = size_doubt(np.concatenate([markings.p1, markings.p2]), size)
     if doubt:
@@ -90,11 +90,8 @@ def command(gt_path: Path | None, measurements_path: Path | None, out_path: Path
             table.add_row(str(k), "along" if t else "across", f"{d:.2f}", f"{g:.2f}", f"{g - d:+.2f}")
         out.print(table)
     if frame is not None:
-        import cv2
-
         png = out_path.with_suffix(".png")
-        if not cv2.imwrite(str(png), _picture(frame, cal, markings)):
-            raise InputError(f"{png}: cannot write the picture")
+        atomic_write_image(png, _picture(frame, cal, markings), "picture")  # whole or not at all (a full disk)
         out.print(f"Picture -> {png}", markup=False)
 
 

@@ -288,7 +288,10 @@ def records_by_frame(path: Path) -> dict[int, list[dict]]:
 
 
 def contact_sheet(frames: list[tuple[float, np.ndarray, list[dict]]], path: Path, cols: int = 3) -> None:
-    """Tile a few frames (with ground-truth boxes and reference points drawn) into one PNG."""
+    """Tile a few frames (with ground-truth boxes and reference points drawn) into one PNG (InputError when it cannot
+    be written)."""
+    from ..fileio import atomic_write_image
+
     if not frames:
         return
     tiles = []
@@ -312,4 +315,4 @@ def contact_sheet(frames: list[tuple[float, np.ndarray, list[dict]]], path: Path
     while len(tiles) % cols:
         tiles.append(np.zeros_like(tiles[0]))
     rows = [np.hstack(tiles[i:i + cols]) for i in range(0, len(tiles), cols)]
-    cv2.imwrite(str(path), np.vstack(rows))
+    atomic_write_image(path, np.vstack(rows), "preview picture")  # whole or not at all; an error said, not ignored

@@ -100,6 +100,8 @@ def contact_sheet(meshes: Sequence[VehicleMesh], labels: Sequence[str], path: st
     """Write a PNG grid of the meshes' previews with their labels."""
     import cv2
 
+    from ..fileio import atomic_write_image
+
     views = render_views(meshes, size)
     rows = -(-len(views) // columns)
     sheet = np.full((rows * size[1], columns * size[0], 3), 255, np.uint8)
@@ -109,5 +111,5 @@ def contact_sheet(meshes: Sequence[VehicleMesh], labels: Sequence[str], path: st
         cv2.putText(tile, label, (6, 18), cv2.FONT_HERSHEY_SIMPLEX, 0.45, (20, 20, 20), 1, cv2.LINE_AA)
         sheet[r * size[1]:(r + 1) * size[1], c * size[0]:(c + 1) * size[0]] = tile
     path = Path(path)
-    cv2.imwrite(str(path), cv2.cvtColor(sheet, cv2.COLOR_RGB2BGR))
+    atomic_write_image(path, cv2.cvtColor(sheet, cv2.COLOR_RGB2BGR), "contact sheet")  # whole, or an InputError
     return path
