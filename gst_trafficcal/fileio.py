@@ -12,7 +12,7 @@ import contextlib
 import json
 import os
 import stat
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
@@ -183,9 +183,7 @@ def writable_file(path: str | Path, what: str) -> Path:
     folder = replace_target(path, f"the {what}").parent
     made: list[Path] = []  # the folders this check made, deepest last
     try:
-        missing = [folder, *folder.parents]
-        missing = missing[:next((k for k, f in enumerate(missing) if f.exists() or f.is_symlink()), len(missing))]
-        for f in reversed(missing):
+        for f in missing_folders(folder):
             f.mkdir()
             made.append(f)
         if not folder.is_dir():
@@ -199,6 +197,30 @@ def writable_file(path: str | Path, what: str) -> Path:
             with contextlib.suppress(OSError):  # something put there meanwhile (another writer) stays
                 f.rmdir()
     return path
+
+
+def missing_folders(path: str | Path) -> list[Path]:
+    """The folders that must be made for the folder ``path`` to exist (itself included), outermost first; none
+    when it exists (or something else is in its place: said by whoever makes it)."""
+    path = Path(path)
+    missing = [path, *path.parents]
+    missing = missing[:next((k for k, f in enumerate(missing) if f.exists() or f.is_symlink()), len(missing))]
+    return missing[::-1]
+
+
+@contextlib.contextmanager
+def folder_made_for(path: str | Path) -> Iterator[list[Path]]:
+    """Around making the folder ``path`` and the checks of the work that goes in it: when the block raises (the work
+    was refused), the folders it made are removed again if still empty, so a refused run leaves nothing behind.
+    Yields the folders missing when it started (empty: ``path`` existed), outermost first."""
+    made = missing_folders(path)
+    try:
+        yield made
+    except BaseException:
+        for f in reversed(made):
+            with contextlib.suppress(OSError):  # not empty (something was written there meanwhile), or never made
+                f.rmdir()
+        raise
 
 
 def free_path(path: str | Path) -> Path:

@@ -210,6 +210,26 @@ def test_not_a_video(clip, tmp_path):
     assert {name: (out / name).read_text() for name in earlier} == earlier
 
 
+def test_a_refused_video_leaves_no_new_out_folder(clip, tmp_path):
+    """--out is made (and checked writable) before the video is looked at; when the video is then refused, the
+    folders made for it are removed again and the refusal speaks of no earlier outputs. Before, an empty --out (and
+    the folders on the way to it) stayed behind, and the line said "the earlier outputs in ... are left as they
+    were" of a folder that had none."""
+    bad = tmp_path / "notes.mp4"
+    bad.write_text("this is not a video\n" * 50)
+    out = tmp_path / "new" / "out"
+    line = one_line_error(trafficcal("run", bad, "--out", out, "--no-overlay"))
+    assert line.endswith(f"{bad}: cannot be processed: no frame could be decoded from it (not a video, empty, or "
+                         "damaged)"), line
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["notes.mp4"]
+    line = one_line_error(trafficcal("run", clip / "video.mp4", "--out", out, "--no-overlay", "--zone",
+                                     "5000,5000 6000,5000 6000,6000"))
+    assert "it covers no pixel of the" in line and sorted(p.name for p in tmp_path.iterdir()) == ["notes.mp4"]
+    (tmp_path / "new").mkdir()  # what was there before stays
+    one_line_error(trafficcal("run", bad, "--out", out, "--no-overlay"))
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["new", "notes.mp4"] and not out.exists()
+
+
 def test_a_run_failing_before_the_speedometer_started_has_no_vehicles_of_an_earlier_run(with_truth, tmp_path):
     """The event files a run reads back after a failure are its own only if they changed since it started: an
     earlier run's, untouched (the pipeline failed before the speedometer replaced them), are not its vehicles."""

@@ -475,12 +475,12 @@ def measure_video(video: Path | str, out_dir: Path, description: str, console, l
     return summary
 
 
-def readable_video(video: Path, out_dir: Path, zone=None):
+def readable_video(video: Path, out_dir: Path | None, zone=None):
     """The first frame of a video file, checked before anything in ``out_dir`` is replaced: InputError when none can
     be decoded (not a video, empty, damaged) or when the detection ``zone`` covers no pixel of its frames — an
-    earlier run's outputs there stay as they were."""
+    earlier run's outputs there stay as they were (None: a new folder, there are none to speak of)."""
     frame = first_frame(video)
-    untouched = f"; the earlier outputs in {out_dir} are left as they were"
+    untouched = f"; the earlier outputs in {out_dir} are left as they were" if out_dir is not None else ""
     if frame is None:
         raise InputError(f"{video}: cannot be processed: no frame could be decoded from it (not a video, empty, or "
                          f"damaged){untouched}")
@@ -782,15 +782,16 @@ def command(videos: tuple[str, ...], out_dir: Path, calibration_path: Path | Non
         if not reconnect:
             raise InputError("--split-every is for a live stream with --reconnect (each period a connection of its "
                              "own)")
-    from ..fileio import writable_dir
+    from ..fileio import folder_made_for, writable_dir
     from ..run_status import StatusFile
 
-    writable_dir(out_dir, "output folder (--out)")  # one line now, not a traceback or an error after the video
-    earlier = earlier_status(out_dir)
-    refuse_a_busy_out(out_dir, earlier)
-    first = None  # one file: checked before anything in --out changes, status.json included (an operator watching
-    if len(inputs) == 1 and not is_uri(inputs[0]):  # it keeps the earlier run's; the refusal is the exit code's)
-        first = readable_video(inputs[0], out_dir, where)
+    with folder_made_for(out_dir) as new:  # a refusal below leaves no empty --out made for it
+        writable_dir(out_dir, "output folder (--out)")  # one line now, not a traceback or an error after the video
+        earlier = earlier_status(out_dir)
+        refuse_a_busy_out(out_dir, earlier)
+        first = None  # one file: checked before anything in --out changes, status.json included (an operator
+        if len(inputs) == 1 and not is_uri(inputs[0]):  # watching it keeps the earlier run's; the refusal is the
+            first = readable_video(inputs[0], None if new else out_dir, where)  # exit code's)
     kept = set_aside_earlier_live_run(out_dir, is_uri(inputs[0]), earlier, (calibration_path, gt_path, regression_path))
     if kept is not None:
         console.print(f"[bold]Kept[/] the earlier run's outputs ({kept[1]} vehicles of a live stream, which cannot be "
