@@ -43,6 +43,7 @@ vanishing points was in force) and, whenever it changes, the current calibration
 
 from __future__ import annotations
 
+import math
 from collections import Counter
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
@@ -51,6 +52,7 @@ from typing import Any
 import numpy as np
 
 from .calibration import Calibration
+from .detection.records import box_iou
 from .geometry import Camera
 from .lanes import LaneModel, lateral_offset
 from .outputs import AWAY_FROM_VP1, TOWARDS_VP1, VehicleEvent
@@ -225,6 +227,10 @@ class SpeedMeter:
         # it was measured with, for remeasure() (a file's early vehicles measured again with the one it ends with)
         self.keep_measured = bool(keep_measured)
         self._measured: dict[int, _Kept] = {}
+        # sightings dropped because their track id was given to another sighting of the same frame (a tracker's
+        # fault: _one_per_id), and the first such id and time, for the caller to say
+        self.duplicates = 0
+        self.first_duplicate: tuple[int, float] | None = None
         self.t: float | None = None
         if calibration is not None:
             self.set_calibration(calibration)
@@ -287,9 +293,14 @@ class SpeedMeter:
         return out
 
     def update(self, t: float, sightings: Iterable[Sighting]) -> FrameOutput:
-        """Add one frame (time ``t``, seconds) of tracked vehicles; vehicles unseen for ``end_after`` s leave."""
+        """Add one frame (time ``t``, seconds) of tracked vehicles; vehicles unseen for ``end_after`` s leave.
+        ValueError for a time that is no finite number (a frame without a timestamp: the caller passes it by, as the
+        speedometer does) or goes backwards; one sighting per track id is used (:meth:`_one_per_id`)."""
+        if not math.isfinite(t):
+            raise ValueError(f"a frame's time must be a finite number of seconds, got {t}")
         if self.t is not None and t < self.t:
             raise ValueError(f"timestamps must not go backwards ({t:.6f} s after {self.t:.6f} s)")
+        sightings = self._one_per_id(t, sightings)
         self.t = t
         seen = []
         for s in sightings:
@@ -314,6 +325,37 @@ class SpeedMeter:
                 if rec.live is not None:
                     speeds[rec.id] = rec.live
         return FrameOutput(speeds, finished)
+
+    def _one_per_id(self, t: float, sightings: Iterable[Sighting]) -> list[Sighting]:
+        """The frame's sightings with one per track id.  Two with one id (a tracker that gave two vehicles, or one
+        vehicle twice, the same id) would both go into that vehicle's points, and its speed would be neither's:
+        the one nearest to where the track's motion so far puts it is kept (for a track not seen before: the first
+        that is not a copy of another id's sighting of the frame), the others are dropped and counted in
+        :attr:`duplicates`.  ValueError for a sighting without a finite time."""
+        sightings = list(sightings)
+        by_id: dict[int, list[Sighting]] = {}
+        for s in sightings:
+            if not math.isfinite(s.t):
+                raise ValueError(f"vehicle {s.id}: its time must be a finite number of seconds, got {s.t}")
+            by_id.setdefault(s.id, []).append(s)
+        out = []
+        for vid, group in by_id.items():
+            if len(group) > 1:
+                self.duplicates += len(group) - 1
+                self.first_duplicate = self.first_duplicate or (vid, t)
+                rec = self._live.get(vid)
+                if rec is not None and rec.observations:
+                    there = _expected_centre(rec.observations, t)
+                    gaps = [float(np.hypot(*(np.reshape(s.box, (2, 2)).mean(axis=0) - there))) for s in group]
+                    gaps = [g if math.isfinite(g) else math.inf for g in gaps]
+                    group = [group[gaps.index(min(gaps))]]
+                else:  # a new track: not the copy of another track's sighting (the same box under two ids)
+                    others = [o.box for o in sightings if o.id != vid]
+                    claimed = (box_iou([c.box for c in group], others).max(axis=1) >= 0.5 if others
+                               else np.zeros(len(group), bool))
+                    group = [c for c, taken in zip(group, claimed) if not taken] or group
+            out.append(group[0])
+        return out
 
     def flush(self) -> list[MeasuredVehicle]:
         """End of stream: every vehicle in view leaves; those still waiting for a scale are reported unmeasured."""
@@ -621,6 +663,16 @@ def _box_centres(observations: list[Observation]) -> np.ndarray:
     the box is cut by the frame's edge (growing as it enters, shrinking as it leaves)."""
     boxes = np.array([o.box for o in observations], np.float64).reshape(-1, 4)
     return (boxes[:, :2] + boxes[:, 2:]) / 2.0
+
+
+def _expected_centre(observations: list[Observation], t: float) -> np.ndarray:
+    """Where the box centre of a track seen in ``observations`` should be at time ``t``: its last one moved on at the
+    pace of its last two (the last one itself for a track seen once, or twice at one time)."""
+    centres = _box_centres(observations[-2:])
+    if len(centres) < 2 or not observations[-1].t > observations[-2].t:
+        return centres[-1]
+    pace = (centres[1] - centres[0]) / (observations[-1].t - observations[-2].t)
+    return centres[1] + pace * (t - observations[-1].t)
 
 
 def _direction(camera: Camera, px: np.ndarray, times: np.ndarray) -> str | None:

@@ -352,6 +352,41 @@ def test_id_switch_is_measured_from_the_vehicle_with_most_points_only(scene, tru
     assert np.all(m.times_s >= switch) if kept == b else np.all(m.times_s < switch)
 
 
+def test_two_sightings_with_one_id_in_a_frame_keep_the_vehicle_the_track_follows(scene, truth):
+    """A tracker that gives vehicle b's sighting a's id too (two sightings with one id in a frame, for as long as
+    both are in view): a's track keeps the sighting that continues its motion, b is measured from its own, every
+    vehicle exactly; the dropped sightings are counted for the caller to say. Before, both went into a's points
+    and a was reported with a speed that was neither vehicle's, or unmeasured, without a word."""
+    from dataclasses import replace
+
+    first, second, common = _longest_overlapping_pair(scene)
+    for a, b in ((first, second), (second, first)):  # a seen first (a track to continue), or b (a new track)
+        meter = SpeedMeter(calibration=cal_of(scene.camera))
+        events = []
+        for f in scene.frames:
+            ss = sightings(f)
+            ids = [s.id for s in ss]
+            if a in ids and b in ids:
+                ss.insert(ids.index(a), replace(ss[ids.index(b)], id=a))  # before a's own: not kept for coming first
+            events += meter.update(f.t, ss).finished
+        events += meter.flush()
+        check_against_truth(events, truth)
+        assert meter.duplicates == len(common) and meter.first_duplicate == (a, scene.frames[common[0]].t)
+
+
+def test_a_time_that_is_no_number_is_refused(scene):
+    """A frame or a sighting with a NaN time (a buffer without a timestamp taken as NaN) is a ValueError, as a
+    time going backwards is; it used to be taken in silence: a vehicle last seen at NaN never left."""
+    meter = SpeedMeter(calibration=cal_of(scene.camera))
+    with pytest.raises(ValueError, match="a frame's time must be a finite number of seconds, got nan"):
+        meter.update(float("nan"), [])
+    s = sightings(scene.frames[10])[0]
+    with pytest.raises(ValueError, match=rf"vehicle {s.id}: its time must be a finite number of seconds, got nan"):
+        meter.update(1.0, [Sighting(s.id, s.label, float("nan"), s.box)])
+    assert meter.t is None  # the refused frames left nothing behind
+    meter.update(0.5, [s])
+
+
 def test_degenerate_3d_boxes_are_ignored(scene, truth):
     """Some sightings carry a 3D box whose base is at the camera's foot, far outside the image (a degenerate
     box solve upstream): those frames give no reference point, the vehicle is still measured exactly."""

@@ -1168,3 +1168,24 @@ def _close(a, b) -> bool:
     if isinstance(a, (list, tuple)) and isinstance(b, (list, tuple)):
         return len(a) == len(b) and all(_close(x, y) for x, y in zip(a, b))
     return a == b
+
+
+def test_one_track_id_on_two_vehicles_of_a_frame_is_said_once(tmp_path):
+    """A tracker upstream that gives two vehicles of a frame the same id (here on every frame): the speedometer says
+    so once, with the id and the time, and measures the track from one sighting per frame (SpeedMeter._one_per_id);
+    before, both went into one vehicle's points in silence."""
+    import json
+
+    def roi(x: float) -> dict:
+        box = [x, 100.0, x + 40.0, 130.0]
+        return {"box": box, "label": "car", "object_id": 5, "velocity": [60.0, 0.0],
+                "params": {"trafficcal-vehicle": {"t": 0.0, "hull_box": box}}}
+
+    rois = json.dumps([roi(20.0), roi(200.0)]).replace('"', '\\"')
+    run = run_pipeline("videotestsrc num-buffers=20 ! video/x-raw,width=320,height=240,framerate=25/1,format=I420 ! "
+                       f'tracker ! tcroisource rois="{rois}" ! speedometer events-file={tmp_path / "v.jsonl"} ! '
+                       "appsink name=sink")
+    said = [w.split(": ", 1)[1] for w in run.warnings if "carry the same track id" in w]  # after the element's name
+    assert said == ["speedometer: two vehicles in one frame carry the same track id (5 at 0.00 s; a tracker upstream "
+                    "that gives one id twice?): each track is measured from the sighting that continues its motion, "
+                    "the others are left out; said once"], run.warnings

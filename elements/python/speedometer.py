@@ -380,7 +380,13 @@ class Speedometer(TrafficcalTransform):
             tracked = None  # written into the buffer by the tracking just now: read them there
         if self._stage is not None:  # bbscale's stage, on what bbscale would read here: the tracked ROIs
             self._scale_frame(buffer, t, tracked)
+        said = self._meter.duplicates
         out = self._meter.update(t, [s for _, s in labelled])
+        if self._meter.duplicates and not said:  # a tracker's fault, said once; the meter keeps one sighting per id
+            vid, at = self._meter.first_duplicate
+            self.post_warning(f"speedometer: two vehicles in one frame carry the same track id ({vid} at {at:.2f} s; "
+                              "a tracker upstream that gives one id twice?): each track is measured from the "
+                              "sighting that continues its motion, the others are left out; said once")
         for roi, s in labelled:
             live = out.speeds.get(s.id)
             if live is not None:
