@@ -1189,3 +1189,36 @@ def test_one_track_id_on_two_vehicles_of_a_frame_is_said_once(tmp_path):
     assert said == ["speedometer: two vehicles in one frame carry the same track id (5 at 0.00 s; a tracker upstream "
                     "that gives one id twice?): each track is measured from the sighting that continues its motion, "
                     "the others are left out; said once"], run.warnings
+
+
+@pytest.mark.shared
+def test_a_file_whose_timestamps_start_late_is_timed_from_its_start(tmp_path):
+    """A Matroska file whose frames are stamped from 3600 s (a recording cut from a longer one, as NVRs export them;
+    its segment says the file starts there): the vehicles are timed from the file's start — as a player shows its
+    position, as --duration and the progress count —, so a --start-time date and BrnoCompSpeed's frame numbers are
+    right.  They were the raw timestamps: every vehicle an hour late, frame numbers from 90000."""
+    import json
+
+    from gst_trafficcal.gst.encode import AppsrcH264Writer
+
+    cap = cv2.VideoCapture(str(require_shared(VIDEOS / "kraten_cars.mp4")))
+    clip = tmp_path / "late.mkv"
+    writer = AppsrcH264Writer(clip, (640, 360), 25.0, "videoconvert ! x264enc speed-preset=ultrafast ! h264parse ! "
+                                                      "matroskamux ! filesink")
+    for i in range(150):
+        ok, frame = cap.read()
+        assert ok
+        writer.push(cv2.cvtColor(frame, cv2.COLOR_BGR2YUV_I420), 3600 + i / 25)
+    writer.close()
+    cal = tmp_path / "kraten.json"
+    cal.write_text(json.dumps(KRATEN_CALIBRATION))
+    events, results = tmp_path / "events.jsonl", tmp_path / "system.json"
+    run_pipeline(f"filesrc location={clip} ! decodebin ! videoconvert ! vehicledetect model=vehicleseg ! "
+                 f"speedometer calibration-file={cal} events-file={events} results-file={results} "
+                 "start-datetime=2026-12-05T08:00:00+00:00 ! fakesink")
+    vehicles = read_events(events).events
+    assert len(vehicles) >= 3
+    assert all(0.0 <= v.first_timestamp_s < v.last_timestamp_s <= 6.0 for v in vehicles)
+    assert all(v.first_time.startswith("2026-12-05T08:00:0") for v in vehicles)
+    frames = [f for car in load_results(results).cars for f in car.frames]
+    assert frames and max(frames) < 150

@@ -367,6 +367,23 @@ def pts_seconds(buffer: Gst.Buffer) -> float | None:
     return None if pts == Gst.CLOCK_TIME_NONE else pts / Gst.SECOND
 
 
+def stream_seconds(buffer: Gst.Buffer, segment: Gst.Segment | None) -> float | None:
+    """Stream time of ``buffer`` in seconds — its timestamp as the position in the file, what a player shows —, None
+    when it has no timestamp.  A file's timestamps need not start at 0 (a Matroska recording cut from a longer one,
+    an NVR's file: its first frame at 3600 s with the segment saying so); the segment maps them to the file's own
+    time, so vehicles are dated from its start and BrnoCompSpeed frame numbers count its frames.  Without a time
+    segment (a plain live source's is the identity anyway) the timestamp itself."""
+    pts = buffer.pts
+    if pts == Gst.CLOCK_TIME_NONE:
+        return None
+    if segment is None or segment.format != Gst.Format.TIME:
+        return pts / Gst.SECOND
+    sign, value = segment.to_stream_time_full(Gst.Format.TIME, pts)
+    if sign == 0:  # outside what the segment can map (no valid values): its timestamp
+        return pts / Gst.SECOND
+    return sign * value / Gst.SECOND
+
+
 class StreamClock:
     """The elements' time of each buffer (seconds): its timestamp, but never going backwards.
 

@@ -27,7 +27,8 @@ What the base does:
   :data:`READY_ONLY` one set while the stream runs is kept aside until the element stops, so ``self.<name>`` holds
   the value the run started with all along the run;
 - ``self.video_info`` / ``self.frame_size`` cached from the negotiated caps (hook :meth:`on_caps`);
-- ``self.buffer_t``: the time of the buffer being transformed, in seconds — its timestamp, never going backwards
+- ``self.buffer_t``: the time of the buffer being transformed, in seconds — its stream time (its timestamp mapped
+  by the segment: a file's own time, from 0 even when its timestamps start elsewhere), never going backwards
   (:class:`~gst_trafficcal.gst.buffers.StreamClock`: parts joined by ``concat``, a seek back), the same in every
   element; None when the buffer has no timestamp;
 - keeps the latest calibration received from upstream in ``self.calibration`` (hook
@@ -59,7 +60,7 @@ import numpy as np
 from ..calibration import Calibration
 from ._gi import GLib, GObject, Gst, GstBase, GstVideo
 from .buffers import (SUPPORTED_FORMATS, StreamClock, format_name, frame_bgr, frame_gray, frame_planes,
-                      pts_seconds, video_caps_string, video_info_from_caps)
+                      stream_seconds, video_caps_string, video_info_from_caps)
 from .calibration_event import calibration_event, calibration_message, parse_calibration_event
 from .meta import make_structure
 
@@ -108,6 +109,7 @@ class TrafficcalTransform(GstBase.BaseTransform):
         self.calibration: Calibration | None = None
         self.stream_clock = StreamClock()
         self.buffer_t: float | None = None
+        self._segment: Gst.Segment | None = None  # the last SEGMENT event's: buffer_t is stream time
         self._said_untimed = False  # warn_untimed: said once per run
         self._views_warned = False  # keep_scale_view: said once per run
         self._pending_calibration: Calibration | None = None
@@ -303,6 +305,8 @@ class TrafficcalTransform(GstBase.BaseTransform):
                     return True
             except Exception as exc:  # a bad event from upstream: say so, forward it, go on
                 self.post_warning(f"ignoring invalid {event.get_structure().get_name()} event: {exc}")
+        elif event.type == Gst.EventType.SEGMENT:
+            self._segment = event.parse_segment().copy()
         elif event.type == Gst.EventType.EOS:
             try:
                 self.on_eos()
@@ -318,7 +322,7 @@ class TrafficcalTransform(GstBase.BaseTransform):
 
     def do_transform_ip(self, buffer: Gst.Buffer) -> Gst.FlowReturn:
         self._push_pending_calibration()
-        self.buffer_t = self.stream_clock(pts_seconds(buffer))
+        self.buffer_t = self.stream_clock(stream_seconds(buffer, self._segment))
         try:
             return self.transform_frame(buffer)
         except Exception as exc:  # a Python exception must stop the pipeline with a readable error
