@@ -135,8 +135,10 @@ if [[ ${#chain[@]} -gt 0 ]]; then
     pipeline+=(! "${chain[@]}")
 fi
 # shellcheck disable=SC2206
-pipeline+=(! trafficoverlay "${overlay_cal[@]}" ${OVERLAY_OPTS:-} ! videoconvert ! video/x-raw,format=I420
-           ! $encoder ! h264parse ! $muxer ! "${sink[@]}")
+# an even size for the H.264 encoder (x264 refuses an odd one, 1281x721: such a video is scaled by a pixel)
+pipeline+=(! trafficoverlay "${overlay_cal[@]}" ${OVERLAY_OPTS:-} ! videoconvert ! videoscale
+           ! "video/x-raw,format=I420,width=[2,32768,2],height=[2,32768,2]" ! $encoder ! h264parse ! $muxer
+           ! "${sink[@]}")
 
 echo "nvr-overlay: gst-launch-1.0 -e ${pipeline[*]}" >&2
 rc=0

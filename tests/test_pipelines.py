@@ -170,6 +170,23 @@ def test_nvr_overlay_takes_the_container_from_the_extension_in_any_case(tmp_path
     assert f"! h264parse ! {muxer} ! filesink location={tmp_path / name}" in proc.stderr.splitlines()[0]
 
 
+def test_nvr_overlay_records_a_video_of_an_odd_size(tmp_path):
+    """A 321x241 video (MJPEG, VP8/VP9 allow odd sizes): the recording is scaled by a pixel to 320x240 for x264,
+    which refused the odd size ("Can not initialize x264 encoder") and the script failed."""
+    video = tmp_path / "odd.avi"
+    subprocess.run(["gst-launch-1.0", "-q", "videotestsrc", "num-buffers=25", "pattern=smpte", "!",
+                    "video/x-raw,width=321,height=241,framerate=25/1", "!", "jpegenc", "!", "avimux", "!",
+                    "filesink", f"location={video}"], check=True, capture_output=True, timeout=120)
+    proc = script("nvr-overlay.sh", video, tmp_path / "overlay.mp4", ANALYSIS="")
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    import cv2
+
+    cap = cv2.VideoCapture(str(tmp_path / "overlay.mp4"))
+    assert (cap.get(cv2.CAP_PROP_FRAME_WIDTH), cap.get(cv2.CAP_PROP_FRAME_HEIGHT)) == (320, 240)
+    assert cap.read()[0]
+    cap.release()
+
+
 def test_measure_writes_vehicles_and_matches_trafficcal_run(clip, tmp_path):
     """The product card's chain from a URI with the true calibration; the same numbers as `trafficcal run`."""
     out = tmp_path / "measure"

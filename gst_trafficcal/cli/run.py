@@ -156,14 +156,18 @@ def detector_option(what: str):
                              "background subtraction, no weights, the fastest).")
 
 
+# overlay.mp4's frames: I420 of an even size, which x264 needs (an odd-sized video is scaled by a pixel; videoscale
+# passes an even one through untouched)
+EVEN_I420 = "video/x-raw,format=I420,width=[2,32768,2],height=[2,32768,2]"
+
+
 def pipeline_description(video: Path | str, paths: RunPaths, calibration: Path | None = None,
                          detector: Path | str | None = None,
                          overlay: bool = True, bbscale: bool = False, queues: bool = True,
                          scale_regression: Path | None = None, body_shapes: str = "auto",
                          speed_limit: "SpeedLimit | float" = 0.0, start_time: str = "", events_url: str = "",
                          calibration_mode: str = "fixed", interval_min: float = 15.0,
-                         views_dir: Path | None = None, zone: str = "",
-                         frame_size: tuple[int, int] | None = None) -> str:
+                         views_dir: Path | None = None, zone: str = "") -> str:
     """The gst-launch description ``trafficcal run`` plays (also printed, so it can be re-run by hand).
 
     With ``queues`` two ``queue`` elements split the chain into three streaming threads (decoding; vpdetect and
@@ -177,9 +181,9 @@ def pipeline_description(video: Path | str, paths: RunPaths, calibration: Path |
     ``calibration_mode``: vpdetect's mode
     with ``calibration`` — fixed (a calibration the user gave) or auto (one carried over from an earlier file:
     learnt anew if the camera moved); ``views_dir``: vpdetect's folder of the camera's views; ``zone``
-    (:mod:`gst_trafficcal.zone`) to vpdetect, vehicledetect and trafficoverlay, which draws it.  ``frame_size``
-    (width, height), when known: an odd one (1281x721, which VP9 and MJPEG allow) loses its last column or row in
-    overlay.mp4 only, since x264 cannot encode 4:2:0 of an odd size (it refused, and the whole run failed).
+    (:mod:`gst_trafficcal.zone`) to vpdetect, vehicledetect and trafficoverlay, which draws it.  overlay.mp4 is of
+    an even size (:data:`EVEN_I420`): a video of an odd one (1281x721, which VP8/VP9 and MJPEG allow) is scaled by a
+    pixel there, since x264 cannot encode 4:2:0 of an odd size (it refused, and the whole run failed).
     """
     from ..traffic_stats import as_limit
 
@@ -203,9 +207,7 @@ def pipeline_description(video: Path | str, paths: RunPaths, calibration: Path |
                  f"results-file={quote(paths.results)} intervals-file={quote(paths.intervals)} "
                  f"interval={interval_min:g}{limit}{clock}{'' if is_uri(video) else ' remeasure=true'}")
     if overlay:
-        w, h = frame_size or (0, 0)
-        crop = [f"videocrop right={w % 2} bottom={h % 2}"] if w % 2 or h % 2 else []
-        chain += [f"trafficoverlay{limit}{where}", *crop, "videoconvert", "video/x-raw,format=I420",
+        chain += [f"trafficoverlay{limit}{where}", "videoconvert", "videoscale", EVEN_I420,
                   "queue max-size-buffers=8",
                   "x264enc speed-preset=veryfast tune=zerolatency", "mp4mux",
                   f"filesink location={quote(paths.overlay)}"]
@@ -963,21 +965,20 @@ def run_one(console, video: Path | str, out_dir: Path, calibration_path: Path | 
     live_clock, start = options.live_clock, options.start
     paths = RunPaths(out_dir)
     bbscale = (elements_dir() / "python" / "bbscale.py").exists()
-    zone = parse_zone(options.zone)
-    frame = first if first is not None or is_uri(video) else readable_video(video, out_dir, zone)
     description = pipeline_description(video, paths, calibration_path, detector, overlay=not no_overlay,
                                        bbscale=bbscale, scale_regression=regression_path, body_shapes=body_shapes,
                                        speed_limit=speed_limit,
                                        start_time=NOW if live_clock else start.isoformat() if start else "",
                                        events_url=events_url, calibration_mode=calibration_mode,
-                                       interval_min=interval_min, views_dir=options.views_dir, zone=options.zone,
-                                       frame_size=None if frame is None else (frame.shape[1], frame.shape[0]))
+                                       interval_min=interval_min, views_dir=options.views_dir, zone=options.zone)
     shown = description.replace(str(video), shown_source(video))  # no password on the screen
     if events_url:
         from ..publish import redacted
 
         shown = shown.replace(events_url, redacted(events_url))
     console.print(f"[bold]Pipeline[/] {shown}", highlight=False, soft_wrap=True)
+    zone = parse_zone(options.zone)
+    frame = first if first is not None or is_uri(video) else readable_video(video, out_dir, zone)
     summary = measure_video(video, out_dir, description, console,
                             keep=(calibration_path,) if calibration_path is not None else (), stop_after_s=duration_s,
                             status=options.status, zone=zone)
