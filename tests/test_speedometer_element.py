@@ -562,6 +562,27 @@ def test_timestamps_that_keep_going_back_are_said_once() -> None:
     assert "went back to 2.360 s" in said[0] and "keep going back (reverse playback" in said[1]
 
 
+def test_frames_out_of_order_are_said_once_not_as_jumps() -> None:
+    """Every 30th frame swapped with the next (a camera's B-frames with wrong timestamps): one warning that frames
+    come out of order — each swap was said as "the timestamps went back (parts joined, a seek back)", and moved
+    the vehicles' times on by a frame for good."""
+    from gst_trafficcal.gst._gi import Gst as G
+
+    order = list(range(200))
+    for k in range(10, 190, 30):
+        order[k], order[k + 1] = order[k + 1], order[k]
+    frames = []
+    for k in order:
+        buf = G.Buffer.new_wrapped(bytes(64 * 48 * 3 // 2))
+        buf.pts, buf.duration = int(k * G.SECOND / 25), G.SECOND // 25
+        frames.append(buf)
+    run = run_pipeline("appsrc name=src ! speedometer ! appsink name=sink", frames,
+                       "video/x-raw,format=I420,width=64,height=48,framerate=25/1")
+    said = [w for w in run.warnings if "timestamps" in w or "order" in w]
+    assert len(run.frames) == 200
+    assert len(said) == 1 and "a frame came out of order" in said[0], said
+
+
 def test_recordings_joined_by_concat_go_on_in_time(clip, implicit, tmp_path):
     """A camera's recordings played as one stream by ``concat`` (here the clip twice): each part's timestamps start
     at 0 again, which once stopped the pipeline ("timestamps must not go backwards"); now the elements' time goes on

@@ -159,6 +159,7 @@ class Speedometer(TrafficcalTransform):
         self._jumps = 0  # timestamp jumps back already said
         self._last_jump = None  # the time given at the latest jump back
         self._said_reverse = False  # _say_jumps: said that the timestamps keep going back
+        self._said_out_of_order = False  # said that frames come out of order (StreamClock.out_of_order)
         self._dts = []
         self._own_stage = None  # bbscale's stage, built at start
         self._stage = None  # ... in use: no bbscale upstream, no scale given (decided at the first frame)
@@ -338,6 +339,11 @@ class Speedometer(TrafficcalTransform):
         if len(self.stream_clock.jumps) > self._jumps:  # timestamps went back (joined parts, a seek): said once each
             self._say_jumps(self.stream_clock.jumps[self._jumps:])
             self._jumps = len(self.stream_clock.jumps)
+        if self.stream_clock.out_of_order and not self._said_out_of_order:
+            self._said_out_of_order = True
+            self.post_warning("speedometer: a frame came out of order (its timestamp a frame or two before the one "
+                              "ahead of it: a camera's B-frames with wrong timestamps, or UDP without a jitter "
+                              "buffer); such frames are given the time of the frame before them; said once")
         if self._last_pts is not None and t > self._last_pts and len(self._dts) < 50:
             self._dts.append(t - self._last_pts)  # the frame rate of variable-rate caps, for BrnoCompSpeed
         self._last_pts = t

@@ -389,26 +389,40 @@ class StreamClock:
 
     Timestamps that go back — recordings joined by ``concat`` (each part's start at 0 again), a seek back — would
     undo every speed and track; instead the time goes on one frame interval (the median of the last ones) after the
-    last buffer, and stays that far ahead of the timestamps from then on.  Every element applies the same rule to
-    the same buffers, so their times agree.  A plain file or live stream is its timestamps exactly."""
+    last buffer, and stays that far ahead of the timestamps from then on.  One frame up to two frame intervals back
+    whose follower goes forward again is a frame out of order (a camera's B-frames with wrong timestamps, UDP
+    without a jitter buffer), not a new part: it is given the time of the frame before it and the timestamps keep
+    their own time (each such frame used to move the time on by a frame for good: a second ahead after 25 of them,
+    and every speed measured across one too low).  A second step back in a row is a jump after all (reverse
+    playback).  Every element applies the same rule to the same buffers, so their times agree.  A plain file or
+    live stream is its timestamps exactly."""
 
     def __init__(self) -> None:
         self.offset = 0.0
         self.last: float | None = None
         self.jumps: list[tuple[float, float]] = []  # (timestamp gone back to, the time it was given instead)
+        self.out_of_order = 0  # frames a little back between two going on, given the time before them
         self._steps: list[float] = []
+        self._held: float | None = None  # the timestamp of the frame just held at the time before it
 
     def __call__(self, pts_s: float | None) -> float | None:
         if pts_s is None:
             return None
         t = pts_s + self.offset
+        held, self._held = self._held, None
         if self.last is not None:
             if t < self.last:
                 step = float(np.median(self._steps)) if self._steps else 0.04
+                if held is None and self.last - t <= 2 * step + 1e-9:
+                    self._held = pts_s
+                    return self.last
                 self.offset += self.last + step - t
-                self.jumps.append((pts_s, self.last + step))
+                self.jumps.append((pts_s if held is None else held, self.last + step))  # from the frame held
                 t = self.last + step
-            elif t > self.last:
-                self._steps = (self._steps + [t - self.last])[-25:]
+            else:
+                if held is not None:  # the frame held is followed by one going on: it was out of order
+                    self.out_of_order += 1
+                if t > self.last:
+                    self._steps = (self._steps + [t - self.last])[-25:]
         self.last = t = round(t, 9)  # nanoseconds, as the timestamps (no float residue from the offset)
         return t
