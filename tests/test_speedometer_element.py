@@ -1243,3 +1243,41 @@ def test_a_file_whose_timestamps_start_late_is_timed_from_its_start(tmp_path):
     assert all(v.first_time.startswith("2026-12-05T08:00:0") for v in vehicles)
     frames = [f for car in load_results(results).cars for f in car.frames]
     assert frames and max(frames) < 150
+
+
+@pytest.mark.shared
+def test_a_file_with_frames_dropped_keeps_whole_frame_numbers(tmp_path):
+    """An MP4 of a 25 fps camera whose recorder dropped a second of frames: qtdemux states their average rate
+    (225 frames in 10 s: 45/2), and BrnoCompSpeed's frame numbers were t·22.5 — fractions (4.5, 5.4, ...), not
+    the frames'.  The median frame interval gives the camera's 25 fps: whole frame numbers, t·25."""
+    import json
+
+    from gst_trafficcal.gst.encode import AppsrcH264Writer
+
+    cap = cv2.VideoCapture(str(require_shared(VIDEOS / "kraten_cars.mp4")))
+    clip = tmp_path / "dropped.mp4"
+    writer = AppsrcH264Writer(clip, (640, 360), 25.0, "videoconvert ! x264enc speed-preset=ultrafast ! h264parse ! "
+                                                      "mp4mux ! filesink")
+    for i in range(250):
+        ok, frame = cap.read()
+        assert ok
+        if not 50 <= i < 75:
+            writer.push(cv2.cvtColor(frame, cv2.COLOR_BGR2YUV_I420), i / 25)
+    writer.close()
+    cal = tmp_path / "kraten.json"
+    cal.write_text(json.dumps(KRATEN_CALIBRATION))
+    events, results = tmp_path / "events.jsonl", tmp_path / "system.json"
+    from gst_trafficcal.gst._gi import Gst as G
+
+    probe = G.parse_launch(f"filesrc location={clip} ! decodebin ! fakesink name=sink")
+    probe.set_state(G.State.PAUSED)
+    probe.get_state(10 * G.SECOND)
+    stated = probe.get_by_name("sink").get_static_pad("sink").get_current_caps().get_structure(0)
+    probe.set_state(G.State.NULL)
+    assert stated.get_fraction("framerate")[1:] == (45, 2)  # the average
+    run_pipeline(f"filesrc location={clip} ! decodebin ! videoconvert ! vehicledetect model=vehicleseg ! "
+                 f"speedometer calibration-file={cal} events-file={events} results-file={results} ! fakesink")
+    cars = load_results(results).cars
+    assert len(cars) >= 3
+    frames = np.concatenate([car.frames for car in cars])
+    assert np.array_equal(frames, np.round(frames)) and frames.max() < 250

@@ -148,6 +148,7 @@ class Speedometer(TrafficcalTransform):
         self._results_t = None
         self._results_every = _RESULTS_EVERY  # grows with the file (outputs.checkpoint_interval)
         self._fps_fixed = False
+        self._caps_fps = None  # the caps' frame rate (an MP4 with frames dropped states their average)
         self._file_cal = None
         self._upstream = None
         self._in_force_id = None
@@ -265,8 +266,8 @@ class Speedometer(TrafficcalTransform):
         if wrong:
             self.post_error(f"speedometer: {wrong}")
         if info.fps_n > 0 and info.fps_d > 0 and self._outputs is not None and self._outputs.brno is not None:
-            self._outputs.brno.fps = info.fps_n / info.fps_d  # BrnoCompSpeed frame numbers = t * fps
-            self._fps_fixed = True
+            self._caps_fps = info.fps_n / info.fps_d
+            self._outputs.brno.fps = self._caps_fps  # BrnoCompSpeed frame numbers = t * fps (checked: _fix_fps)
 
     def on_calibration(self, cal):
         self._upstream = cal
@@ -591,11 +592,16 @@ class Speedometer(TrafficcalTransform):
                                                   else fields))
 
     def _fix_fps(self):
-        """Variable-rate caps: BrnoCompSpeed frame numbers from the median frame interval seen so far."""
+        """BrnoCompSpeed frame numbers from the median frame interval seen so far, where the caps state no rate
+        (variable) or one 1 % off it: an MP4 whose recorder dropped frames states their average (65/3 for 25 fps
+        with 2 s missing), and its frame numbers were t·21.67 — fractions, not the frames'."""
         if not self._fps_fixed and self._dts and self._outputs.brno is not None:
             import statistics
+            from fractions import Fraction
 
-            self._outputs.brno.fps = 1.0 / statistics.median(self._dts)
+            seen = 1.0 / statistics.median(self._dts)
+            if self._caps_fps is None or abs(seen / self._caps_fps - 1.0) > 0.01:
+                self._outputs.brno.fps = float(Fraction(seen).limit_denominator(1001))  # 25, 30000/1001: exact
             self._fps_fixed = True
 
     def _write_frame(self, buffer, t):
