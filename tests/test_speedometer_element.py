@@ -540,7 +540,9 @@ def test_calibration_of_another_image_size_is_an_error(clip, tmp_path):
     from dataclasses import replace
 
     save_calibration(replace(cal, image_size=(1920, 1080)), tmp_path / "hd.json")
-    with pytest.raises(PipelineError, match=r"hd.json is a calibration of 1920x1080 images but the video is 480x270"):
+    with pytest.raises(PipelineError, match=r"hd.json is a calibration of 1920x1080 images but the video is 480x270"
+                                            r".*: calibrate this video's size .* or scale the video to 1920x1080 "
+                                            r"before the elements \(videoscale ! video/x-raw,width=1920,height=1080\)"):
         run_pipeline(f"{source(clip)} ! speedometer calibration-file={tmp_path / 'hd.json'} ! appsink name=sink")
 
 

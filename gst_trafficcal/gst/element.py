@@ -198,8 +198,10 @@ class TrafficcalTransform(GstBase.BaseTransform):
         size than the negotiated video's (its vanishing points are pixels of that size); None when it fits."""
         if cal is None or self.frame_size is None or tuple(cal.image_size) == tuple(self.frame_size):
             return None
-        return (f"{path} is a calibration of {cal.image_size[0]}x{cal.image_size[1]} images but the video is "
-                f"{self.frame_size[0]}x{self.frame_size[1]}")
+        (w, h), (vw, vh) = cal.image_size, self.frame_size
+        return (f"{path} is a calibration of {w}x{h} images but the video is {vw}x{vh} (its vanishing points are "
+                f"pixels of {w}x{h}): calibrate this video's size (without the file, or trafficcal calibrate), or "
+                f"scale the video to {w}x{h} before the elements (videoscale ! video/x-raw,width={w},height={h})")
 
     def keep_scale_view(self, cal: Calibration, folder: str) -> None:
         """Keep ``cal`` (a scale found for a view) in the camera's views ``folder`` (``views-dir``, as vpdetect reads
