@@ -99,6 +99,8 @@ def _picture_base(frame: np.ndarray | None, image_size: tuple[int, int] | None,
         if image_size is None:
             return None
         frame = np.full((image_size[1], image_size[0], 3), 90, np.uint8)
+    elif image_size is not None and frame.shape[1::-1] != tuple(image_size):  # a picture of non-square pixels (its
+        frame = cv2.resize(frame, tuple(image_size), interpolation=cv2.INTER_AREA)  # file's size; the run's is square)
     img = frame if frame.ndim == 3 else cv2.cvtColor(frame, cv2.COLOR_GRAY2BGR)
     scale = min(1.0, max_width / img.shape[1])
     if scale < 1.0:

@@ -260,6 +260,7 @@ class Speedometer(TrafficcalTransform):
             self._failed = True
 
     def on_caps(self, info):
+        self.warn_non_square(info, "speedometer")
         if not self._begun and self._outputs is not None:
             self._begin()
         wrong = self.file_calibration_mismatch(self._file_cal, self.calibration_file)

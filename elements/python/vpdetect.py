@@ -140,6 +140,7 @@ class VpDetect(TrafficcalTransform):
         from gst_trafficcal.calibration import Calibration, load_calibration
         from gst_trafficcal.gst.buffers import format_name
 
+        self.warn_non_square(info, "vpdetect")
         if info.fps_n > 0 and info.fps_d > 0:
             self._fps = info.fps_n / info.fps_d
         self._format = format_name(info)

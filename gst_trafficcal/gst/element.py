@@ -111,6 +111,7 @@ class TrafficcalTransform(GstBase.BaseTransform):
         self.buffer_t: float | None = None
         self._segment: Gst.Segment | None = None  # the last SEGMENT event's: buffer_t is stream time
         self._said_untimed = False  # warn_untimed: said once per run
+        self._said_non_square = False  # warn_non_square: said once per run
         self._views_warned = False  # keep_scale_view: said once per run
         self._pending_calibration: Calibration | None = None
         self._refused_caps: set[str] = set()
@@ -240,6 +241,17 @@ class TrafficcalTransform(GstBase.BaseTransform):
             self._said_untimed = True
             self.post_warning(f"{name}: buffers without timestamps {what}: give the source a frame rate (an image "
                               'sequence: multifilesrc ... caps="image/jpeg,framerate=25/1")')
+
+    def warn_non_square(self, info: GstVideo.VideoInfo, name: str) -> None:
+        """Say once that the caps' pixels are not square (pixel-aspect-ratio more than 1 % off 1/1: a DVR's D1, a
+        picture stored squeezed): the camera model takes image pixels as square, so the calibration and every speed
+        would be off (35 % with 4/3), with the fix."""
+        par = info.par_n / info.par_d if info.par_n > 0 and info.par_d > 0 else 1.0
+        if abs(par - 1.0) > 0.01 and not self._said_non_square:
+            self._said_non_square = True
+            self.post_warning(f"{name}: the video's pixels are not square (pixel-aspect-ratio "
+                              f"{info.par_n}/{info.par_d}): the calibration and the speeds take them as square and would be off; put videoscale "
+                              "! video/x-raw,pixel-aspect-ratio=1/1 before the elements (trafficcal run does)")
 
     def zone_fits(self, zone: Any, size: tuple[int, int], name: str) -> bool:
         """Check a detection ``zone`` (gst_trafficcal.zone.Zone) against frames of ``size``: an ERROR (False) when it
