@@ -16,7 +16,8 @@
 #              vpdetect loads it when it exists, otherwise learns the calibration and saves it there.
 #
 # The pipeline (printed before it runs):
-#   uridecodebin ! videoconvert ! I420 ! vpdetect ! vehicledetect ! tracker [! speedometer] ! trafficoverlay
+#   uridecodebin ! videoconvert ! videoscale ! I420 1:1 ! vpdetect ! vehicledetect ! tracker [! speedometer]
+#     ! trafficoverlay
 #     ! x264enc ! h264parse ! <muxer> ! filesink
 # Live sources (rtsp://...) run until Ctrl-C or SIGTERM (a service stopped); the recording is then finalised
 # (gst-launch-1.0 -e).
@@ -49,7 +50,7 @@ if [[ -n "${ANALYSIS+set}" ]]; then
     analysis="$ANALYSIS"
 fi
 
-need=(uridecodebin videoconvert trafficoverlay h264parse "$encoder_element")
+need=(uridecodebin videoconvert videoscale trafficoverlay h264parse "$encoder_element")
 if [[ $default_analysis == 1 ]]; then
     need+=(vpdetect vehicledetect tracker)
 fi
@@ -130,7 +131,9 @@ fi
 mapfile -t queue < <(analysis_queue "$uri")  # leaky for a live source (lib.sh)
 set_stall_watchdog "$uri"  # a live source that stops sending ends the run (lib.sh)
 # shellcheck disable=SC2206  # word splitting of the user's property lists is intended
-pipeline=(uridecodebin "uri=$uri" ! videoconvert ! "${stall[@]}" video/x-raw,format=I420 ! "${queue[@]}")
+# square pixels, as the camera model and trafficcal run take them (a square-pixel video passes untouched)
+pipeline=(uridecodebin "uri=$uri" ! videoconvert ! videoscale ! "${stall[@]}"
+          video/x-raw,format=I420,pixel-aspect-ratio=1/1 ! "${queue[@]}")
 if [[ ${#chain[@]} -gt 0 ]]; then
     pipeline+=(! "${chain[@]}")
 fi
