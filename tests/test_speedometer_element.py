@@ -1214,6 +1214,24 @@ def test_one_track_id_on_two_vehicles_of_a_frame_is_said_once(tmp_path):
                     "the others are left out; said once"], run.warnings
 
 
+def _kraten_reencoded(clip: Path, muxer: str, times: list[float | None]) -> Path:
+    """``clip``: kraten's first ``len(times)`` frames in H.264 and ``muxer``, each stamped with its time (None: the
+    frame left out, as a recorder drops one)."""
+    from gst_trafficcal.gst.encode import AppsrcH264Writer
+
+    cap = cv2.VideoCapture(str(require_shared(VIDEOS / "kraten_cars.mp4")))
+    writer = AppsrcH264Writer(clip, (640, 360), 25.0, "videoconvert ! x264enc speed-preset=ultrafast ! h264parse ! "
+                                                      f"{muxer} ! filesink")
+    for t in times:
+        ok, frame = cap.read()
+        assert ok
+        if t is not None:
+            writer.push(cv2.cvtColor(frame, cv2.COLOR_BGR2YUV_I420), t)
+    writer.close()
+    cap.release()
+    return clip
+
+
 @pytest.mark.shared
 def test_a_file_whose_timestamps_start_late_is_timed_from_its_start(tmp_path):
     """A Matroska file whose frames are stamped from 3600 s (a recording cut from a longer one, as NVRs export them;
@@ -1222,17 +1240,7 @@ def test_a_file_whose_timestamps_start_late_is_timed_from_its_start(tmp_path):
     right.  They were the raw timestamps: every vehicle an hour late, frame numbers from 90000."""
     import json
 
-    from gst_trafficcal.gst.encode import AppsrcH264Writer
-
-    cap = cv2.VideoCapture(str(require_shared(VIDEOS / "kraten_cars.mp4")))
-    clip = tmp_path / "late.mkv"
-    writer = AppsrcH264Writer(clip, (640, 360), 25.0, "videoconvert ! x264enc speed-preset=ultrafast ! h264parse ! "
-                                                      "matroskamux ! filesink")
-    for i in range(150):
-        ok, frame = cap.read()
-        assert ok
-        writer.push(cv2.cvtColor(frame, cv2.COLOR_BGR2YUV_I420), 3600 + i / 25)
-    writer.close()
+    clip = _kraten_reencoded(tmp_path / "late.mkv", "matroskamux", [3600 + i / 25 for i in range(150)])
     cal = tmp_path / "kraten.json"
     cal.write_text(json.dumps(KRATEN_CALIBRATION))
     events, results = tmp_path / "events.jsonl", tmp_path / "system.json"
@@ -1254,18 +1262,7 @@ def test_a_file_with_frames_dropped_keeps_whole_frame_numbers(tmp_path):
     the frames'.  The median frame interval gives the camera's 25 fps: whole frame numbers, t·25."""
     import json
 
-    from gst_trafficcal.gst.encode import AppsrcH264Writer
-
-    cap = cv2.VideoCapture(str(require_shared(VIDEOS / "kraten_cars.mp4")))
-    clip = tmp_path / "dropped.mp4"
-    writer = AppsrcH264Writer(clip, (640, 360), 25.0, "videoconvert ! x264enc speed-preset=ultrafast ! h264parse ! "
-                                                      "mp4mux ! filesink")
-    for i in range(250):
-        ok, frame = cap.read()
-        assert ok
-        if not 50 <= i < 75:
-            writer.push(cv2.cvtColor(frame, cv2.COLOR_BGR2YUV_I420), i / 25)
-    writer.close()
+    clip = _kraten_reencoded(tmp_path / "dropped.mp4", "mp4mux", [None if 50 <= i < 75 else i / 25 for i in range(250)])
     cal = tmp_path / "kraten.json"
     cal.write_text(json.dumps(KRATEN_CALIBRATION))
     events, results = tmp_path / "events.jsonl", tmp_path / "system.json"

@@ -250,8 +250,9 @@ class TrafficcalTransform(GstBase.BaseTransform):
         if abs(par - 1.0) > 0.01 and not self._said_non_square:
             self._said_non_square = True
             self.post_warning(f"{name}: the video's pixels are not square (pixel-aspect-ratio "
-                              f"{info.par_n}/{info.par_d}): the calibration and the speeds take them as square and would be off; put videoscale "
-                              "! video/x-raw,pixel-aspect-ratio=1/1 before the elements (trafficcal run does)")
+                              f"{info.par_n}/{info.par_d}): the calibration and the speeds take them as square "
+                              "and would be off; put videoscale ! video/x-raw,pixel-aspect-ratio=1/1 before the "
+                              "elements (trafficcal run does)")
 
     def zone_fits(self, zone: Any, size: tuple[int, int], name: str) -> bool:
         """Check a detection ``zone`` (gst_trafficcal.zone.Zone) against frames of ``size``: an ERROR (False) when it
