@@ -231,6 +231,10 @@ class SpeedMeter:
         # fault: _one_per_id), and the first such id and time, for the caller to say
         self.duplicates = 0
         self.first_duplicate: tuple[int, float] | None = None
+        # sightings left out of their track because it already has one at that time (a frame stamped with the time
+        # of the one before it): a vehicle a frame further on at no later time would make every τ-pair across it
+        # too fast, and its points disagree with the vehicle's own motion (every 4th frame so: no vehicle measured)
+        self.same_time = 0
         self.t: float | None = None
         if calibration is not None:
             self.set_calibration(calibration)
@@ -309,6 +313,10 @@ class SpeedMeter:
             rec = self._live.get(s.id)
             if rec is None:
                 rec = self._live[s.id] = _Record(s.id)
+            if rec.observations and s.t <= rec.observations[-1].t:
+                self.same_time += 1
+                rec.last_t = s.t
+                continue
             obs = _observation(s, self.camera)
             if obs.box3d is None and obs.hull is not None and (not obs.truncated or obs.cut_top) and not obs.occluded:
                 rec.unboxed.append(len(rec.observations))

@@ -1232,6 +1232,31 @@ def _kraten_reencoded(clip: Path, muxer: str, times: list[float | None]) -> Path
     return clip
 
 
+def test_frames_with_the_time_of_the_frame_before_are_said_once(tmp_path):
+    """Every 4th frame stamped with the time of the frame before it (a recorder repeating a timestamp): the
+    speedometer says once that such frames' sightings are left out of the speeds (SpeedMeter.same_time; with them,
+    τ-pairs across one were too fast and whole tracks unmeasured)."""
+    import json
+
+    from gst_trafficcal.gst._gi import Gst as G
+
+    frames, pts = [], 0
+    for k in range(40):
+        pts = pts if k % 4 == 3 else int(k * G.SECOND / 25)
+        buf = G.Buffer.new_wrapped(bytes(320 * 240 * 3 // 2))
+        buf.pts, buf.duration = pts, G.SECOND // 25
+        frames.append(buf)
+    box = [20.0, 100.0, 60.0, 130.0]
+    rois = json.dumps([{"box": box, "label": "car", "object_id": 5, "velocity": [60.0, 0.0],
+                        "params": {"trafficcal-vehicle": {"t": 0.0, "hull_box": box}}}]).replace('"', '\\"')
+    run = run_pipeline(f'appsrc name=src ! tracker ! tcroisource rois="{rois}" ! speedometer '
+                       f'events-file={tmp_path / "v.jsonl"} ! appsink name=sink', frames,
+                       "video/x-raw,format=I420,width=320,height=240,framerate=25/1")
+    said = [w for w in run.warnings if "the time of the frame before it" in w]
+    assert len(run.frames) == 40
+    assert len(said) == 1 and "(at 0.08 s: a repeated timestamp" in said[0], run.warnings
+
+
 @pytest.mark.shared
 def test_a_file_whose_timestamps_start_late_is_timed_from_its_start(tmp_path):
     """A Matroska file whose frames are stamped from 3600 s (a recording cut from a longer one, as NVRs export them;

@@ -388,8 +388,12 @@ class Speedometer(TrafficcalTransform):
             tracked = None  # written into the buffer by the tracking just now: read them there
         if self._stage is not None:  # bbscale's stage, on what bbscale would read here: the tracked ROIs
             self._scale_frame(buffer, t, tracked)
-        said = self._meter.duplicates
+        said, said_same_time = self._meter.duplicates, self._meter.same_time
         out = self._meter.update(t, [s for _, s in labelled])
+        if self._meter.same_time and not said_same_time:  # the stream's fault, said once
+            self.post_warning(f"speedometer: a frame has the time of the frame before it (at {t:.2f} s: a repeated "
+                              "timestamp, or a frame out of order): the vehicles' sightings in such frames are left "
+                              "out of their speeds, which would come out too fast; said once")
         if self._meter.duplicates and not said:  # a tracker's fault, said once; the meter keeps one sighting per id
             vid, at = self._meter.first_duplicate
             self.post_warning(f"speedometer: two vehicles in one frame carry the same track id ({vid} at {at:.2f} s; "
