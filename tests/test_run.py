@@ -674,6 +674,24 @@ def test_start_time_now_is_for_streams(clip, tmp_path):
     assert "live streams" in line
 
 
+def test_a_picture_is_not_a_video(clip, tmp_path):
+    """A still picture given as the video (a camera's snapshot): refused in one line before anything is made. It
+    used to play as one frame, a run with no vehicle and a warning meant for gst-launch users (multifilesrc)."""
+    import cv2
+
+    cap = cv2.VideoCapture(str(clip / "video.mp4"))
+    ok, frame = cap.read()
+    cap.release()
+    assert ok
+    for name in ("snapshot.jpg", "snapshot.png"):
+        cv2.imwrite(str(tmp_path / name), frame)
+        out = tmp_path / f"out_{name}"
+        line = one_line_error(trafficcal("run", tmp_path / name, "--out", out, "--no-overlay"))
+        assert line.endswith(f"{tmp_path / name}: a picture, not a video: speeds are measured on video (pictures of "
+                             "a camera taken at a fixed rate: make a video of them first, e.g. with ffmpeg)"), line
+        assert not out.exists()
+
+
 def test_a_directory_is_not_a_video(tmp_path):
     proc = trafficcal("run", tmp_path, "--out", tmp_path / "out")
     assert proc.returncode == 2 and "is a directory" in proc.stderr and "Traceback" not in proc.stderr

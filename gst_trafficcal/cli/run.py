@@ -490,11 +490,16 @@ def readable_video(video: Path, out_dir: Path | None, zone=None):
     """The first frame of a video file, checked before anything in ``out_dir`` is replaced: InputError when none can
     be decoded (not a video, empty, damaged) or when the detection ``zone`` covers no pixel of its frames — an
     earlier run's outputs there stay as they were (None: a new folder, there are none to speak of)."""
+    import cv2
+
     frame = first_frame(video)
     untouched = f"; the earlier outputs in {out_dir} are left as they were" if out_dir is not None else ""
     if frame is None:
         raise InputError(f"{video}: cannot be processed: no frame could be decoded from it (not a video, empty, or "
                          f"damaged){untouched}")
+    if cv2.haveImageReader(str(video)):  # a JPEG or PNG plays as one frame: a run with no vehicle, and no word why
+        raise InputError(f"{video}: a picture, not a video: speeds are measured on video (pictures of a camera taken "
+                         f"at a fixed rate: make a video of them first, e.g. with ffmpeg){untouched}")
     wrong = zone.check((frame.shape[1], frame.shape[0])) if zone is not None else None
     if wrong:
         raise InputError(f"{video}: the detection {wrong}{untouched}")
