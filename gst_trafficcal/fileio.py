@@ -44,13 +44,19 @@ _KINDS: tuple[tuple[Callable[[int], bool], str], ...] = (
 )
 
 
+def link_target(path: str | Path) -> Path:
+    """The file a symlink at ``path`` leads to (resolved whole), else ``path`` itself."""
+    path = Path(path)
+    return Path(os.path.realpath(path)) if path.is_symlink() else path
+
+
 def replace_target(path: str | Path, what: str) -> Path:
     """Where a file written whole and renamed into place (:func:`atomic_write`) must go for ``path``: the file a
     symlink leads to (so the link stays a link and its target gets the new text), else ``path`` itself.
     InputError naming ``path`` when something other than a regular file is there (a named pipe, a device, a
     socket, a folder): renaming over it would replace it instead of writing to it."""
     path = Path(path)
-    target = Path(os.path.realpath(path)) if path.is_symlink() else path
+    target = link_target(path)
     try:
         mode = target.stat().st_mode
     except (FileNotFoundError, NotADirectoryError):  # nothing there yet (a folder that is a file: said by the caller)
@@ -86,13 +92,11 @@ def atomic_write(path: str | Path, write: Callable[[Path], None], what: str) -> 
             os.fsync(fh.fileno())
         os.chmod(tmp, mode)  # after the fsync, which must open it: an earlier file may have been unreadable
         os.replace(tmp, target)
-    except OSError as exc:
+    except BaseException as exc:  # no temporary file left, whatever failed (also a value write() cannot encode, Ctrl-C)
         with contextlib.suppress(OSError):
             tmp.unlink(missing_ok=True)
-        raise InputError(f"{path}: cannot write {what} ({exc.strerror or exc})") from None
-    except BaseException:  # write() failed otherwise (a value it cannot encode, Ctrl-C): no temporary file left
-        with contextlib.suppress(OSError):
-            tmp.unlink(missing_ok=True)
+        if isinstance(exc, OSError):
+            raise InputError(f"{path}: cannot write {what} ({exc.strerror or exc})") from None
         raise
     return path
 
@@ -131,9 +135,14 @@ def atomic_write_image(path: str | Path, image: Any, what: str) -> Path:
     except cv2.error:  # no encoder for that extension
         ok = False
     if not ok:
-        raise InputError(f"{path}: cannot write {what} (OpenCV writes no picture named "
-                         f"{path.suffix or 'without an extension'}: name it .png or .jpg)")
+        raise _no_picture_format(path, f"cannot write {what}")
     return atomic_write(path, lambda tmp: tmp.write_bytes(data.tobytes()), what)
+
+
+def _no_picture_format(path: Path, cannot: str) -> InputError:
+    """The error for a picture named with an extension OpenCV has no encoder for (``cannot``: "cannot write ...")."""
+    return InputError(f"{path}: {cannot} (OpenCV writes no picture named "
+                      f"{path.suffix or 'without an extension'}: name it .png or .jpg)")
 
 
 def writable_image(path: str | Path, what: str) -> Path:
@@ -143,8 +152,7 @@ def writable_image(path: str | Path, what: str) -> Path:
 
     path = Path(path)
     if not path.is_dir() and not cv2.haveImageWriter(str(path)):
-        raise InputError(f"{path}: cannot write the {what} (OpenCV writes no picture named "
-                         f"{path.suffix or 'without an extension'}: name it .png or .jpg)")
+        raise _no_picture_format(path, f"cannot write the {what}")
     return writable_file(path, what)
 
 
@@ -193,9 +201,7 @@ def writable_file(path: str | Path, what: str) -> Path:
     except OSError as exc:
         raise InputError(f"{path}: cannot write the {what} there ({exc.strerror or exc})") from None
     finally:
-        for f in reversed(made):
-            with contextlib.suppress(OSError):  # something put there meanwhile (another writer) stays
-                f.rmdir()
+        remove_empty_folders(made)
     return path
 
 
@@ -217,10 +223,16 @@ def folder_made_for(path: str | Path) -> Iterator[list[Path]]:
     try:
         yield made
     except BaseException:
-        for f in reversed(made):
-            with contextlib.suppress(OSError):  # not empty (something was written there meanwhile), or never made
-                f.rmdir()
+        remove_empty_folders(made)
         raise
+
+
+def remove_empty_folders(folders: list[Path]) -> None:
+    """Remove ``folders`` (outermost first, as :func:`missing_folders` gives them), deepest first, each only if it is
+    there and empty: what was put in one meanwhile (another writer) stays, with the folders on the way to it."""
+    for f in reversed(folders):
+        with contextlib.suppress(OSError):
+            f.rmdir()
 
 
 def free_path(path: str | Path) -> Path:
@@ -243,7 +255,7 @@ def remove_earlier(path: str | Path) -> None:
     (a folder, a named pipe) is left alone: writing there is refused with its own error."""
     path = Path(path)
     if path.is_symlink():
-        target = Path(os.path.realpath(path))
+        target = link_target(path)
         with contextlib.suppress(OSError):
             if not stat.S_ISREG(target.lstat().st_mode):
                 return
@@ -258,9 +270,7 @@ def keep_aside(path: str | Path) -> Path | None:
     InputError naming the file when it cannot be moved."""
     from datetime import datetime
 
-    path = Path(path)
-    if path.is_symlink():
-        path = Path(os.path.realpath(path))
+    path = link_target(path)
     try:
         st = path.stat()
     except FileNotFoundError:

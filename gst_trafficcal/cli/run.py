@@ -330,7 +330,7 @@ def set_aside_earlier_live_run(out_dir: Path, live: bool, earlier=None,
     import shutil
     from datetime import datetime
 
-    from ..fileio import free_path
+    from ..fileio import free_path, link_target
 
     vehicles = out_dir / "vehicles.jsonl"
     if not vehicles.is_file() or vehicles.stat().st_size == 0:
@@ -354,8 +354,9 @@ def set_aside_earlier_live_run(out_dir: Path, live: bool, earlier=None,
             if any(_same(path, given) for given in inputs if given is not None):
                 shutil.copy2(path, folder / name)
             elif path.is_symlink():  # the link stays for this run's file, what it leads to is kept
-                if Path(os.path.realpath(path)).is_file():
-                    shutil.move(os.path.realpath(path), folder / name)
+                target = link_target(path)
+                if target.is_file():
+                    shutil.move(target, folder / name)
             else:
                 path.rename(folder / name)
     return folder, count
