@@ -24,7 +24,7 @@ from typing import Any
 import numpy as np
 
 from .errors import InputError
-from .fileio import atomic_write, read_json
+from .fileio import atomic_write, is_json_number, read_json
 
 __all__ = [
     "BrnoCalibration",
@@ -268,7 +268,7 @@ def block_point(d: dict, key: str, where: str = "camera_calibration") -> tuple[f
         raise ValueError(f"{where} has no '{key}'")
     v = d[key]
     if not (isinstance(v, (list, tuple)) and len(v) in (2, 3)
-            and all(isinstance(x, (int, float)) and not isinstance(x, bool) for x in v)):
+            and all(is_json_number(x) for x in v)):
         raise ValueError(f"{where}.{key} must be a list of 2 numbers")
     v = [float(x) for x in v]
     if len(v) == 3:
@@ -300,8 +300,7 @@ class BrnoCalibration:
         if "scale" not in d:
             raise ValueError(f"{where} has no 'scale'")
         scale = d["scale"]
-        if not isinstance(scale, (int, float)) or isinstance(scale, bool) or not math.isfinite(scale) \
-                or scale <= 0:
+        if not is_json_number(scale) or not math.isfinite(scale) or scale <= 0:
             raise ValueError(f"{where}.scale must be a positive number, got {scale!r}")
         return cls(pts["vp1"], pts["vp2"], pts["pp"], float(scale))
 
@@ -328,7 +327,7 @@ class Results:
 
 
 def _numbers(value: Any, what: str) -> tuple[np.ndarray, bool]:
-    if isinstance(value, (int, float)) and not isinstance(value, bool):
+    if is_json_number(value):
         return np.array([float(value)]), True
     if not isinstance(value, list):
         raise ValueError(f"{what} must be a list of numbers")
@@ -377,7 +376,7 @@ def image_size_field(value: Any) -> tuple[int, int]:
     """An ``image_size`` field (of results or calibration files) as (width, height); ValueError unless it is two
     positive whole numbers (true/false are not numbers here)."""
     if not (isinstance(value, (list, tuple)) and len(value) == 2 and
-            all(isinstance(v, int) and not isinstance(v, bool) and v > 0 for v in value)):
+            all(is_json_number(v, whole=True) and v > 0 for v in value)):
         raise ValueError(f"'image_size' must be [width, height], got {value!r}")
     return int(value[0]), int(value[1])
 

@@ -39,8 +39,9 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from .brnocompspeed import block_point, image_size_field
 from .errors import GeometryError, InputError
-from .fileio import atomic_write_text, read_json
+from .fileio import atomic_write_text, is_json_number, read_json
 from .geometry import Camera
 from .road_homography import road_homography
 
@@ -147,7 +148,7 @@ class Calibration:
         camera = None
         if "vp1" in d:
             scale = d.get("scale")
-            if scale is not None and (not _is_number(scale) or not math.isfinite(scale)):
+            if scale is not None and (not is_json_number(scale) or not math.isfinite(scale)):
                 raise InputError(f"{where}: field 'scale' must be a number or null")
             try:
                 camera = Camera(_point(d, "vp1", where), _point(d, "vp2", where), _point(d, "pp", where), scale)
@@ -157,14 +158,14 @@ class Calibration:
             raise InputError(f"{where}: state {state!r} needs the vanishing points (fields 'vp1', 'vp2' and 'pp'), "
                              "but the file has no 'vp1'")
         conf = d.get("confidence", {})
-        if not (isinstance(conf, dict) and all(_is_number(v) for v in conf.values())):
+        if not (isinstance(conf, dict) and all(is_json_number(v) for v in conf.values())):
             raise InputError(f"{where}: field 'confidence' must be an object of numbers, got {conf!r}")
         view = d.get("view")
         if view is not None and not (isinstance(view, dict) and isinstance(view.get("png"), str)
-                                     and _is_number(view.get("frame_width"), whole=True)):
+                                     and is_json_number(view.get("frame_width"), whole=True)):
             raise InputError(f"{where}: field 'view' must be an object with 'png' and 'frame_width'")
         moved_at = d.get("moved_at")
-        if moved_at is not None and not (_is_number(moved_at) and math.isfinite(moved_at)):
+        if moved_at is not None and not (is_json_number(moved_at) and math.isfinite(moved_at)):
             raise InputError(f"{where}: field 'moved_at' must be a number (seconds) or null")
         return cls(camera=camera, image_size=_size(d, where), state=state, source=str(d.get("source", "unknown")),
                    confidence={str(k): float(v) for k, v in conf.items()}, reason=str(d.get("reason", "")),
@@ -177,11 +178,9 @@ class Calibration:
         if not isinstance(block, dict):
             raise InputError(f"{where}: 'camera_calibration' must be an object")
         scale = block.get("scale")
-        if scale is not None and not _is_number(scale):
+        if scale is not None and not is_json_number(scale):
             raise InputError(f"{where}: field 'camera_calibration.scale' must be a number or null, got {scale!r}")
-        from .brnocompspeed import block_point  # one reading of the block's points, [x, y] or [x, y, w]
-
-        try:
+        try:  # one reading of the block's points, [x, y] or [x, y, w], with BrnoCompSpeed's results
             vp1, vp2, pp = (np.array(block_point(block, key, f"{where}: camera_calibration"))
                             for key in ("vp1", "vp2", "pp"))
         except ValueError as exc:
@@ -208,23 +207,15 @@ def latest_per_view(cals: list[Calibration], cal: Calibration) -> list[Calibrati
     return [c for c in cals if not same_vanishing_points(c, cal)] + [cal]
 
 
-def _is_number(x: Any, whole: bool = False) -> bool:
-    """Whether a JSON value is a number (a whole one with ``whole``); true and false are not, though Python
-    counts them as ints: ``[true, 0]`` is no image point, ``true`` no scale."""
-    return isinstance(x, int if whole else (int, float)) and not isinstance(x, bool)
-
-
 def _point(d: dict, key: str, where: str) -> np.ndarray:
     v = d.get(key)
-    if not (isinstance(v, (list, tuple)) and len(v) == 2 and all(_is_number(x) for x in v)):
+    if not (isinstance(v, (list, tuple)) and len(v) == 2 and all(is_json_number(x) for x in v)):
         raise InputError(f"{where}: field {key!r} must be a list of two numbers, got {v!r}")
     return np.asarray(v, dtype=np.float64)
 
 
 def _size(d: dict, where: str) -> tuple[int, int]:
-    from .brnocompspeed import image_size_field  # one check for the field in both kinds of file
-
-    try:
+    try:  # one check for the field in both kinds of file
         return image_size_field(d.get("image_size", [1920, 1080]))
     except ValueError as exc:
         raise InputError(f"{where}: field {exc}") from None

@@ -38,6 +38,12 @@ def read_json(path: str | Path, what: str) -> Any:
         raise InputError(f"{path}: not valid JSON, so not a {what} ({exc.msg} at line {exc.lineno})") from None
 
 
+def is_json_number(x: Any, whole: bool = False) -> bool:
+    """Whether a value read from JSON is a number (a whole one with ``whole``); true and false are not, though Python
+    counts them as ints: ``[true, 0]`` is no image point, ``true`` no scale."""
+    return isinstance(x, int if whole else (int, float)) and not isinstance(x, bool)
+
+
 _KINDS: tuple[tuple[Callable[[int], bool], str], ...] = (
     (stat.S_ISDIR, "a folder"), (stat.S_ISFIFO, "a named pipe"), (stat.S_ISCHR, "a character device"),
     (stat.S_ISBLK, "a block device"), (stat.S_ISSOCK, "a socket"),
