@@ -84,8 +84,9 @@ def run_pipeline(
 
     ``frames`` (pushed into ``appsrc name=src`` with ``caps``, timestamps i/fps) may be packed BGR
     images (converted to the caps' format), lists of planes (laid out with the caps' strides) or
-    ready ``Gst.Buffer`` objects (which keep their own timestamps when they have them: timestamps going back). ``on_buffer(buffer, video_info)`` is called for each sink buffer
-    while it is valid (do not keep the buffer). ``timeout`` (seconds) guards against hangs only.
+    ready ``Gst.Buffer`` objects (which keep their own timestamps when they have them: timestamps going back).
+    ``on_buffer(buffer, video_info)`` is called for each sink buffer while it is valid (do not keep the buffer).
+    ``timeout`` (seconds) guards against hangs only.
     """
     if isinstance(description, Gst.Pipeline):
         pipeline, description = description, description.get_name()
