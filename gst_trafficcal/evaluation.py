@@ -358,7 +358,8 @@ class Matching:
 
 
 def match(gt: GroundTruth, prepared: PreparedTracks) -> Matching:
-    """Official ``computeMatches`` + ``computeRecall`` + ``computeFalsePositives``."""
+    """Official ``computeMatches`` + ``computeRecall`` + ``computeFalsePositives`` (a ground truth without cars:
+    no match, recall NaN, only the tracks' intersection errors as false positives)."""
     g = len(gt.cars)
     t_gt = np.array([c.match_time for c in gt.cars])
     valid = np.array([c.valid for c in gt.cars], dtype=bool)
@@ -379,7 +380,9 @@ def match(gt: GroundTruth, prepared: PreparedTracks) -> Matching:
     recall = float(np.count_nonzero(matched & valid) / n_valid) if n_valid else math.nan
     ids = [prepared.tracks[i].id for i in track_of_gt[matched]]
     matched_ids = set(ids)
-    lo, hi = t_gt.min(), t_gt.max()
+    # the false positives are counted in the ground truth's time span: none without a ground-truth car (the
+    # official code stops there with numpy's "zero-size array to reduction operation", and so did this)
+    lo, hi = (t_gt.min(), t_gt.max()) if g else (0.0, 0.0)
     fp = sum(1 for i in cand if lo <= prepared.time_last[i] < hi and prepared.tracks[i].id not in matched_ids)
     return Matching(track_of_gt, valid, recall, fp + prepared.n_errors, int(np.count_nonzero(matched)),
                     int(np.count_nonzero(matched & valid)))

@@ -173,6 +173,20 @@ def test_matching_nearest_in_time_lane_checked_first_on_ties():
     assert m.false_positives == 2  # b (unmatched, 2.0 s) and e
 
 
+def test_a_ground_truth_without_cars_matches_nothing():
+    """No ground-truth car (a recording's empty minute): nothing matched, recall NaN, no false positive outside the
+    ground truth's (empty) time span, and the speed report is empty — numpy's "zero-size array to reduction
+    operation minimum which has no identity" before."""
+    tracks = Results(None, (_track(10, 300.0, 200.0, 10.0, 40, dx=0.1),))
+    prepared = prepare_tracks(tracks, _gt([_gt_car(0, 0, 2.0)]))  # the same scene's lines and lanes
+    gt = _gt([])
+    m = match(gt, prepared)
+    assert m.track_of_gt.size == 0 and np.isnan(m.recall) and m.false_positives == 0 and m.n_matched == 0
+    cam = Camera([500.0, -2000.0], [5000.0, 700.0], [500.0, 500.0], 10.0)
+    speed = evaluate(gt, cam, prepared=prepared).speed
+    assert speed.n_gt_cars == 0 and speed.matched == 0 and speed.cars == [] and np.isnan(speed.recall)
+
+
 def test_median_speed_equals_per_car_median():
     rng = np.random.default_rng(3)
     cam = Camera.from_brno([300.0, -200.0], [9000.0, 300.0], [960.5, 540.5], 0.015)
