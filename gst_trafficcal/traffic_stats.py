@@ -233,15 +233,14 @@ def interval_rows(events: Iterable, interval_s: float = 900.0, start: datetime |
 
     A vehicle belongs to the interval of the middle of its time in view.  With ``start`` (the date and time of
     stream time 0) intervals are aligned to the clock (15 min: :00, :15, :30, :45) and named by date and time;
-    without it they count from the start of the stream.  Vehicles without timestamps are left out.
+    without it they count from the start of the stream.  Vehicles without timestamps (or NaN ones) are left out.
 
     ``covered``: the spans of stream time (s) the video covers.  Then every interval they reach has its row of all
     vehicles even when none passed (a count of zero, not a gap), and each row says how many seconds of its interval
     were watched (``observed_s``: less than the interval at the ends of a recording, across a gap between files or
     while a live stream was down) — a count over part of an interval is not comparable with a whole one.
     """
-    if not interval_s > 0:
-        raise InputError(f"interval must be positive, got {interval_s!r} s")
+    _check_interval(interval_s)
     limit = as_limit(limit_kmh)
     offset = _clock_offset(start)
     midnight = None if start is None else start - timedelta(seconds=offset)
@@ -250,10 +249,15 @@ def interval_rows(events: Iterable, interval_s: float = 900.0, start: datetime |
         if e.first_timestamp_s is None or e.last_timestamp_s is None:
             continue
         t = offset + 0.5 * (e.first_timestamp_s + e.last_timestamp_s)
+        if not np.isfinite(t):  # a NaN or infinite timestamp tells no time either (numpy's error before)
+            continue
         groups.setdefault(int(np.floor(t / interval_s)), []).append(e)
     observed: dict[int, float] = {}
     for a, b in covered or ():
         a, b = offset + float(a), offset + float(b)
+        if not (np.isfinite(a) and np.isfinite(b)):
+            raise InputError(f"a covered span of stream time must be two finite numbers of seconds, got {a!r} to "
+                             f"{b!r}")
         for k in range(int(np.floor(a / interval_s)), int(np.ceil(b / interval_s))):
             seen = min(b, (k + 1) * interval_s) - max(a, k * interval_s)
             if seen > 0:
@@ -280,8 +284,16 @@ def interval_rows(events: Iterable, interval_s: float = 900.0, start: datetime |
 def last_boundary(t: float, interval_s: float, start: datetime | None = None) -> float:
     """The stream time (s) of the latest interval boundary at or before stream time ``t`` (intervals aligned as
     :func:`interval_rows` aligns them)."""
+    _check_interval(interval_s)
     offset = _clock_offset(start)
     return float(np.floor((offset + t) / interval_s) * interval_s - offset)
+
+
+def _check_interval(interval_s: float) -> None:
+    """InputError unless ``interval_s`` is a positive, finite number of seconds (an infinite one made every interval
+    start at NaN: numpy's "cannot convert float NaN to integer")."""
+    if not (isinstance(interval_s, (int, float, np.number)) and 0 < interval_s < float("inf")):
+        raise InputError(f"interval must be a positive, finite number of seconds, got {interval_s!r}")
 
 
 def _clock_offset(start: datetime | None) -> float:
@@ -387,8 +399,7 @@ class IntervalTable:
 
     def __init__(self, path: str | Path, interval_s: float = 900.0, start: datetime | None = None,
                  limit: "SpeedLimit | float | None" = None, grace_s: float = 30.0) -> None:
-        if not interval_s > 0:
-            raise InputError(f"interval must be positive, got {interval_s!r} s")
+        _check_interval(interval_s)
         self.path = Path(path)
         self.interval_s, self.start, self.limit, self.grace_s = float(interval_s), start, limit, float(grace_s)
         self.events = CountedVehicles()

@@ -121,6 +121,30 @@ def test_counts_per_interval_lane_and_direction() -> None:
     assert interval_rows(events, 900, limit_kmh=parse_speed_limit("75,van=95"))[0].to_dict()["over_limit"] == 0
 
 
+def test_an_interval_that_is_no_number_of_seconds_and_nan_times_are_clear() -> None:
+    """An infinite or NaN interval is one clear InputError (an infinite one gave numpy's "cannot convert float NaN to
+    integer", the interval's start being inf * 0); a vehicle whose timestamps are NaN or infinite is left out as one
+    without timestamps (the same numpy error before), and a covered span that is not finite is refused by name."""
+    from dataclasses import replace
+
+    import pytest
+
+    from gst_trafficcal.errors import InputError
+    from gst_trafficcal.traffic_stats import IntervalTable, interval_rows, last_boundary
+
+    events = [_event(1, 10, 50.0), replace(_event(2, 20, 60.0), first_timestamp_s=float("nan")),
+              replace(_event(3, 30, 70.0), last_timestamp_s=float("inf"))]
+    for bad in (float("inf"), float("nan"), 0.0, -5.0):
+        for call in (lambda: interval_rows(events, bad), lambda: last_boundary(10.0, bad),
+                     lambda: IntervalTable("unused.csv", bad)):
+            with pytest.raises(InputError, match="interval must be a positive, finite number of seconds, got "):
+                call()
+    rows = interval_rows(events, 900)
+    assert [(r.start, r.vehicles, r.total) for r in rows] == [("0:00:00", 1, False), ("0:00:00", 1, True)]
+    with pytest.raises(InputError, match="a covered span of stream time must be two finite numbers of seconds"):
+        interval_rows(events, 900, covered=[(0.0, float("nan"))])
+
+
 def test_the_packed_vehicles_count_as_the_events_do() -> None:
     """CountedVehicles keeps what the table needs of each event, packed: the same rows; an event without
     timestamps is left out, as interval_rows leaves it out."""
