@@ -231,6 +231,9 @@ class Camera:
             raise GeometryError("K must have zero skew and square pixels (fx == fy)")
         f, pp = K[0, 0], K[:2, 2]
         d = np.array([1.0, 0.0] if direction is None else direction, dtype=np.float64)
+        if d.shape != (2,) or not np.all(np.isfinite(d)) or not np.linalg.norm(d) > 0:
+            raise GeometryError(f"the traffic direction must be a 2D direction in the road plane (x, y, not both 0), "
+                                f"got {np.asarray(direction).tolist()!r}")
         d = np.append(d / np.linalg.norm(d), 0.0)
         e = np.cross([0.0, 0.0, 1.0], d)
         vps = []

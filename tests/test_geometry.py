@@ -133,6 +133,20 @@ def test_rejects_camera_below_road_and_vp_at_infinity():
         Camera.from_KRt(K, R, t)
 
 
+@pytest.mark.parametrize("direction", [[0, 0], [1.0, float("nan")], [1.0, 0.0, 0.0]])
+def test_from_krt_refuses_a_traffic_direction_that_is_none(direction):
+    """A zero, NaN or 3D traffic direction is said as such; [0, 0] was divided by its zero length (numpy's
+    "invalid value encountered in divide") and ended in "an imaginary focal length ((vp1-pp)·(vp2-pp) = nan)"."""
+    import warnings
+
+    K, R, t, _ = make_pinhole(20, 10, 0, 1000, 5, 0)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        with pytest.raises(GeometryError, match=r"the traffic direction must be a 2D direction in the road plane "
+                                                r"\(x, y, not both 0\), got \["):
+            Camera.from_KRt(K, R, t, direction=direction)
+
+
 def test_distance_needs_scale():
     cam = Camera([1000.0, 100.0], [-3000.0, 200.0], [960.0, 540.0])
     with pytest.raises(GeometryError, match="no scale"):
