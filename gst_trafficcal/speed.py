@@ -52,7 +52,12 @@ def pair_samples(camera: Camera, points_px: np.ndarray, times_s: np.ndarray, tau
     """Speeds in km/h between observations i and i+τ of one track (points (N, 2) pixels, times (N,) seconds) and
     each pair's mid-time (s); pairs without a finite speed are left out.  With ``checks`` the pairs of a vehicle
     that covers less than ``checks.min_pair_m`` in τ observations are taken further apart (:func:`pair_step`)."""
-    points_px, times_s = track_arrays(points_px, times_s, tau)
+    return _pair_samples(camera, *track_arrays(points_px, times_s, tau), tau, checks)
+
+
+def _pair_samples(camera: Camera, points_px: np.ndarray, times_s: np.ndarray, tau: int,
+                  checks: SpeedChecks | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`pair_samples` of arrays :func:`track_arrays` checked already (the callers that check them first)."""
     if len(points_px) <= tau:
         return np.empty(0), np.empty(0)
     metres = camera.distance(points_px[tau:], points_px[:-tau])
@@ -79,7 +84,7 @@ def track_speed(camera: Camera | None, points_px: np.ndarray, times_s: np.ndarra
         return SpeedMeasurement(None, 0, "no calibration with scale")
     if len(points_px) <= tau:
         return SpeedMeasurement(None, 0, f"track too short ({len(points_px)} points, needs more than {tau})")
-    v = pairwise_speeds(camera, points_px, times_s, tau)
+    v = _pair_samples(camera, points_px, times_s, tau)[0]
     if v.size == 0:
         return SpeedMeasurement(None, 0, "no usable point pairs (points above the horizon or equal timestamps)")
     return SpeedMeasurement(float(np.median(v)), int(v.size))
@@ -263,7 +268,7 @@ def vehicle_speed(camera: Camera | None, points_px: np.ndarray, times_s: np.ndar
     if span < checks.min_distance_m:
         return VehicleSpeed(None, 0, f"track too short on the road ({span:.1f} m, needs "
                             f"{checks.min_distance_m:g} m)", keep)
-    v, mid = pair_samples(camera, px[k], times[k], tau, checks)
+    v, mid = _pair_samples(camera, px[k], times[k], tau, checks)
     if v.size == 0:
         return VehicleSpeed(None, 0, "no usable point pairs (equal timestamps)", keep)
     med = float(np.median(v))

@@ -68,6 +68,21 @@ def test_a_wrong_track_or_tau_is_a_clear_value_error(measure):
     assert np.allclose(getattr(measure(cam, pts, times, tau=np.int64(5)), "speed_kmh", 72.0), 72.0)
 
 
+@pytest.mark.parametrize("measure", [track_speed, vehicle_speed, pairwise_speeds])
+def test_a_track_is_checked_once(measure, monkeypatch):
+    """Each measurement checks (and converts) its track's arrays once: track_speed and vehicle_speed checked them,
+    then pair_samples checked the same arrays again."""
+    import gst_trafficcal.speed as speed
+
+    calls = []
+    checked = speed.track_arrays
+    monkeypatch.setattr(speed, "track_arrays", lambda *args: calls.append(1) or checked(*args))
+    cam = _camera()
+    times = np.arange(30) / 25.0
+    assert np.isclose(getattr(measure(cam, _track(cam, 72.0, times), times), "speed_kmh", 72.0), 72.0)
+    assert len(calls) == 1
+
+
 # --------------------------------------------------------------------------- the product's checks (vehicle_speed)
 
 
