@@ -11,7 +11,8 @@
 #              whole, then renamed: a symlink is followed and stays, an earlier file's permissions are kept).
 #
 # The pipeline (printed before it runs):
-#   uridecodebin ! videoconvert ! videoscale ! I420 1:1 ! vpdetect mode=learn calibration-file=... ! fakesink
+#   uridecodebin ! videoconvert ! videoflip ! videoscale ! I420 1:1
+#     ! vpdetect mode=learn calibration-file=... ! fakesink
 # It stops as soon as vpdetect has saved the calibration (so a live camera is calibrated without Ctrl-C; a file
 # is not decoded further than needed). When the input ends first, it exits 1 with vpdetect's reason.
 #
@@ -30,7 +31,7 @@ here="$(cd "$(dirname "${BASH_SOURCE[0]}")" && pwd)"
 
 die() { echo "calibrate: error: $*" >&2; exit 2; }
 
-need=(uridecodebin videoconvert videoscale vpdetect fakesink)
+need=(uridecodebin videoconvert videoflip videoscale vpdetect fakesink)
 
 
 report_missing() {
@@ -82,9 +83,8 @@ trap cleanup EXIT
 
 set_stall_watchdog "$uri"  # a live source that stops sending ends the run (lib.sh)
 # shellcheck disable=SC2206  # word splitting of the user's property list is intended
-# square pixels, as the camera model and trafficcal run take them (a square-pixel video passes untouched)
-pipeline=(uridecodebin "uri=$uri" ! videoconvert ! videoscale ! "${stall[@]}"
-          video/x-raw,format=I420,pixel-aspect-ratio=1/1
+set_analysed_video "$uri"  # upright and of square pixels, as the camera model and trafficcal run take them (lib.sh)
+pipeline=(uridecodebin "uri=$uri" ! "${stall[@]}" videoconvert ! "${analysed[@]}"
           ! vpdetect mode=learn "calibration-file=$tmp" ${VPDETECT_OPTS:-} ! fakesink)
 echo "calibrate: gst-launch-1.0 -e ${pipeline[*]}" >&2
 

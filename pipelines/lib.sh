@@ -1,5 +1,23 @@
-# Shared by the pipeline scripts (sourced, not run): element checks and input URIs.
+# Shared by the pipeline scripts (sourced, not run): element checks, input URIs and pipeline pieces.
 # The sourcing script defines die() (its own error prefix) before calling input_uri.
+
+# The decoded video as the elements take it, upright and of square pixels, and an H.264 encoder's input of an even
+# size: pipeline pieces trafficcal run uses too, written once in gst_trafficcal/gst/chains.py (env.sh makes it
+# importable). Both set arrays of words for the scripts' pipelines; they exit through die() when Python fails.
+set_analysed_video() {  # INPUT: sets `analysed` to (videoflip video-direction=... ! videoscale ! I420,PAR 1/1)
+    # A phone's or a body camera's rotated recording is turned as its file says (read before the pipeline starts,
+    # as trafficcal run reads it: with video-direction=auto vpdetect first saw the stored size and refused a
+    # calibration of the upright picture); a DVR's D1 or a 480x360 stored for a 640x360 picture gets square pixels.
+    local words
+    words="$(python -m gst_trafficcal.gst.chains analysed "$1")" || die "cannot set up the pipeline (is the" \
+        "project set up: scripts/setup.sh?)"
+    mapfile -t analysed <<<"$words"
+}
+
+set_even_i420() {  # sets `even_i420` to the caps of I420 of an even size (x264 refuses an odd one, 1281x721)
+    even_i420="$(python -m gst_trafficcal.gst.chains even-i420)" || die "cannot set up the pipeline (is the" \
+        "project set up: scripts/setup.sh?)"
+}
 
 check_elements() {  # prints the missing elements, one per line
     local e

@@ -16,7 +16,7 @@
 #              speed_kmh null and the reason.
 #
 # The pipeline (printed before it runs) is the product card's line:
-#   uridecodebin ! videoconvert ! videoscale ! I420 1:1 ! vpdetect ! vehicledetect
+#   uridecodebin ! videoconvert ! videoflip ! videoscale ! I420 1:1 ! vpdetect ! vehicledetect
 #     ! speedometer events-file=... ! fakesink
 # (speedometer runs the tracker itself). Live sources (rtsp://...) run until Ctrl-C or SIGTERM (a service
 # stopped); the files are then completed (gst-launch-1.0 -e). Every vehicle is written the moment it leaves,
@@ -52,7 +52,7 @@ here="$(cd "$(dirname "${BASH_SOURCE[0]}")" && pwd)"
 
 die() { echo "measure: error: $*" >&2; exit 2; }
 
-need=(uridecodebin videoconvert videoscale vpdetect vehicledetect speedometer fakesink)
+need=(uridecodebin videoconvert videoflip videoscale vpdetect vehicledetect speedometer fakesink)
 
 
 [[ "${1:-}" == "--check" ]] && run_check measure "${need[@]}"
@@ -100,9 +100,8 @@ kept="$(keep_earlier_live "$uri" "$out_dir")" || die "$out_dir: cannot keep the 
 mapfile -t queue < <(analysis_queue "$uri")  # leaky for a live source (lib.sh)
 set_stall_watchdog "$uri"  # a live source that stops sending ends the run (lib.sh)
 # shellcheck disable=SC2206  # word splitting of the user's property lists is intended
-# square pixels, as the camera model and trafficcal run take them (a square-pixel video passes untouched)
-pipeline=(uridecodebin "uri=$uri" ! videoconvert ! videoscale ! "${stall[@]}"
-          video/x-raw,format=I420,pixel-aspect-ratio=1/1 ! "${queue[@]}"
+set_analysed_video "$uri"  # upright and of square pixels, as the camera model and trafficcal run take them (lib.sh)
+pipeline=(uridecodebin "uri=$uri" ! "${stall[@]}" videoconvert ! "${analysed[@]}" ! "${queue[@]}"
           ! "${vp[@]}" ${VPDETECT_OPTS:-} ! vehicledetect ${VEHICLEDETECT_OPTS:-}
           ! speedometer "events-file=$events" "csv-file=$out_dir/vehicles.csv" "results-file=$out_dir/system.json"
             "intervals-file=$out_dir/intervals.csv" "${clock[@]}" "${again[@]}" ${SPEEDOMETER_OPTS:-} ! fakesink)

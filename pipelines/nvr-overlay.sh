@@ -16,7 +16,7 @@
 #              vpdetect loads it when it exists, otherwise learns the calibration and saves it there.
 #
 # The pipeline (printed before it runs):
-#   uridecodebin ! videoconvert ! videoscale ! I420 1:1 ! vpdetect ! vehicledetect ! tracker [! speedometer]
+#   uridecodebin ! videoconvert ! videoflip ! videoscale ! I420 1:1 ! vpdetect ! vehicledetect ! tracker [! speedometer]
 #     ! trafficoverlay
 #     ! x264enc ! h264parse ! <muxer> ! filesink
 # Live sources (rtsp://...) run until Ctrl-C or SIGTERM (a service stopped); the recording is then finalised
@@ -50,7 +50,7 @@ if [[ -n "${ANALYSIS+set}" ]]; then
     analysis="$ANALYSIS"
 fi
 
-need=(uridecodebin videoconvert videoscale trafficoverlay h264parse "$encoder_element")
+need=(uridecodebin videoconvert videoflip videoscale trafficoverlay h264parse "$encoder_element")
 if [[ $default_analysis == 1 ]]; then
     need+=(vpdetect vehicledetect tracker)
 fi
@@ -131,16 +131,15 @@ fi
 mapfile -t queue < <(analysis_queue "$uri")  # leaky for a live source (lib.sh)
 set_stall_watchdog "$uri"  # a live source that stops sending ends the run (lib.sh)
 # shellcheck disable=SC2206  # word splitting of the user's property lists is intended
-# square pixels, as the camera model and trafficcal run take them (a square-pixel video passes untouched)
-pipeline=(uridecodebin "uri=$uri" ! videoconvert ! videoscale ! "${stall[@]}"
-          video/x-raw,format=I420,pixel-aspect-ratio=1/1 ! "${queue[@]}")
+set_analysed_video "$uri"  # upright and of square pixels, as the camera model and trafficcal run take them (lib.sh)
+pipeline=(uridecodebin "uri=$uri" ! "${stall[@]}" videoconvert ! "${analysed[@]}" ! "${queue[@]}")
 if [[ ${#chain[@]} -gt 0 ]]; then
     pipeline+=(! "${chain[@]}")
 fi
 # shellcheck disable=SC2206
-# an even size for the H.264 encoder (x264 refuses an odd one, 1281x721: such a video is scaled by a pixel)
+set_even_i420  # an even size for the H.264 encoder (x264 refuses an odd one, 1281x721: scaled by a pixel)
 pipeline+=(! trafficoverlay "${overlay_cal[@]}" ${OVERLAY_OPTS:-} ! videoconvert ! videoscale
-           ! "video/x-raw,format=I420,width=[2,32768,2],height=[2,32768,2]" ! $encoder ! h264parse ! $muxer
+           ! "$even_i420" ! $encoder ! h264parse ! $muxer
            ! "${sink[@]}")
 
 echo "nvr-overlay: gst-launch-1.0 -e ${pipeline[*]}" >&2

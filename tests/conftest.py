@@ -133,6 +133,37 @@ def count_frames(path: Path) -> int:
     return n
 
 
+def encoded(dst: Path, caps: str, frames: int = 100, src: Path | None = None) -> Path:
+    """An H.264 MP4 ``dst`` of ``frames`` frames of raw video ``caps`` (e.g. ``width=480,height=360,
+    pixel-aspect-ratio=4/3``: stored squeezed, as a DVR's D1): the first frames of the video ``src``, or of
+    videotestsrc's still colour bars."""
+    import subprocess
+
+    source = ["filesrc", f"location={src}", "!", "decodebin"] if src else ["videotestsrc", "pattern=smpte"]
+    subprocess.run(["gst-launch-1.0", "-q", *source, "!", "identity", f"eos-after={frames + 1}", "!", "videoconvert",
+                    "!", "videoscale", "!", f"video/x-raw,{caps}", "!", "x264enc", "speed-preset=ultrafast", "!",
+                    "mp4mux", "!", "filesink", f"location={dst}"], check=True, timeout=120)
+    return dst
+
+
+def rotation_tagged(src: Path, dst: Path, degrees: int = 90) -> Path:
+    """``src`` (an MP4 of one video track) with the display matrix a phone writes for a picture taken turned by
+    ``degrees`` clockwise (the track header's matrix; the frames stay as stored): players, OpenCV and GStreamer's
+    ``videoflip video-direction=auto`` show it turned upright."""
+    import struct
+
+    data = bytearray(src.read_bytes())
+    i = data.find(b"tkhd")
+    assert i > 0 and data.count(b"tkhd") == 1, "one video track expected"
+    # after the box's type: version and flags, 3 times and the track id and a reserved word (of 4 or 8 bytes),
+    # the duration, 8 reserved bytes, then layer, alternate group, volume and 2 reserved bytes
+    start = i + 4 + 4 + (8 + 8 + 4 + 4 + 8 if data[i + 4] == 1 else 4 + 4 + 4 + 4 + 4) + 8 + 8
+    a, b, c, d = {90: (0, 1, -1, 0), 180: (-1, 0, 0, -1), 270: (0, -1, 1, 0)}[degrees]
+    struct.pack_into(">9i", data, start, a << 16, b << 16, 0, c << 16, d << 16, 0, 0, 0, 1 << 30)
+    dst.write_bytes(bytes(data))
+    return dst
+
+
 def closed_port() -> int:
     """A local TCP port nobody listens on (bound for a moment, then released): connections to it are refused."""
     import socket

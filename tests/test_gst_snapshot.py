@@ -48,3 +48,49 @@ def test_not_a_video_or_missing_is_none_at_once(tmp_path):
         t0 = time.monotonic()
         assert first_frame_bgr(path, timeout_s=60) is None
         assert time.monotonic() - t0 < 30  # the decoding error ends the wait, not the timeout
+
+
+def test_a_rotated_or_squeezed_video_is_pictured_as_the_elements_see_it(tmp_path):
+    """A phone's video (frames stored 640x360, its display matrix turning them a quarter clockwise) and a 640x360
+    picture stored as 480x360 pixels of 4/3: the picture is upright and of square pixels, as trafficcal run's
+    elements see it (videoflip video-direction=auto, videoscale) and as OpenCV turns it (the same frame)."""
+    from gst_trafficcal.cli.run import first_frame
+
+    from .conftest import encoded, rotation_tagged
+
+    turned = rotation_tagged(encoded(tmp_path / "stored.mp4", "width=640,height=360", frames=3), tmp_path / "r.mp4")
+    squeezed = encoded(tmp_path / "par.mp4", "width=480,height=360,pixel-aspect-ratio=4/3", frames=3)
+    for video, shape in ((turned, (640, 360, 3)), (squeezed, (360, 640, 3))):
+        frame, opencv = first_frame_bgr(video), first_frame(video)
+        assert frame.shape == shape and opencv.shape == shape
+        assert np.abs(frame.astype(int) - opencv.astype(int)).mean() < 4.0
+
+
+@pytest.mark.parametrize("degrees", [90, 180, 270])
+def test_the_pipelines_turn_a_rotated_video_as_opencv_does(tmp_path, degrees):
+    """The videoflip trafficcal run and the scripts put before the elements for a file's rotation (read before the
+    pipeline starts) turns the frames as OpenCV does (trafficcal calibrate, the report's picture): the same frame."""
+    from gst_trafficcal.cli.run import first_frame, rotation_of
+    from gst_trafficcal.gst._gi import Gst
+    from gst_trafficcal.gst.buffers import frame_bgr, video_info_from_caps
+    from gst_trafficcal.gst.chains import analysed_video
+
+    from .conftest import encoded, rotation_tagged
+
+    video = rotation_tagged(encoded(tmp_path / "stored.mp4", "width=320,height=180", frames=3), tmp_path / "r.mp4",
+                            degrees)
+    assert rotation_of(video) == degrees and rotation_of(f"file://{video}") == degrees
+    pipeline = Gst.parse_launch(" ! ".join([f"filesrc location={video}", "decodebin", "videoconvert",
+                                            *analysed_video(rotation_of(video)), "videoconvert",
+                                            "video/x-raw,format=BGR", "appsink name=sink"]))
+    pipeline.set_state(Gst.State.PAUSED)
+    try:
+        assert pipeline.get_state(10 * Gst.SECOND)[0] == Gst.StateChangeReturn.SUCCESS
+        sample = pipeline.get_by_name("sink").emit("try-pull-preroll", 0)
+        with frame_bgr(sample.get_buffer(), video_info_from_caps(sample.get_caps())) as bgr:
+            frame = np.array(bgr, copy=True)
+    finally:
+        pipeline.set_state(Gst.State.NULL)
+    opencv = first_frame(video)
+    assert frame.shape == opencv.shape == ((320, 180, 3) if degrees != 180 else (180, 320, 3))
+    assert np.abs(frame.astype(int) - opencv.astype(int)).mean() < 4.0

@@ -376,7 +376,7 @@ def test_measure_on_a_source_that_sends_nothing_stops_after_stall_timeout(tmp_pa
     uri = f"udp://127.0.0.1:{closed_port()}"
     proc = script("measure.sh", uri, tmp_path / "out", STALL_TIMEOUT="2")
     assert proc.returncode != 0 and "Watchdog triggered" in proc.stderr, proc.stderr[-2000:]
-    assert "! watchdog timeout=2000 ! video/x-raw,format=I420" in proc.stderr
+    assert f"uridecodebin uri={uri} ! watchdog timeout=2000 ! videoconvert" in proc.stderr  # as trafficcal run
     assert proc.stderr.strip().splitlines()[-1].startswith("measure: error: the pipeline failed (gst-launch-1.0 exit")
     assert "measure: " not in proc.stdout  # no summary as if it had succeeded
     bad = script("measure.sh", uri, tmp_path / "bad", STALL_TIMEOUT="soon")
@@ -498,3 +498,17 @@ def test_nvr_overlay_stopped_by_sigterm_completes_the_recording(rtsp_clip, tmp_p
     info = GstPbutils.Discoverer.new(30 * Gst.SECOND).discover_uri(out.as_uri())
     assert info.get_result() == GstPbutils.DiscovererResult.OK and info.get_video_streams()
     assert 1.0 < info.get_duration() / Gst.SECOND < 11.5  # what was recorded until the stop, before the clip's end
+
+
+def test_measure_analyses_a_rotated_video_upright(tmp_path):
+    """A phone's video (frames stored 640x360, turned a quarter by its display matrix) is measured as it is shown,
+    360x640, as trafficcal run does: a calibration of that picture is taken (vpdetect refused it before)."""
+    from .conftest import encoded, rotation_tagged
+    from .test_run import PORTRAIT
+
+    video = rotation_tagged(encoded(tmp_path / "stored.mp4", "width=640,height=360", frames=25), tmp_path / "p.mp4")
+    cal = tmp_path / "portrait.json"
+    cal.write_text(json.dumps(PORTRAIT))
+    proc = script("measure.sh", video, tmp_path / "out", cal)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    assert "videoflip video-direction=90r ! videoscale" in proc.stderr

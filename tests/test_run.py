@@ -1075,3 +1075,28 @@ def test_the_vehicle_table_fits_a_terminal_of_80_columns():
     text = console.export_text()
     assert "away_from_vp1" in text and "towards_vp1" in text and "…" not in text, text
     assert "13 vehicles, 12 measured (speeds in km/h)" in text and "over limit" in text
+
+
+PORTRAIT = {"format": "gst-trafficcal-calibration", "version": 1, "state": "calibrated", "source": "test",
+            "image_size": [360, 640], "vp1": [180.0, -400.0], "vp2": [3000.0, 400.0], "pp": [180.0, 320.0],
+            "scale": 8.0}  # a calibration of upright frames of a phone's video (360 wide, 640 high)
+
+
+def test_a_rotated_video_is_analysed_upright(tmp_path):
+    """A phone's or a body camera's video: frames stored 640x360 and the MP4's display matrix turning them a
+    quarter clockwise, as every player (and OpenCV, so trafficcal calibrate and the report's picture) shows them.
+    The run turns them too (videoflip video-direction=auto), so a calibration of the upright 360x640 picture fits;
+    before, the elements saw the stored frames, and the run refused that calibration (a calibration of 360x640
+    images but the video is 640x360) while calibrate learnt one the run refused the other way round."""
+    from .conftest import encoded, rotation_tagged
+
+    video = rotation_tagged(encoded(tmp_path / "stored.mp4", "width=640,height=360", frames=25), tmp_path / "p.mp4")
+    cal = tmp_path / "portrait.json"
+    cal.write_text(json.dumps(PORTRAIT))
+    proc = trafficcal("run", video, "--out", tmp_path / "out", "--calibration", cal)
+    assert proc.returncode == 0, proc.stdout[-2000:] + proc.stderr[-2000:]
+    assert "videoflip video-direction=90r ! videoscale" in proc.stdout
+    assert load_calibration(tmp_path / "out" / "calibration.json").image_size == (360, 640)
+    cap = cv2.VideoCapture(str(tmp_path / "out" / "overlay.mp4"))
+    assert cap.read()[1].shape == (640, 360, 3)
+    cap.release()

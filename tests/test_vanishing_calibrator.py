@@ -323,3 +323,27 @@ def test_a_file_that_is_no_video_is_one_line_without_ffmpegs_complaints(tmp_path
     r = _cli("calibrate", str(text), "-o", str(tmp_path / "c.json"), "--no-progress")
     assert r.returncode == 2 and r.stderr.strip().splitlines() == [
         f"trafficcal: error: {text}: cannot open video (not a video file, or no decoder for it)"], r.stderr
+
+
+@pytest.mark.gst
+def test_cli_calibrates_a_video_of_non_square_pixels_in_the_square_ones(tmp_path):
+    """A 640x360 picture stored as 480x360 pixels of aspect ratio 4/3 (as DVRs store D1): trafficcal run and the
+    scripts scale it to square pixels before the elements, so calibrate learns in those too — the calibration is
+    of 640x360 images and fits their frames, and a --zone in pixels is taken in that frame.  Before, it calibrated
+    the stored 480x360 pixels (a calibration run refused on that video) and said the zone reached beyond them."""
+    from .conftest import encoded
+
+    video = encoded(tmp_path / "par.mp4", "width=480,height=360,pixel-aspect-ratio=4/3", frames=30)
+    out = tmp_path / "cal.json"
+    r = _cli("calibrate", str(video), "-o", str(out), "--no-progress", "--min-duration", "1",
+             "--zone", "500,20 630,20 630,340 500,340")
+    assert r.returncode == 1 and "no traffic" in r.stdout, r.stdout + r.stderr  # still colour bars
+    assert json.loads(out.read_text())["image_size"] == [640, 360]
+    assert "zone" not in r.stderr, r.stderr
+    frames = calibrate_video(video, CalibratorConfig(min_duration=1.0)).frame
+    assert frames.shape == (360, 640, 3)
+    r = _cli("calibrate", str(video), "-o", str(tmp_path / "far.json"), "--no-progress", "--zone",
+             "700,0 800,0 800,100")  # no pixel of the frame: refused before the pass, as trafficcal run does
+    assert r.returncode == 2 and r.stderr.strip().splitlines() == [
+        f"trafficcal: error: {video}: the --zone 700,0 800,0 800,100: it covers no pixel of the 640x360 frame"]
+    assert not (tmp_path / "far.json").exists()

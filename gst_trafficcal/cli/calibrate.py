@@ -93,10 +93,16 @@ def command(video: Path, out_path: Path, png_path: Path | None, method: str, min
                            focal_range=parse_focal_range(focal_range), horizon_max_deg=horizon_max,
                            vp1_constant_speed=constant_speed, zone=where)
     from ..fileio import atomic_write_image, open_video, writable_file, writable_image
+    from ..imaging import capture_par, square_size
 
     cap = open_video(video)  # a missing or unreadable video: its one line before anything is created
-    size = (int(cap.get(cv2.CAP_PROP_FRAME_WIDTH)), int(cap.get(cv2.CAP_PROP_FRAME_HEIGHT)))
+    # the frames as calibrated: of square pixels (vanishing.frames), as trafficcal run and the scripts analyse them
+    size = square_size(int(cap.get(cv2.CAP_PROP_FRAME_WIDTH)), int(cap.get(cv2.CAP_PROP_FRAME_HEIGHT)),
+                       capture_par(cap))
     cap.release()
+    wrong = where.check(size) if where is not None and min(size) > 0 else None
+    if wrong:
+        raise InputError(f"{video}: the --{wrong}")
     # now (after the inputs were checked), not after the whole video
     writable_file(out_path, "calibration file (-o)")
     writable_image(png_path or out_path.with_suffix(".png"), "grid picture")  # a format OpenCV writes, too

@@ -17,6 +17,7 @@ def _frame(image: Path | None, video: str | None, at_s: float):
     from .run import first_frame, is_stream, local_file, shown_source
 
     from ..fileio import cannot_open_video, open_video, video_file
+    from ..imaging import capture_par, squared
 
     if image is not None:
         if not image.is_file():
@@ -44,11 +45,12 @@ def _frame(image: Path | None, video: str | None, at_s: float):
     try:
         cap.set(cv2.CAP_PROP_POS_MSEC, at_s * 1000.0)
         ok, frame = cap.read()
+        par = capture_par(cap)
     finally:
         cap.release()
     if not ok or frame is None:
         raise InputError(f"{video}: cannot read a frame (not a video, or shorter than {at_s:g} s)")
-    return frame
+    return squared(frame, par)  # of square pixels, as the calibration's (trafficcal run's) frames
 
 
 @click.command(help="Write a self-contained report.html (calibration picture, speed histogram and statistics with "

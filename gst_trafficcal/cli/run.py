@@ -28,6 +28,7 @@ import re
 import click
 
 from ..errors import InputError
+from ..gst.chains import EVEN_I420, analysed_video
 
 EMPTY_ZONE_S = 60.0  # seconds of a stream without a vehicle in the zone before the run says the zone may be wrong
 OUTPUTS = ("calibration.json", "system.json", "vehicles.jsonl", "vehicles.csv", "intervals.csv", "overlay.mp4",
@@ -96,6 +97,15 @@ def source_elements(video: Path | str) -> list[str]:
     return [f"filesrc location={quote(video)}", "decodebin"]
 
 
+def rotation_of(video: Path | str) -> int | None:
+    """Degrees a video file's frames are turned clockwise when shown (a phone's display matrix, as OpenCV reads and
+    applies it), for the pipeline's videoflip; None for a stream, or a file OpenCV cannot open (then the tag
+    GStreamer reads turns it: ``video-direction=auto``)."""
+    from ..imaging import video_rotation
+
+    return None if is_stream(video) else video_rotation(local_file(str(video)) or video)
+
+
 def shown_source(video: Path | str) -> str:
     """The input as printed and written into reports and status: a URI without its password
     (``rtsp://admin:***@cam/stream``)."""
@@ -157,11 +167,6 @@ def detector_option(what: str):
                              "background subtraction, no weights, the fastest).")
 
 
-# overlay.mp4's frames: I420 of an even size, which x264 needs (an odd-sized video is scaled by a pixel; videoscale
-# passes an even one through untouched)
-EVEN_I420 = "video/x-raw,format=I420,width=[2,32768,2],height=[2,32768,2]"
-
-
 def pipeline_description(video: Path | str, paths: RunPaths, calibration: Path | None = None,
                          detector: Path | str | None = None,
                          overlay: bool = True, bbscale: bool = False, queues: bool = True,
@@ -182,9 +187,11 @@ def pipeline_description(video: Path | str, paths: RunPaths, calibration: Path |
     ``calibration_mode``: vpdetect's mode
     with ``calibration`` — fixed (a calibration the user gave) or auto (one carried over from an earlier file:
     learnt anew if the camera moved); ``views_dir``: vpdetect's folder of the camera's views; ``zone``
-    (:mod:`gst_trafficcal.zone`) to vpdetect, vehicledetect and trafficoverlay, which draws it.  overlay.mp4 is of
-    an even size (:data:`EVEN_I420`): a video of an odd one (1281x721, which VP8/VP9 and MJPEG allow) is scaled by a
-    pixel there, since x264 cannot encode 4:2:0 of an odd size (it refused, and the whole run failed).
+    (:mod:`gst_trafficcal.zone`) to vpdetect, vehicledetect and trafficoverlay, which draws it.  The elements get
+    the video upright and of square pixels (:func:`~gst_trafficcal.gst.chains.analysed_video`); overlay.mp4 is of an
+    even size (:data:`~gst_trafficcal.gst.chains.EVEN_I420`): a video of an odd one (1281x721, which VP8/VP9 and
+    MJPEG allow) is scaled by a pixel there, since x264 cannot encode 4:2:0 of an odd size (it refused, and the
+    whole run failed).
     """
     from ..traffic_stats import as_limit
 
@@ -199,10 +206,8 @@ def pipeline_description(video: Path | str, paths: RunPaths, calibration: Path |
     det = f"vehicledetect model={quote(model)}" if model else "vehicledetect"
     where = f" zone={quote(zone)}" if zone else ""
     vp, det = vp + where, det + where
-    # square pixels: the camera model needs them (a DVR's 704x576 D1, a 480x360 stored 4:3 for a 16:9 picture: speeds
-    # were 35 % off in silence); videoscale passes a square-pixel video through untouched
-    chain = [*source_elements(video), f"videoconvert name={STOP_ELEMENT}", "videoscale",
-             "video/x-raw,format=I420,pixel-aspect-ratio=1/1",
+    # upright and of square pixels, as the camera model needs them (gst.chains)
+    chain = [*source_elements(video), f"videoconvert name={STOP_ELEMENT}", *analysed_video(rotation_of(video)),
              *([f"{QUEUE} name={LIVE_QUEUE}"] if queues else []), vp, det, *([QUEUE] if queues else []),
              "tracker" if body_shapes == "auto" else f"tracker body-shapes={body_shapes}"]
     if bbscale:
@@ -527,12 +532,14 @@ def lane_paths(results_path: Path, events: list) -> list:
 
 
 def first_frame(video: Path | str):
-    """A BGR frame from the video or stream (for the calibration picture), or None (a stream that is gone gives
-    up within seconds).  A file OpenCV's FFmpeg refuses (a truncated MP4 that GStreamer still plays) is read
-    through GStreamer; FFmpeg's own complaints stay off the console (OPENCV_FFMPEG_LOGLEVEL, unless set)."""
+    """A BGR frame from the video or stream (for the calibration picture) as the elements see it (upright, of square
+    pixels: the calibration's image size), or None (a stream that is gone gives up within seconds).  A file
+    OpenCV's FFmpeg refuses (a truncated MP4 that GStreamer still plays) is read through GStreamer; FFmpeg's own
+    complaints stay off the console (OPENCV_FFMPEG_LOGLEVEL, unless set)."""
     import cv2
 
     from ..fileio import quiet_ffmpeg
+    from ..imaging import capture_par, squared
 
     with quiet_ffmpeg():  # a refusal is handled here
         if is_uri(video):
@@ -542,10 +549,11 @@ def first_frame(video: Path | str):
             cap = cv2.VideoCapture(str(video))
         try:
             ok, frame = cap.read()
+            par = capture_par(cap)
         finally:
             cap.release()
-    if ok:
-        return frame
+    if ok:  # upright already (OpenCV applies a rotated file's display matrix), of square pixels now
+        return squared(frame, par)
     if is_uri(video) or not Path(video).is_file():
         return None
     from ..gst.snapshot import first_frame_bgr

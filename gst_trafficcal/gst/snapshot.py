@@ -12,14 +12,17 @@ from pathlib import Path
 import numpy as np
 
 from ._gi import Gst
+from .chains import analysed_video
 from .buffers import frame_bgr, video_info_from_caps
 
 
 def first_frame_bgr(path: str | Path, timeout_s: float = 10.0) -> np.ndarray | None:
-    """The first decodable frame of a local video file as an HxWx3 BGR copy, or None (not a video, no frame
-    within ``timeout_s``)."""
-    pipeline = Gst.parse_launch("filesrc name=src ! decodebin ! videoconvert ! video/x-raw,format=BGR ! "
-                                "appsink name=sink max-buffers=1 sync=false")
+    """The first decodable frame of a local video file as an HxWx3 BGR copy, upright and of square pixels as the
+    elements see it, or None (not a video, no frame within ``timeout_s``)."""
+    # upright (by the file's tag: OpenCV could not open it, so it could not tell the rotation) and of square pixels
+    pipeline = Gst.parse_launch(" ! ".join(["filesrc name=src", "decodebin", "videoconvert", *analysed_video(None),
+                                            "videoconvert", "video/x-raw,format=BGR",
+                                            "appsink name=sink max-buffers=1 sync=false"]))
     pipeline.get_by_name("src").set_property("location", str(path))
     try:
         pipeline.set_state(Gst.State.PAUSED)

@@ -86,9 +86,11 @@ def scale_from_video(video: str | Path, calibration: Calibration, *, models=None
         raise InputError("the scale needs the vanishing points: the calibration has none (state "
                          f"{calibration.state!r})")
     from ..fileio import open_video
+    from ..imaging import capture_par, squared
 
     path = Path(video)
     cap = open_video(path)
+    par = capture_par(cap)  # frames of non-square pixels scaled to square ones, as the calibration's (frames.py)
     camera = calibration.camera.with_scale(None)
     est = ScaleEstimator(models if isinstance(models, dict) else load_align_models(models),
                          iou_threshold=iou_threshold, min_vehicles=min_vehicles, regression=regression)
@@ -103,6 +105,7 @@ def scale_from_video(video: str | Path, calibration: Calibration, *, models=None
             ok, bgr = cap.read()
             if not ok:
                 break
+            bgr = squared(bgr, par)
             t = float(cap.get(cv2.CAP_PROP_POS_MSEC)) / 1000.0
             if max_duration is not None and t > max_duration:
                 break

@@ -13,12 +13,14 @@ from __future__ import annotations
 from collections.abc import Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass
+from fractions import Fraction
 from pathlib import Path
 
 import cv2
 import numpy as np
 
 from ..errors import InputError
+from ..imaging import capture_par, square_size, squared
 
 # Y' = 16 + 219/255 (0.299 R + 0.587 G + 0.114 B), ITU-R BT.601 limited range (what decoders output)
 _K = 219.0 / 255.0
@@ -45,7 +47,9 @@ class LumaFrames:
 
     ``planar`` tells whether the decoder's Y plane is read directly (planar YUV streams: H.264, HEVC, MPEG-4...)
     or the frames are decoded to BGR and converted by :func:`luma` (anything else, e.g. RGB or packed YUV).
-    ``first_bgr`` is the first frame in colour (for pictures)."""
+    ``first_bgr`` is the first frame in colour (for pictures).  Frames of non-square pixels (``par``, e.g. 480x360
+    stored for a 640x360 picture) are scaled to square ones, as ``trafficcal run`` and the scripts' videoscale does:
+    ``size`` is the square-pixel size, so a calibration learnt here fits their frames."""
 
     path: Path
     fps: float
@@ -53,6 +57,7 @@ class LumaFrames:
     size: tuple[int, int]
     planar: bool
     first_bgr: np.ndarray | None
+    par: Fraction = Fraction(1)
 
     def __iter__(self) -> Iterator[tuple[float, np.ndarray]]:
         with _quiet():
@@ -69,7 +74,7 @@ class LumaFrames:
                     break
                 msec = cap.get(cv2.CAP_PROP_POS_MSEC)
                 t = msec / 1000.0 if n and msec > 0 else n / self.fps
-                yield t, (img if self.planar else luma(img))
+                yield t, squared(img if self.planar else luma(img), self.par)
                 n += 1
         finally:
             cap.release()
@@ -93,6 +98,7 @@ def luma_frames(path: str | Path) -> LumaFrames:
         w, h = int(cap.get(cv2.CAP_PROP_FRAME_WIDTH)), int(cap.get(cv2.CAP_PROP_FRAME_HEIGHT))
         if w <= 0 or h <= 0:
             raise InputError(f"{path}: cannot read the frame size (corrupt or not a video)")
+        par = capture_par(cap)
         ok, first = cap.read()
     finally:
         cap.release()
@@ -107,7 +113,8 @@ def luma_frames(path: str | Path) -> LumaFrames:
                 ycap.release()
         planar = bool(yok and y.ndim == 2 and y.shape == (h, w)
                       and float(np.mean(np.abs(y.astype(np.int16) - luma(first).astype(np.int16)))) < 3.0)
-    return LumaFrames(path, fps, count, (w, h), planar, first_bgr)
+    return LumaFrames(path, fps, count, square_size(w, h, par), planar,
+                      None if first_bgr is None else squared(first_bgr, par), par)
 
 
 def _open(path: Path, planar: bool) -> cv2.VideoCapture:
