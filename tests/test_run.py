@@ -765,6 +765,29 @@ def test_several_files_one_failing_the_others_still_run(clip, tmp_path):
     assert parts[1]["error"].startswith(f"{bad}: ") and parts[1]["vehicles"] == ""
 
 
+def test_several_files_all_refused_leave_no_new_out(tmp_path):
+    """Every file refused (none is a video) into an --out the run makes: the errors in the table and at the end,
+    and nothing new left behind, as for one file refused; before, status.json, parts.csv and two empty vehicle
+    tables stayed in a new folder (and each error spoke of "the earlier outputs in out/notes", never made).  An
+    --out that existed keeps the run's status.json and parts table (an operator's monitoring reads them)."""
+    bad, worse = tmp_path / "notes.mp4", tmp_path / "list.mp4"
+    bad.write_text("not a video")
+    worse.write_text("nor this")
+    out = tmp_path / "new" / "out"
+    proc = trafficcal("run", bad, worse, "--out", out, "--no-overlay")
+    assert proc.returncode == 2, proc.stdout[-2000:] + proc.stderr[-2000:]
+    assert user_lines(proc.stderr) == [f"trafficcal: error: notes.mp4: cannot be processed: no frame could be "
+                                       f"decoded from it (not a video, empty, or damaged); list.mp4: cannot be "
+                                       f"processed: no frame could be decoded from it (not a video, empty, or "
+                                       f"damaged)"]
+    assert "2 of 2 files" in proc.stdout and not (tmp_path / "new").exists()
+    out.mkdir(parents=True)
+    proc = trafficcal("run", bad, worse, "--out", out, "--no-overlay")
+    assert proc.returncode == 2 and sorted(p.name for p in out.iterdir()) == [
+        "parts.csv", "status.json", "vehicles.csv", "vehicles.jsonl"]
+    assert read_status(out / "status.json").state == "failed"
+
+
 def test_duration_counts_the_video_of_all_the_files(clip, tmp_path):
     """--duration with several files: seconds of video in all (as for a stream's connections): the 12 s clip three
     times with --duration 16 measures the first whole, the second up to its 4th second, and lists the third as not

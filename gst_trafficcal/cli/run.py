@@ -828,6 +828,11 @@ def command(videos: tuple[str, ...], out_dir: Path, calibration_path: Path | Non
                          no_overlay, gt_path, live_clock, start, status=status, split_every_s=split_s, zone=zone)
     with sigterm_as_ctrl_c():  # a service stopped (systemctl/docker stop, Kubernetes) loses nothing either
         failed = _run_inputs(console, inputs, out_dir, calibration_path, options, starts, reconnect, status, first)
+    if new and failed and failed != "interrupted" and len(inputs) > 1 and not reconnect:
+        from .run_parts import remove_a_refused_run
+
+        if remove_a_refused_run(out_dir, inputs, new):  # every file refused: nothing new is left, as for one file
+            raise InputError(failed)
     status.update(state="interrupted" if failed == "interrupted" else "failed" if failed else "finished",
                   error=failed if failed and failed != "interrupted" else status.status.error,
                   next_attempt_at=None, force=True)
@@ -996,7 +1001,9 @@ def run_one(console, video: Path | str, out_dir: Path, calibration_path: Path | 
         shown = shown.replace(events_url, redacted(events_url))
     console.print(f"[bold]Pipeline[/] {shown}", highlight=False, soft_wrap=True)
     zone = parse_zone(options.zone)
-    frame = first if first is not None or is_uri(video) else readable_video(video, out_dir, zone)
+    # (a part's folder of several files not made yet: there are no earlier outputs to speak of)
+    frame = first if first is not None or is_uri(video) else readable_video(video, out_dir if out_dir.is_dir() else
+                                                                            None, zone)
     summary = measure_video(video, out_dir, description, console,
                             keep=(calibration_path,) if calibration_path is not None else (), stop_after_s=duration_s,
                             status=options.status, zone=zone)

@@ -9,6 +9,7 @@ holds the same rows.
 
 from __future__ import annotations
 
+import contextlib
 from pathlib import Path
 
 from ..clock import next_boundary
@@ -283,6 +284,23 @@ def _write_parts(path: Path, records: list[dict]) -> None:
         import click
 
         click.echo(f"trafficcal: warning: {exc}", err=True)
+
+
+def remove_a_refused_run(out_dir: Path, videos: list[Path], made: list[Path]) -> bool:
+    """After a run of several ``videos`` into ``out_dir``, which it made (``made``: the folders it made, outermost
+    first, as fileio.folder_made_for gives them), whose every file was refused before anything was made for it (no
+    part's folder exists): remove what the run wrote there (status.json, the parts table, the empty vehicle tables)
+    and the folders, so that it leaves nothing new, as a refused run of one file does.  False, with nothing removed,
+    when a part's folder exists (a file that ran, however briefly)."""
+    from ..fileio import remove_empty_folders
+
+    if any((out_dir / name).exists() for name in _output_names(videos)):
+        return False
+    for name in ("status.json", "parts.csv", "vehicles.jsonl", "vehicles.csv", "intervals.csv"):
+        with contextlib.suppress(FileNotFoundError):
+            (out_dir / name).unlink()
+    remove_empty_folders([*made, out_dir / "views"])
+    return True
 
 
 def _output_names(videos: list[Path]) -> list[str]:
