@@ -39,8 +39,9 @@ run_check() {  # NAME ELEMENT...: the scripts' --check mode; exits 0 when every 
 }
 
 input_uri() {  # INPUT: prints the URI uridecodebin plays (a file becomes file:///...); dies on a missing file
-    if [[ "$1" == *://* ]]; then
-        echo "$1"
+    if [[ "$1" == *://* ]]; then  # its scheme in lower case (RFC 3986: any case), as the checks below match it
+        local scheme="${1%%://*}"
+        echo "${scheme,,}://${1#*://}"
     else
         [[ -f "$1" ]] || die "$1: no such file (give a file or a URI such as rtsp://camera/stream)"
         echo "file://$(uri_path "$(realpath "$1")")"

@@ -65,6 +65,10 @@ calibration="${3:-}"
 
 uri="$(input_uri "$input")"
 
+if [[ "$output" == *://* ]]; then  # a URI's scheme in any case (RFC 3986: UDP:// is udp://), as GStreamer reads it
+    scheme="${output%%://*}"
+    output="${scheme,,}://${output#*://}"
+fi
 sink=(filesink "location=$output")
 case "$output" in
     udp://*)

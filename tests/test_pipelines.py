@@ -170,6 +170,27 @@ def test_nvr_overlay_takes_the_container_from_the_extension_in_any_case(tmp_path
     assert f"! h264parse ! {muxer} ! filesink location={tmp_path / name}" in proc.stderr.splitlines()[0]
 
 
+def test_uri_schemes_are_read_in_any_case(tmp_path):
+    """URI schemes are case-insensitive (RFC 3986): nvr-overlay's output UDP://HOST:PORT is the UDP stream
+    udp://HOST:PORT (it was refused as "unsupported output URI", exit code 2), SRT:// the SRT one, and an input
+    RTSP://... the live camera rtsp://... is (a leaky queue and the stall watchdog; it was taken for a file)."""
+    from .conftest import closed_port
+
+    video = static_video(tmp_path / "in.mp4")
+    port = closed_port()
+    proc = script("nvr-overlay.sh", video, f"UDP://127.0.0.1:{port}", ANALYSIS="")
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    assert f"! mpegtsmux alignment=7 ! udpsink host=127.0.0.1 port={port}" in proc.stderr
+    proc = script("nvr-overlay.sh", "file:///nonexistent/nope.mp4", f"Srt://127.0.0.1:{port}", ANALYSIS="")
+    assert f"! srtsink uri=srt://127.0.0.1:{port}" in proc.stderr.splitlines()[0]
+    for name in ("nvr-overlay.sh", "measure.sh"):
+        proc = script(name, f"RTSP://127.0.0.1:{closed_port()}/cam", tmp_path / "o.mkv" if name[0] == "n" else
+                      tmp_path / "out", STALL_TIMEOUT="1")
+        first = proc.stderr.splitlines()[0]
+        assert "uridecodebin uri=rtsp://127.0.0.1:" in first and "! watchdog timeout=1000 !" in first, first
+        assert "queue leaky=downstream max-size-buffers=25" in first, first
+
+
 def test_nvr_overlay_records_a_video_of_an_odd_size(tmp_path):
     """A 321x241 video (MJPEG, VP8/VP9 allow odd sizes): the recording is scaled by a pixel to 320x240 for x264,
     which refused the odd size ("Can not initialize x264 encoder") and the script failed."""
