@@ -59,6 +59,11 @@ class CalibratorConfig:
     check_interval: float = 5.0     # peaks are re-estimated this often
     min_tracks: int = 60
     min_edgelets: int = 2000        # voted edgelets for VP2 (interior ones, about half of all; 3000 before)
+    # min_edgelets and the track's frame counts and per-step speed (TrackParams) are set for analysed frames this far
+    # apart (s; 25 fps input at track_fps 15); frames further apart (low-fps input) count each edgelet dt / spacing
+    # times and ask the same time and speed of a track (TrackParams.spaced), up to max_spacing (docs/vpdetect.md)
+    frame_spacing: float = 0.08
+    max_spacing: float = 4.0
     min_vp1_support: float = 0.15   # share of the track weight through VP1
     vp1_stable_deg: float = 0.5     # movement of VP1 between checks (viewing-sphere degrees)
     vp2_stable_deg: float = 1.0
@@ -125,10 +130,12 @@ class VPCalibrator:
         self.tracker = MotionLines(self.cfg.track)
         self.ds1 = DiamondSpace.for_image(w, h, self.cfg.accumulator_size)
         self.ds2 = DiamondSpace.for_image(w, h, self.cfg.accumulator_size)
-        self.buffer: deque[Edgelets] = deque()
+        self.buffer: deque[tuple[Edgelets, float]] = deque()  # with each chunk's evidence weight
         self.buffered = 0
         self.n_tracks = 0
         self.n_edgelets = 0
+        self.edge_evidence = 0.0  # voted edgelets, each weighted by its frame's spacing (what min_edgelets asks for)
+        self._track_dt = math.inf  # seconds between this analysed frame and the one before
         self.frames = 0
         self.analysed = 0
         self.t0: float | None = None
@@ -178,6 +185,7 @@ class VPCalibrator:
         self.t = float(timestamp) - self.t0
         self.frames += 1
         if self.t - self._last_track_t >= 1.0 / self.cfg.track_fps - 1e-6:
+            self._track_dt = self.t - self._last_track_t
             self._last_track_t = self.t
             self._track(gray)
         if self._edge_due():
@@ -199,6 +207,8 @@ class VPCalibrator:
                 self._zone_fg = np.where(zone > 0, 255, 0).astype(np.uint8)
             self._fg &= self._zone_fg
         self.analysed += 1
+        if math.isfinite(self._track_dt):  # a track asks for the same time and speed at any frame spacing
+            self.tracker.p = self.cfg.track.spaced(self._spacing_ratio())
         self.moving_fraction += (self.fg_model.fraction - self.moving_fraction) * 0.05
         lines, lengths, motion = self.tracker.update(small, self._fg, self.t)
         if len(motion) and self.cfg.vp1_constant_speed and len(self._motion) < MAX_MOTION_CHUNKS:
@@ -248,15 +258,29 @@ class VPCalibrator:
         e = e.scaled(1.0 / self.edge_scale)
         if not len(e):
             return
+        weight = self._evidence_weight()
         if self.vp1_fixed:
-            self._vote_edges(e)
+            self._vote_edges(e, weight)
         else:
-            self.buffer.append(e)
+            self.buffer.append((e, weight))
             self.buffered += len(e)
             while self.buffered > self.cfg.edgelet_buffer and len(self.buffer) > 1:
-                self.buffered -= len(self.buffer.popleft())
+                self.buffered -= len(self.buffer.popleft()[0])
 
-    def _vote_edges(self, e: Edgelets) -> None:
+    def _evidence_weight(self) -> float:
+        """How many edgelets each one of this frame counts as towards ``min_edgelets``: 1 for frames analysed at most
+        ``frame_spacing`` s apart (the rate the requirement was set at), more for frames further apart (a low-fps
+        input): between them each vehicle moved further, so each frame adds the new evidence of several frames at
+        the reference rate, while a 5 fps stream gives fewer than half the edgelets of a 25 fps one."""
+        return self._spacing_ratio()
+
+    def _spacing_ratio(self) -> float:
+        """This analysed frame's distance from the one before, in ``frame_spacing`` units: 1 at or below it (exactly,
+        so 25 fps and faster inputs are analysed as they always were), at most ``max_spacing``."""
+        ratio = self._track_dt / self.cfg.frame_spacing
+        return 1.0 if ratio <= 1.0 + 1e-3 else min(ratio, self.cfg.max_spacing)
+
+    def _vote_edges(self, e: Edgelets, evidence: float = 1.0) -> None:
         keep = ~towards(e, self.vp1.point, self.cfg.vp1_exclusion_deg)
         e = e.subset(keep)
         if len(e):
@@ -269,14 +293,15 @@ class VPCalibrator:
                 weight = weight * np.clip(dist / near, 0.0, 1.0)
             self.ds2.insert(e.lines(), weight, points=e.points)
             self.n_edgelets += len(e)
+            self.edge_evidence += len(e) * evidence
 
     # ------------------------------------------------------------------ decisions
     def _fix_vp1(self, peak: Peak) -> None:
         self.vp1_diamond = peak
         self.vp1 = self._along_lanes(peak)
         self.vp1_fixed = True
-        for e in self.buffer:
-            self._vote_edges(e)
+        for e, evidence in self.buffer:
+            self._vote_edges(e, evidence)
         self.buffer.clear()
         self.buffered = 0
 
@@ -322,7 +347,7 @@ class VPCalibrator:
             peak = self.ds2.find_peak(mask)
             prev, self._prev2 = self._prev2, peak
             self.vp2 = peak
-            enough = peak is not None and self.n_edgelets >= cfg.min_edgelets
+            enough = peak is not None and self.edge_evidence >= cfg.min_edgelets
             stable = enough and prev is not None and _angle(prev.point, peak.point, self.ds2) < cfg.vp2_stable_deg
             if final and enough:
                 stable = self._halves_agree(self.ds2, mask, cfg.vp2_stable_deg * 4)
@@ -398,9 +423,11 @@ class VPCalibrator:
             return f"the direction of motion (VP1) did not stabilise in {t} (curved road?)"
         x, y = self.vp1.xy
         vp1 = f"VP1 found at ({x:.1f}, {y:.1f}), but "
-        if self.n_edgelets < cfg.min_edgelets:
-            return (vp1 + f"too few edges on vehicles for VP2: {self.n_edgelets} in {t} (need {cfg.min_edgelets}; "
-                    "a longer video helps)")
+        if self.edge_evidence < cfg.min_edgelets:
+            worth = ("" if round(self.edge_evidence) == self.n_edgelets else
+                     f", worth {self.edge_evidence:.0f} at the frame rate the need is counted at")
+            return (vp1 + f"too few edges on vehicles for VP2: {self.n_edgelets}{worth} in {t} (need "
+                    f"{cfg.min_edgelets}; a longer video helps)")
         if self.vp2 is None:
             lo, hi = self.focal_range
             return vp1 + f"no second vanishing point giving a focal length in [{lo:.0f}, {hi:.0f}] px"
