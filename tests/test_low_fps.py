@@ -4,6 +4,7 @@
 
 from __future__ import annotations
 
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -13,7 +14,7 @@ import pytest
 
 from gst_trafficcal.calibration import load_calibration
 from gst_trafficcal.outputs import read_events
-from gst_trafficcal.vanishing.calibrator import calibrate_video
+from gst_trafficcal.vanishing.calibrator import CalibratorConfig, calibrate_video
 
 from .conftest import VIDEOS, require_shared
 
@@ -43,12 +44,17 @@ def test_five_fps_finds_both_vanishing_points(tmp_path):
     """At 5 fps the clip gives 960 edgelets on vehicles by 35 s where 25 fps (analysed at 12.5 frames/s) gives 2159:
     each frame's edges count as the 2.5 frames the reference rate would have analysed in that time, so VP2 is
     declared after the same 35 s of traffic (before: `failed`, "1274 in 47.4 s (need 2000)")."""
-    result = calibrate_video(resampled(5, tmp_path))
+    clip = resampled(5, tmp_path)
+    result = calibrate_video(clip)
     cal, c = result.calibration, result.calibrator
     assert cal.state == "vps", cal.reason
     assert cal.confidence["seconds"] == 35.0 and c.n_edgelets < 1200 and c.edge_evidence >= 2000
     assert np.linalg.norm(np.asarray(cal.camera.vp1) - VP1_25) < 25  # the dividers meet at (290.4, -41.0)
     assert abs(cal.camera.focal / FOCAL_25 - 1) < 0.1
+    # short of the need, the message says what the edges were worth
+    short = calibrate_video(clip, CalibratorConfig(min_edgelets=5000)).calibration
+    assert short.state == "failed" and re.search(r"too few edges on vehicles for VP2: \d+ in 47.\d s \(worth \d+ at "
+                                                 r"12.5 analysed frames/s; need 5000; a longer video helps\)", short.reason)
 
 
 def test_ten_fps_calibrates_fully_and_measures_plausible_speeds(tmp_path):

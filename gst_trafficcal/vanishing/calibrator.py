@@ -16,6 +16,8 @@ once VP1 is known, those not pointing at it are voted into a second Diamond Spac
 to VP2 candidates giving a real focal length in ``focal_range``; VP2 is declared the same way.  The result
 is a :class:`~gst_trafficcal.calibration.Calibration` with state ``vps`` (no scale: that is bbscale's job),
 or, when it cannot converge, state ``failed`` with the reason (no traffic, no dominant direction, too short...).
+The frame counts in the requirements (``min_edgelets``, the tracks' ``TrackParams``) are for analysed frames
+``frame_spacing`` (0.08 s) apart; a low-fps input's frames count for more and its tracks need fewer of them.
 """
 
 from __future__ import annotations
@@ -258,7 +260,7 @@ class VPCalibrator:
         e = e.scaled(1.0 / self.edge_scale)
         if not len(e):
             return
-        weight = self._evidence_weight()
+        weight = self._spacing_ratio()  # what each edgelet counts for towards min_edgelets
         if self.vp1_fixed:
             self._vote_edges(e, weight)
         else:
@@ -267,16 +269,12 @@ class VPCalibrator:
             while self.buffered > self.cfg.edgelet_buffer and len(self.buffer) > 1:
                 self.buffered -= len(self.buffer.popleft()[0])
 
-    def _evidence_weight(self) -> float:
-        """How many edgelets each one of this frame counts as towards ``min_edgelets``: 1 for frames analysed at most
-        ``frame_spacing`` s apart (the rate the requirement was set at), more for frames further apart (a low-fps
-        input): between them each vehicle moved further, so each frame adds the new evidence of several frames at
-        the reference rate, while a 5 fps stream gives fewer than half the edgelets of a 25 fps one."""
-        return self._spacing_ratio()
-
     def _spacing_ratio(self) -> float:
         """This analysed frame's distance from the one before, in ``frame_spacing`` units: 1 at or below it (exactly,
-        so 25 fps and faster inputs are analysed as they always were), at most ``max_spacing``."""
+        so 25 fps and faster inputs are analysed as they always were), at most ``max_spacing``.  Each of its
+        edgelets counts that many times towards ``min_edgelets``: between two such frames every vehicle moved
+        further, so the frame adds the new evidence of that many frames at the reference rate (a 5 fps stream gives
+        fewer than half the edgelets of a 25 fps one, about 5 a frame at either rate on kraten_cars)."""
         ratio = self._track_dt / self.cfg.frame_spacing
         return 1.0 if ratio <= 1.0 + 1e-3 else min(ratio, self.cfg.max_spacing)
 
@@ -424,9 +422,9 @@ class VPCalibrator:
         x, y = self.vp1.xy
         vp1 = f"VP1 found at ({x:.1f}, {y:.1f}), but "
         if self.edge_evidence < cfg.min_edgelets:
-            worth = ("" if round(self.edge_evidence) == self.n_edgelets else
-                     f", worth {self.edge_evidence:.0f} at the frame rate the need is counted at")
-            return (vp1 + f"too few edges on vehicles for VP2: {self.n_edgelets}{worth} in {t} (need "
+            worth = ("" if round(self.edge_evidence) == self.n_edgelets else  # a low-fps input (_spacing_ratio)
+                     f"worth {self.edge_evidence:.0f} at {1 / cfg.frame_spacing:g} analysed frames/s; ")
+            return (vp1 + f"too few edges on vehicles for VP2: {self.n_edgelets} in {t} ({worth}need "
                     f"{cfg.min_edgelets}; a longer video helps)")
         if self.vp2 is None:
             lo, hi = self.focal_range
