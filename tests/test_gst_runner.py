@@ -36,6 +36,24 @@ def test_calibration_messages_are_collected():
     assert out.warnings and "calibration failed" in out.warnings[-1]
 
 
+def test_a_long_run_keeps_only_the_latest_messages_and_the_callback_sees_every_one():
+    """A run of weeks posts several messages per vehicle: the outcome kept every one (about 3 kB a vehicle, without
+    end, in ``trafficcal run``'s process); now the latest MESSAGES_KEPT, while ``on_message`` gets them all."""
+    from pathlib import Path
+
+    from gst_trafficcal.gst.element import register_plugin_file
+    from gst_trafficcal.gst.runner import MESSAGES_KEPT
+
+    register_plugin_file(Path(__file__).resolve().parent / "gst_plugins" / "python" / "tccheck.py")
+    frames = MESSAGES_KEPT + 500
+    seen = []
+    out = run_pipeline_file(f"videotestsrc num-buffers={frames} ! video/x-raw,format=I420,width=16,height=16 ! "
+                            "tccheck ! fakesink", on_message=seen.append)
+    assert len([m for m in seen if m.name == "tccheck"]) == frames
+    assert len(out.messages) == MESSAGES_KEPT and out.messages[-1] is seen[-1]
+    assert len(out.named("tccheck")) == MESSAGES_KEPT
+
+
 def test_after_a_camera_move_the_run_ends_with_the_new_views_calibration():
     """The calibration a run ended with is the new view's (here: still learning), never the old view's scale that
     an element further down posted a moment after the move; each move says what measured the vehicles before."""

@@ -266,10 +266,6 @@ def _scaled_views(outcome) -> list:
     return out
 
 
-def _not_counted(outcome) -> tuple[int, int]:
-    """(brief, stationary): the tracks speedometer did not count as vehicles (its last running count)."""
-    last = (outcome.named("trafficcal-not-counted") or [{}])[-1]
-    return int(last.get("brief", 0)), int(last.get("stationary", 0))
 
 
 def _stamp(path: Path) -> tuple[int, int, int] | None:
@@ -403,12 +399,19 @@ def measure_video(video: Path | str, out_dir: Path, description: str, console, l
     moves: set = set()  # the moves' dates (several elements pass the same news on)
     moves_before = status.status.camera_moves if status is not None else 0  # earlier parts'
 
-    def on_message(m) -> None:
+    def on_message(m) -> None:  # the outcome keeps only the latest messages: what covers the run is counted here
         if m.name == "trafficcal-speed":
             counts["vehicles"] += 1
             counts["measured"] += m.fields.get("speed_kmh") is not None
             if status is not None:
                 status.vehicle(m.fields.get("last_timestamp_s"), m.fields.get("speed_kmh") is not None)
+        elif m.name == "trafficcal-discarded":  # (a running count)
+            counts["discarded"] = max(counts["discarded"], int(m.fields.get("tracks", 0)))
+        elif m.name == "trafficcal-not-counted":  # (running counts: the last one holds)
+            counts["brief"], counts["stationary"] = int(m.fields.get("brief", 0)), int(m.fields.get("stationary", 0))
+        elif m.name == "trafficcal-remeasured":
+            counts["remeasured"] += int(m.fields.get("vehicles", 0))
+            counts["remeasured_speeds"] += int(m.fields.get("measured", 0))
 
     def on_calibration(_element: str, cal) -> None:
         if status is None:
@@ -464,10 +467,8 @@ def measure_video(video: Path | str, out_dir: Path, description: str, console, l
                          duration_s=outcome.duration_s, stopped=outcome.stopped, stopped_by=outcome.stopped_by,
                          position_s=outcome.position_s,
                          moves=outcome.moves,
-                         discarded=max((m["tracks"] for m in outcome.named("trafficcal-discarded")), default=0),
-                         not_counted=_not_counted(outcome),
-                         remeasured=sum(m["vehicles"] for m in outcome.named("trafficcal-remeasured")),
-                         remeasured_speeds=sum(m["measured"] for m in outcome.named("trafficcal-remeasured")),
+                         discarded=counts["discarded"], not_counted=(counts["brief"], counts["stationary"]),
+                         remeasured=counts["remeasured"], remeasured_speeds=counts["remeasured_speeds"],
                          scaled=_scaled_views(outcome))
     if status is not None:
         for w in outcome.warnings:

@@ -8,6 +8,9 @@ Our elements must be findable: :func:`ensure_elements` puts ``elements/`` on the
 
     outcome = run_pipeline_file(description, progress=lambda pos, dur: ...)
     outcome.calibration, outcome.messages, outcome.warnings
+
+A run may last weeks (a live camera): of the elements' messages — several per vehicle — the outcome keeps only the
+latest :data:`MESSAGES_KEPT`; ``on_message`` sees every one (count or sum there what must cover the whole run).
 """
 
 from __future__ import annotations
@@ -33,6 +36,8 @@ __all__ = ["Move", "PipelineError", "RunFailed", "RunOutcome", "ensure_elements"
 
 Progress = Callable[[float, "float | None"], None]
 
+MESSAGES_KEPT = 1000  # element messages an outcome keeps, the latest (a busy road's day posts 50 000 and more)
+
 
 class Move(NamedTuple):
     """A camera move vpdetect announced during a run."""
@@ -47,7 +52,9 @@ class RunOutcome:
     """What the bus said during a run that reached end-of-stream."""
 
     calibrations: list[tuple[str, Calibration]] = field(default_factory=list)  # (element name, calibration)
-    messages: list[BusMessage] = field(default_factory=list)  # other element messages, in order
+    # other element messages, in order: the latest MESSAGES_KEPT (every one kept grew a run's memory by about 3 kB
+    # per vehicle without end; on_message of run_pipeline_file sees them all)
+    messages: deque[BusMessage] = field(default_factory=lambda: deque(maxlen=MESSAGES_KEPT))
     warnings: list[str] = field(default_factory=list)
     position_s: float | None = None  # last position seen
     duration_s: float | None = None
@@ -91,7 +98,8 @@ class RunOutcome:
         return out
 
     def named(self, name: str) -> list[dict[str, Any]]:
-        """The fields of every element message with structure ``name``."""
+        """The fields of every element message with structure ``name`` among those kept (the latest
+        :data:`MESSAGES_KEPT`)."""
         return [m.fields for m in self.messages if m.name == name]
 
 
