@@ -420,6 +420,13 @@ def test_full_disk_keeps_every_vehicle_already_measured(clip, with_truth, tmp_pa
     assert same(kept[0]) == same(reference[kept[0].id])
     assert len({e.id for e in kept}) == len(kept)
     assert load_calibration(out / "calibration.json").camera.scale is not None
+    # status.json counts the vehicles written (also those written as the pipeline stopped, after the error), and
+    # does not call the video truncated for ending where the run stopped (it said "the video ends at 3.6 s of the
+    # 12.0 s its header states: the file is probably truncated", and 1 vehicle beside a CSV of 4)
+    status = read_status(out / "status.json")
+    assert status.state == "failed" and "vehicles.jsonl" in status.error
+    assert status.vehicles == len(kept) and status.measured == sum(e.measured for e in kept)
+    assert not [w for w in status.warnings if "truncated" in w] and "truncated" not in proc.stdout + proc.stderr
 
 
 def test_every_vehicle_is_posted_to_the_events_url_whose_password_is_never_shown(clip, tmp_path):

@@ -455,7 +455,8 @@ def measure_video(video: Path | str, out_dir: Path, description: str, console, l
             # said its header's end
             progress(outcome.position_s, outcome.duration_s if stop_after_s is None else
                      min(stop_after_s, outcome.duration_s or stop_after_s))
-    if ended_short(outcome) is not None:  # (the file is probed for audio only then)
+    if failure is None and ended_short(outcome) is not None:  # (the file is probed for audio only then; a run an
+        # element stopped, a full disk, ended where it failed: the file is not short for that)
         outcome.warnings.append(f"{shown_source(video)}: {ended_short(outcome, audio=_has_audio(video))}")
     if outcome.frames_dropped:  # a live camera faster than this machine: frames dropped to stay in real time
         share = outcome.frames_dropped / max(outcome.frames_in, 1)
@@ -475,6 +476,8 @@ def measure_video(video: Path | str, out_dir: Path, description: str, console, l
             status.warning(w)
         if failure is not None:
             status.update(error=failure)
+            for e in summary.events[counts["vehicles"]:]:  # written as the pipeline stopped, after the bus loop
+                status.vehicle(e.last_timestamp_s, e.measured)
     if summary.calibration is not None:
         try:
             save_calibration(summary.calibration, paths.calibration, zone=zone)
