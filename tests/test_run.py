@@ -399,6 +399,28 @@ def test_unreadable_ground_truth_is_refused_before_the_run(clip, tmp_path):
     assert not (tmp_path / "out").exists()
 
 
+def test_the_overlay_of_a_run_killed_outright_is_playable(tmp_path):
+    """overlay.mp4 as the run encodes it (OVERLAY_ENCODER), the encoder killed with SIGKILL (kill -9, a power cut,
+    the OOM killer: no end-of-stream): the video up to its last fragment plays. A plain mp4mux wrote its index only
+    at the end: OpenCV decoded 0 frames ("moov atom not found") of a killed run's overlay, however long it ran."""
+    import signal
+    import time
+
+    from gst_trafficcal.cli.run import EVEN_I420, OVERLAY_ENCODER
+
+    video = tmp_path / "overlay.mp4"
+    proc = subprocess.Popen(["gst-launch-1.0", "-q", *f"videotestsrc is-live=true ! video/x-raw,width=160,height=120,"
+                             f"framerate=25/1 ! videoconvert ! {EVEN_I420} ! {OVERLAY_ENCODER} ! "
+                             f"filesink location={video}".split()])
+    try:
+        time.sleep(4.0)
+        assert proc.poll() is None, "the encoder ended by itself"
+        proc.send_signal(signal.SIGKILL)
+    finally:
+        proc.wait(timeout=30)
+    assert count_frames(video) >= 25  # a second or more of the 4 s written (gst-launch starts in about one)
+
+
 def test_full_disk_keeps_every_vehicle_already_measured(clip, with_truth, tmp_path):
     """vehicles.jsonl on a full device (/dev/full): a clear error, and the CSV has every vehicle measured so far."""
     if not os.path.exists("/dev/full"):

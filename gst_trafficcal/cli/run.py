@@ -5,7 +5,7 @@ The pipeline is the product's own chain (what ``gst-launch-1.0`` runs, so the nu
     filesrc ! decodebin ! videoconvert ! videoscale ! I420,1:1 ! queue ! vpdetect ! vehicledetect ! queue ! tracker
       [! bbscale]
       ! speedometer
-      [! trafficoverlay ! x264enc ! mp4mux ! filesink overlay.mp4]
+      [! trafficoverlay ! x264enc ! mp4mux fragment-duration=1000 ! filesink overlay.mp4]
 
 run in-process by :mod:`gst_trafficcal.gst.runner` (progress from the pipeline's position and duration).
 ``vpdetect`` learns the vanishing points (or, with ``--calibration``, loads the given file: mode fixed);
@@ -167,6 +167,12 @@ def detector_option(what: str):
                              "background subtraction, no weights, the fastest).")
 
 
+# overlay.mp4's encoder and muxer: a fragment each second, so a run killed outright (kill -9, a power cut, the OOM
+# killer) leaves a playable video up to its last second; a plain mp4mux writes the index only at the end, and such a
+# run's overlay of hours could not be played at all
+OVERLAY_ENCODER = "x264enc speed-preset=veryfast tune=zerolatency ! mp4mux fragment-duration=1000"
+
+
 def pipeline_description(video: Path | str, paths: RunPaths, calibration: Path | None = None,
                          detector: Path | str | None = None,
                          overlay: bool = True, bbscale: bool = False, queues: bool = True,
@@ -218,7 +224,7 @@ def pipeline_description(video: Path | str, paths: RunPaths, calibration: Path |
     if overlay:
         chain += [f"trafficoverlay{limit}{where}", "videoconvert", "videoscale", EVEN_I420,
                   "queue max-size-buffers=8",
-                  "x264enc speed-preset=veryfast tune=zerolatency", "mp4mux",
+                  OVERLAY_ENCODER,
                   f"filesink location={quote(paths.overlay)}"]
     else:
         chain.append("fakesink")
