@@ -227,13 +227,41 @@ def _process_alive(pid: int) -> bool:
     return True
 
 
+def process_started(pid: int) -> float | None:
+    """When process ``pid`` of this machine started (seconds since the epoch, to a second: /proc's start time after
+    boot plus the boot time), None where /proc does not tell."""
+    try:
+        stat = Path(f"/proc/{pid}/stat").read_text()
+        ticks = int(stat[stat.rindex(")") + 2:].split()[19])  # field 22, starttime (the name may hold spaces)
+        boot = next(int(line.split()[1]) for line in Path("/proc/stat").read_text().splitlines()
+                    if line.startswith("btime "))
+        return boot + ticks / os.sysconf("SC_CLK_TCK")
+    except (OSError, ValueError, IndexError, StopIteration):
+        return None
+
+
+def _run_alive(status: RunStatus) -> bool:
+    """Whether the process of ``status`` (of this machine) still runs: its pid is taken, and not by a process started
+    after the run did — after a crash or a reboot the number goes to another process, and the run restarted into
+    the same --out was refused for good ("another run is writing there") while that process lived."""
+    if not status.pid or not _process_alive(status.pid):
+        return False
+    started, run_started = process_started(status.pid), None
+    try:
+        run_started = datetime.fromisoformat(status.started_at).timestamp()
+    except (TypeError, ValueError):
+        pass
+    # (the run's process starts before it writes started_at; /proc's boot time is whole seconds: 2 s of slack)
+    return started is None or run_started is None or started <= run_started + 2.0
+
+
 def still_running(status: RunStatus, now: datetime | None = None, max_age_s: float = 60.0) -> bool:
     """Whether the run that wrote ``status`` is still going: not ended, and its process alive — on this machine
     checked, on another (a shared folder) taken at its word while the file is younger than ``max_age_s``."""
     if status.state in FINAL_STATES:
         return False
     if status.host == socket.gethostname():
-        return bool(status.pid) and status.pid != os.getpid() and _process_alive(status.pid)
+        return bool(status.pid) and status.pid != os.getpid() and _run_alive(status)
     age = age_s(status.updated_at, now or datetime.now().astimezone())
     return age is not None and age <= max_age_s
 
@@ -260,7 +288,7 @@ def health(status: RunStatus, max_age_s: float = 60.0, now: datetime | None = No
     elif age is None or age > max_age_s:
         why.append("status not updated for " + ("an unknown time" if age is None else f"{age:.0f} s") +
                    f" (more than {max_age_s:g} s): the run hangs or is gone")
-    if status.host == socket.gethostname() and status.pid and not _process_alive(status.pid):
+    if status.host == socket.gethostname() and status.pid and not _run_alive(status):
         why.append(f"process {status.pid} is not running any more")
     lost = age_s(status.stream_lost_at, now) if status.stream_lost_at else None
     if status.state in ("reconnecting", "starting") and lost is not None and lost > max_age_s:

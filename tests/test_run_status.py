@@ -224,7 +224,7 @@ def test_still_running_is_a_live_process_here_or_a_fresh_file_from_elsewhere(tmp
     from dataclasses import replace
     from datetime import datetime, timedelta
 
-    from gst_trafficcal.run_status import still_running
+    from gst_trafficcal.run_status import health, still_running
 
     status = StatusFile(tmp_path / "s.json", "rtsp://cam/1")
     status.update(state="running")
@@ -235,6 +235,18 @@ def test_still_running_is_a_live_process_here_or_a_fresh_file_from_elsewhere(tmp
     assert not still_running(replace(mine, pid=gone))  # killed without a word: its state still says running
     parent = os.getppid()
     assert still_running(replace(mine, pid=parent)) and not still_running(replace(mine, pid=parent, state="failed"))
+    # after a crash or a reboot its number went to a process started since: not the run (its restart was refused
+    # for as long as that process lived)
+    later = subprocess.Popen(["sleep", "30"])
+    try:
+        crashed = replace(mine, pid=later.pid, started_at=(datetime.now() - timedelta(minutes=5)).astimezone()
+                          .isoformat())
+        assert not still_running(crashed)
+        assert f"process {later.pid} is not running any more" in " ".join(health(crashed))
+        assert still_running(replace(mine, pid=later.pid, started_at=datetime.now().astimezone().isoformat()))
+    finally:
+        later.kill()
+        later.wait()
     now = datetime.fromisoformat(mine.updated_at)
     away = replace(mine, host="another-machine")
     assert still_running(away, now + timedelta(seconds=30)) and not still_running(away, now + timedelta(minutes=5))
