@@ -421,6 +421,35 @@ def test_the_overlay_of_a_run_killed_outright_is_playable(tmp_path):
     assert count_frames(video) >= 25  # a second or more of the 4 s written (gst-launch starts in about one)
 
 
+def test_a_run_killed_outright_leaves_its_calibration(clip, tmp_path):
+    """calibration.json is written as soon as the run has a calibration, not only at the end: a run killed with
+    SIGKILL (a power cut, the OOM killer) left none, and a restart had to learn the camera again."""
+    import signal
+    import time
+
+    out = tmp_path / "out"
+    args = ["run", clip / "video.mp4", "--out", out, "--calibration", clip / "calibration.json", "--no-overlay",
+            "--status-interval", "0.1"]  # (the position in status.json at once: killed a second in)
+    proc = subprocess.Popen([sys.executable, "-m", "gst_trafficcal", *map(str, args)], stdout=subprocess.DEVNULL,
+                            stderr=subprocess.DEVNULL)
+    try:
+        deadline = time.monotonic() + 120
+        while time.monotonic() < deadline and proc.poll() is None:
+            try:
+                if (read_status(out / "status.json").position_s or 0) >= 1.0:
+                    break
+            except Exception:  # not written yet
+                pass
+            time.sleep(0.1)
+        assert proc.poll() is None, "the run ended before it could be killed"
+        proc.send_signal(signal.SIGKILL)
+    finally:
+        proc.wait(timeout=30)
+    assert read_status(out / "status.json").state == "running"  # killed: no word of its end
+    kept = load_calibration(out / "calibration.json")
+    assert kept.camera.scale == pytest.approx(load_calibration(clip / "calibration.json").camera.scale)
+
+
 def test_full_disk_keeps_every_vehicle_already_measured(clip, with_truth, tmp_path):
     """vehicles.jsonl on a full device (/dev/full): a clear error, and the CSV has every vehicle measured so far."""
     if not os.path.exists("/dev/full"):

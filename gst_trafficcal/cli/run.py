@@ -419,7 +419,18 @@ def measure_video(video: Path | str, out_dir: Path, description: str, console, l
             counts["remeasured"] += int(m.fields.get("vehicles", 0))
             counts["remeasured_speeds"] += int(m.fields.get("measured", 0))
 
+    scaled = [False]  # calibration.json holds one with a scale of the current view
+
     def on_calibration(_element: str, cal) -> None:
+        # calibration.json as soon as the run knows one (the one it ends with is written again at the end): a run
+        # killed outright (kill -9, a power cut) left none, and its restart had to learn the camera anew
+        scaled[0] &= cal.moved_at is None
+        if cal.camera is not None and (cal.camera.scale is not None or not scaled[0]):
+            try:
+                save_calibration(cal, paths.calibration, zone=zone)
+                scaled[0] |= cal.camera.scale is not None
+            except InputError:
+                pass  # said when it is written at the end
         if status is None:
             return
         from ..run_status import calibration_fields
