@@ -20,6 +20,18 @@ def test_progress_follows_the_stream_position_to_the_end():
     assert out.position_s is not None and out.calibration is None
 
 
+def test_a_sink_that_cannot_write_names_its_file_and_why(tmp_path):
+    """A full disk under the overlay video: the error names the file and the cause (it said "filesink0: Could not
+    write to resource." for a file too large, without the file)."""
+    import os
+
+    if not os.path.exists("/dev/full"):
+        pytest.skip("needs /dev/full")
+    with pytest.raises(RunFailed) as failed:
+        run_pipeline_file("videotestsrc num-buffers=50 ! video/x-raw,width=64,height=48 ! filesink name=out location=/dev/full")
+    assert str(failed.value) == "out: /dev/full: cannot write (No space left on the resource)"
+
+
 def test_our_elements_are_registered_in_process():
     assert missing_elements(["vpdetect", "vehicledetect", "tracker", "speedometer", "trafficoverlay"]) == []
     assert missing_elements(["no-such-element-here"]) == ["no-such-element-here"]

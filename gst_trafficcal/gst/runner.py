@@ -138,10 +138,22 @@ def missing_elements(names: Iterable[str]) -> list[str]:
     return [n for n in names if Gst.ElementFactory.find(n) is None]
 
 
+WRITE_ERRORS = (Gst.ResourceError.WRITE, Gst.ResourceError.NO_SPACE_LEFT, Gst.ResourceError.OPEN_WRITE,
+                Gst.ResourceError.CLOSE)
+
+
 def _error_text(msg: Gst.Message) -> str:
     err, debug = msg.parse_error()
     src = msg.src.get_name() if msg.src else "pipeline"
     text = f"{src}: {err.message}"
+    location = msg.src.get_property("location") if msg.src and msg.src.find_property("location") else None
+    if location and any(err.matches(Gst.ResourceError.quark(), code) for code in WRITE_ERRORS):
+        # a sink that cannot write (a full disk: the overlay video): which file, and why — GStreamer's words say
+        # neither ("Could not write to resource.")
+        why = err.message.rstrip(".")
+        if debug and "Error while writing" in debug:
+            why = debug.rsplit(": ", 1)[-1].strip()
+        text = f"{src}: {location}: cannot write ({why})"
     if err.matches(Gst.StreamError.quark(), Gst.StreamError.TYPE_NOT_FOUND) or \
             err.matches(Gst.StreamError.quark(), Gst.StreamError.WRONG_TYPE) or \
             err.matches(Gst.StreamError.quark(), Gst.StreamError.DEMUX) or \
