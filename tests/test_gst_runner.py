@@ -28,7 +28,8 @@ def test_a_sink_that_cannot_write_names_its_file_and_why(tmp_path):
     if not os.path.exists("/dev/full"):
         pytest.skip("needs /dev/full")
     with pytest.raises(RunFailed) as failed:
-        run_pipeline_file("videotestsrc num-buffers=50 ! video/x-raw,width=64,height=48 ! filesink name=out location=/dev/full")
+        run_pipeline_file("videotestsrc num-buffers=50 ! video/x-raw,width=64,height=48 ! "
+                          "filesink name=out location=/dev/full")
     assert str(failed.value) == "out: /dev/full: cannot write (No space left on the resource)"
 
 
