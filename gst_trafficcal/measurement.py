@@ -29,6 +29,8 @@ vanishing points was in force) and, whenever it changes, the current calibration
   (:attr:`SpeedMeter.discarded` counts them): between a move and its notice (1–3 s) a background-model detector
   compares the new picture with the old view's background and finds "vehicles" along every edge of the scene,
   and a tracker that starts again at the notice takes the real ones up anew.
+* **A jump in the stream** (a player's seek, recordings joined: :meth:`SpeedMeter.cut`): every vehicle in view
+  ends there, measured from what was seen before it; no track is measured across the jump.
 * A vehicle has left when it has not been seen for ``end_after`` seconds (stream time), so the result does not
   depend on whether the tracker ran upstream or inside the caller.
 * **Direction**: sign of the reference points' motion along the road (world x, towards VP1); **lane**: the
@@ -215,7 +217,7 @@ class SpeedMeter:
         # the typical vehicle height among the vehicles whose 3D boxes are built here late (tracker.TrackerConfig's
         # body-shape choice), with the camera it is in plane units of
         self._late_heights, self._late_camera = TypicalHeight(), None
-        self._retired: set[int] = set()  # ids of the vehicles cut by a camera move (their tracks must not go on)
+        self._retired: set[int] = set()  # ids of the vehicles cut by a camera move or a jump (their tracks end there)
         self._blind: dict[int, float] = {}  # tracks begun between a move and its notice -> when it was noticed
         self.discarded = 0  # such tracks never seen after the notice: not reported
         self.min_seen_s, self.min_passing_m = float(min_seen_s), float(min_passing_m)
@@ -364,6 +366,15 @@ class SpeedMeter:
                     group = [c for c, taken in zip(group, claimed) if not taken] or group
             out.append(group[0])
         return out
+
+    def cut(self) -> list[MeasuredVehicle]:
+        """The stream jumped (a seek, parts joined): every vehicle in view leaves now, cut short (a brief one may still
+        be a vehicle), measured with what was seen before the jump; a track id that goes on after it (a tracker that
+        did not end its tracks there) is not taken up again: its next sightings are of another moment."""
+        for rec in self._live.values():
+            rec.cut = True
+            self._retired.add(rec.id)
+        return self._end(list(self._live.values()))
 
     def flush(self) -> list[MeasuredVehicle]:
         """End of stream: every vehicle in view leaves; those still waiting for a scale are reported unmeasured."""

@@ -16,7 +16,9 @@ leave before a calibration with scale exists are measured as soon as one arrives
 waiting are written unmeasured, with the reason.  When vpdetect says the camera moved (a calibration with
 ``moved_at``), the vehicles seen before are measured with the calibration they were seen under (cut at the move),
 and the scale is found anew for the new view; tracks seen only between the move and its notice are no vehicles
-(a ``trafficcal-discarded`` message counts them).  Nor is a track left unmeasured that was seen for under half a
+(a ``trafficcal-discarded`` message counts them).  At a jump in the stream (a player's flushing seek, either way;
+recordings joined by ``concat``) the vehicles in view end, measured from what was seen before it: none is measured
+across the jump.  Nor is a track left unmeasured that was seen for under half a
 second or never moved 3 m along the road (``min-seen``, ``min-moved``; a fragment of a vehicle, a parked car:
 ``measurement.not_a_vehicle``; a ``trafficcal-not-counted`` message, fields ``brief`` and ``stationary`` and the
 two thresholds, counts them): the files and counts hold the vehicles that passed.
@@ -283,6 +285,15 @@ class Speedometer(TrafficcalTransform):
             if ours is not None:
                 self._scaled = ours
         return self._apply_calibration(from_upstream=True)
+
+    def on_jump(self, t):
+        """A seek (or parts joined): the vehicles in view end here, measured from what was seen before; our own
+        tracking starts its tracks again, so no vehicle is measured across the jump."""
+        if self._meter is None or self._failed:
+            return
+        if self._tracking:
+            self._tracking.flush()
+        self._emit(self._meter.cut())
 
     # ------------------------------------------------------------------ calibration
     def _effective(self):

@@ -5,7 +5,8 @@ them, and tracks the convex hulls.  Each ROI of a confirmed track gets an ``"obj
 Streamer's gvatrack) and a ``"trafficcal-vehicle"`` structure; with a calibration (the sticky
 "trafficcal-calibration" event from ``vpdetect``) the latter carries the 3D box and the road-plane reference
 point.  Without one it tracks in 2D, and switches to 3D when the calibration arrives without losing tracks.  When vpdetect
-says the camera moved (a calibration with ``moved_at``) every track ends and tracking starts again in 2D.
+says the camera moved (a calibration with ``moved_at``) every track ends and tracking starts again in 2D; at a jump
+in the stream (a flushing seek, recordings joined by ``concat``) every track ends too, none continues across it.
 Time comes from buffer PTS.  A bus message ``trafficcal-track`` is posted when a track ends.
 """
 
@@ -85,6 +86,12 @@ class Tracker(TrafficcalTransform):
             for track in self._pipe.camera_moved():
                 self._post_track(track)
         return True
+
+    def on_jump(self, t):
+        """A seek (or parts joined): the vehicles after it are seen at another moment; no track goes on across it."""
+        if self._pipe is not None:
+            for track in self._pipe.flush():
+                self._post_track(track)
 
     def do_sink_event(self, event):
         if event.type == Gst.EventType.EOS and self._pipe is not None:  # report the tracks still open

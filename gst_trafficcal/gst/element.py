@@ -31,6 +31,8 @@ What the base does:
   by the segment: a file's own time, from 0 even when its timestamps start elsewhere), never going backwards
   (:class:`~gst_trafficcal.gst.buffers.StreamClock`: parts joined by ``concat``, a seek back), the same in every
   element; None when the buffer has no timestamp;
+- hook :meth:`on_jump` at the first timed buffer after the stream jumped (a flushing seek, either way; timestamps
+  gone back: parts joined by ``concat``): nothing seen before it continues after it (tracks end there);
 - keeps the latest calibration received from upstream in ``self.calibration`` (hook
   :meth:`on_calibration`) and forwards the sticky event downstream; other custom downstream events (speedometer's
   finished vehicles) go to hook :meth:`on_custom_event`;
@@ -110,6 +112,7 @@ class TrafficcalTransform(GstBase.BaseTransform):
         self.stream_clock = StreamClock()
         self.buffer_t: float | None = None
         self._segment: Gst.Segment | None = None  # the last SEGMENT event's: buffer_t is stream time
+        self._flushed_mid_run = False  # a FLUSH_STOP (a flushing seek) after frames: on_jump at the next timed one
         self._said_untimed = False  # warn_untimed: said once per run
         self._said_non_square = False  # warn_non_square: said once per run
         self._views_warned = False  # keep_scale_view: said once per run
@@ -153,6 +156,11 @@ class TrafficcalTransform(GstBase.BaseTransform):
         """Called for each non-sticky custom downstream event from upstream (e.g. speedometer's finished vehicles,
         :mod:`.vehicle_event`); return False to not forward it."""
         return True
+
+    def on_jump(self, t: float) -> None:
+        """Called before the frame at ``t`` (its ``buffer_t``) when the stream jumped just before it: a flushing seek
+        (a player seeking back or forward) or timestamps gone back (parts joined by ``concat``).  The frames before
+        and after show other moments: what follows a vehicle (tracks, measurements) ends there."""
 
     def transform_frame(self, buffer: Gst.Buffer) -> Gst.FlowReturn:
         """Process one frame in place (override this, not ``do_transform_ip``)."""
@@ -322,6 +330,8 @@ class TrafficcalTransform(GstBase.BaseTransform):
                 self.post_warning(f"ignoring invalid {event.get_structure().get_name()} event: {exc}")
         elif event.type == Gst.EventType.SEGMENT:
             self._segment = event.parse_segment().copy()
+        elif event.type == Gst.EventType.FLUSH_STOP:  # a flushing seek: the next frame is another moment
+            self._flushed_mid_run = self._flushed_mid_run or self.stream_clock.last is not None
         elif event.type == Gst.EventType.EOS:
             try:
                 self.on_eos()
@@ -337,8 +347,12 @@ class TrafficcalTransform(GstBase.BaseTransform):
 
     def do_transform_ip(self, buffer: Gst.Buffer) -> Gst.FlowReturn:
         self._push_pending_calibration()
+        jumps = len(self.stream_clock.jumps)
         self.buffer_t = self.stream_clock(stream_seconds(buffer, self._segment))
         try:
+            if self.buffer_t is not None and (self._flushed_mid_run or len(self.stream_clock.jumps) > jumps):
+                self._flushed_mid_run = False
+                self.on_jump(self.buffer_t)
             return self.transform_frame(buffer)
         except Exception as exc:  # a Python exception must stop the pipeline with a readable error
             self.post_error(f"{type(exc).__name__}: {exc}", debug=traceback.format_exc())
