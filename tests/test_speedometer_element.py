@@ -666,6 +666,28 @@ def test_a_seek_ends_every_track_and_no_vehicle_is_measured_across_it(clip, tmp_
     assert sum(e.measured for e in events) >= 6, events
 
 
+def test_one_file_given_to_two_speedometers_is_refused_at_start(clip, tmp_path):
+    """Two speedometers writing one events-file (a tee's branches), or one speedometer given one path for two
+    outputs: an error at start naming the file and the other writer (gst.file_claims). Before, each vehicle was
+    written twice into the file without a word. A file written by a pipeline that has stopped is free again."""
+    events = tmp_path / "events.jsonl"
+    calibration = clip / "calibration.json"
+    tee = (f"{source(clip)} ! {detector(clip)} ! tee name=t "
+           f"t. ! queue ! speedometer calibration-file={calibration} events-file={events} ! fakesink "
+           f"t. ! queue ! speedometer calibration-file={calibration} events-file={tmp_path / '.' / events.name} "
+           "! fakesink")
+    with pytest.raises(PipelineError, match=r"events-file .*events.jsonl is written already by .*GstSpeedometer:"
+                                            r"speedometer\d+ \(its events-file\)"):
+        run_pipeline(tee)
+    with pytest.raises(PipelineError, match=r"csv-file .*events.jsonl is also its events-file"):
+        run_pipeline(f"{source(clip)} ! {detector(clip)} ! speedometer events-file={events} csv-file={events} "
+                     "! fakesink")
+    for _ in range(2):  # the claims of the refused runs and of a finished one are given back
+        run_pipeline(f"{source(clip)} ! {detector(clip)} ! speedometer calibration-file={calibration} "
+                     f"events-file={events} ! fakesink")
+    assert len(read_events(events).events) >= 10
+
+
 def test_intervals_file_counts_every_vehicle_of_every_watched_interval(clip, implicit, limit):
     """intervals-file with 3 s intervals (interval=0.05 min): a row of all vehicles for every 3 s of the clip, even
     those without one, counting each vehicle once, in the interval of the middle of its time in view; the seconds

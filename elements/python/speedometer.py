@@ -173,6 +173,7 @@ class Speedometer(TrafficcalTransform):
         self._untracked = UntrackedWatch("speedometer")  # a tracker upstream whose data does not arrive
         self._detector = None  # whether a vehicledetect runs upstream (decided at the first frame)
         self._empty_since = None  # stream time since which no vehicle arrived, while no detector is seen upstream
+        self._claimed = []  # our output files, claimed in this process (gst.file_claims) until the stop
 
     # ------------------------------------------------------------------ life cycle
     def do_start(self):
@@ -180,10 +181,17 @@ class Speedometer(TrafficcalTransform):
         from gst_trafficcal.measurement import SpeedMeter
         from gst_trafficcal.outputs import VehicleOutputs, new_run_id
 
+        from gst_trafficcal.gst.file_claims import claim, release
+
         self._reset()
         self._run = new_run_id()  # on every event: appended runs reuse track ids
         try:
             from gst_trafficcal.clock import NOW, parse_start_time
+
+            # one writer per file: two speedometers given one file (a tee's branches, two pipelines) each wrote
+            # every vehicle into it, without a word
+            self._claimed = claim(self, {name: self.get_property(name) for name in (
+                "events-file", "csv-file", "frames-file", "results-file", "intervals-file")})
 
             if self.min_track_length < self.tau + 1:  # the library says the same with its own argument names
                 raise ValueError(f"min-track-length must be at least tau + 1 = {self.tau + 1}, got "
@@ -219,6 +227,7 @@ class Speedometer(TrafficcalTransform):
             if not self._scale_given():  # built now, so bad scale-* properties are an error at start
                 self._own_stage = self._new_scale_stage()
         except Exception as exc:  # bad properties / unreadable calibration / unwritable file: readable error
+            release(self, self._claimed)
             self.post_error(f"speedometer: {exc}")
             return False
         self._apply_calibration()
@@ -228,6 +237,9 @@ class Speedometer(TrafficcalTransform):
         if not self._flushed and self._meter is not None:  # stopped without EOS: keep what was measured
             self._finish(post=False)
         self._close()
+        from gst_trafficcal.gst.file_claims import release
+
+        release(self, self._claimed)
         self._reset()
         return super().do_stop()
 
