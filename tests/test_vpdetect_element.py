@@ -311,7 +311,8 @@ def test_a_mode_set_while_running_applies_from_the_next_start_only():
     run = run_pipeline(pipeline)
     assert run.frames[-1].frame_size == (80, 60)
     assert run.warnings[0] == ("v: vpdetect: mode was set to 'fixed' while the stream runs; it is read when the "
-                               "element starts, so the change applies from the next start (set it before PLAYING)")
+                               "element starts, so the change applies from the next start (set it in the NULL or "
+                               "READY state: a prerolled PAUSED pipeline has started)")
     assert [w for w in run.warnings if "frame size changed" in w] == [
         "v: vpdetect: the frame size changed from 160x120 to 80x60 at 0.8 s: another view; learning a new calibration"]
     assert vpdetect.get_property("mode") == "fixed"

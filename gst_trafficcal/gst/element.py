@@ -135,7 +135,7 @@ class TrafficcalTransform(GstBase.BaseTransform):
         if self._streaming and int(prop.flags) & Gst.PARAM_MUTABLE_READY:
             self.post_warning(f"{self.get_factory().get_name()}: {prop.name} was set to {value!r} while the stream "
                               "runs; it is read when the element starts, so the change applies from the next start "
-                              "(set it before PLAYING)")
+                              "(set it in the NULL or READY state: a prerolled PAUSED pipeline has started)")
             self._next_start[_attr(prop.name)] = value
             return
         self._next_start.pop(_attr(prop.name), None)
