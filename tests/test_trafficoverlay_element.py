@@ -389,8 +389,8 @@ def test_a_property_read_at_start_set_while_running_is_warned_about() -> None:
     finally:
         pipeline.set_state(Gst.State.NULL)
     assert done and warnings == ["trafficoverlay: speed-limit was set to 50.0 while the stream runs; it is read when "
-                                 "the element starts, so the change applies from the next start (set it before "
-                                 "PLAYING)"]
+                                 "the element starts, so the change applies from the next start (set it in the "
+                                 "NULL or READY state: a prerolled PAUSED pipeline has started)"]
     assert kept == [(80.0, 50.0, False)]  # in force / answered / a live property
     assert overlay.speed_limit == 50.0  # stopped: in force from the next start
 
