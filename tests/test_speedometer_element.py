@@ -658,12 +658,16 @@ def test_a_seek_ends_every_track_and_no_vehicle_is_measured_across_it(clip, tmp_
     jump = pts[after]
     if target < 6:  # the elements' time goes on after the last frame before the seek (StreamClock)
         jump = float(next(w for w in run.warnings if "go on from" in w).split("go on from ")[1].split(" s")[0])
-    events = read_events(events_file).events
+    measured = sum(e.measured for e in read_events(events_file).events)
     tracks = [(m.fields["first"], m.fields["last"]) for m in run.messages if m.name == "trafficcal-track"]
-    spans = [(e.first_timestamp_s, e.last_timestamp_s) for e in events] + tracks
-    assert not [s for s in spans if s[0] < jump - 1e-6 <= s[1]], (jump, spans)
+    events = [(e.first_timestamp_s, e.last_timestamp_s) for e in read_events(events_file).events]
+    assert not [s for s in events if s[0] < jump - 1e-6 <= s[1]], (jump, events)
+    # the tracker's time may be a frame or two ahead of speedometer's after the seek: frames on their way between
+    # them were flushed (each element's clock goes on after the last frame it saw)
+    assert not [s for s in tracks if s[0] < jump - 0.17 and s[1] > jump + 0.17], (jump, tracks)
+    spans = events + tracks
     assert len([s for s in spans if s[1] < jump]) >= 3 and len([s for s in spans if s[0] >= jump]) >= 3, spans
-    assert sum(e.measured for e in events) >= 6, events
+    assert measured >= 6, events
 
 
 def test_one_file_given_to_two_speedometers_is_refused_at_start(clip, tmp_path):
