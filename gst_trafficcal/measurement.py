@@ -638,6 +638,20 @@ def moved_along_road(camera: Camera, px: np.ndarray) -> float:
     return float(abs(np.median(along[-q:]) - np.median(along[:q])))
 
 
+def drove_along_road(camera: Camera, px: np.ndarray) -> float:
+    """Metres a track drove steadily along the road (world x; ``camera`` has a scale) over its latest reference points
+    ``px`` (N x 2 pixels at full rate, in time order): from the median of their first quarter to that of their last
+    when each quarter's median is further in one direction than the one before by at least a sixth of that; 0
+    otherwise, or with under 8 points.  A vehicle that stood for most of its stay and then drove off shows it here
+    while :func:`moved_along_road` over an even sample of its whole stay does not yet; a parked car's point jumping by
+    the car's length (and back) is one step among still ones, which at most two of the three advances show."""
+    along = camera.to_world(np.asarray(px, np.float64).reshape(-1, 2))[:, 0]
+    if len(along) < 8 or not np.all(np.isfinite(along)):
+        return 0.0
+    m = np.array([np.median(q) for q in np.array_split(along, 4)])
+    total = float(m[-1] - m[0])
+    return abs(total) if total and np.all(np.diff(m) * np.sign(total) >= abs(total) / 6) else 0.0
+
 def not_a_vehicle(seen_s: float, moved_m: float | None, min_seen_s: float = MIN_SEEN_S,
                   min_passing_m: float = MIN_PASSING_M) -> str:
     """Why a track left unmeasured is no vehicle passing ("" when it may be one): :data:`BRIEF` when it was seen

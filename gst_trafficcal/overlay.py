@@ -12,7 +12,7 @@ All drawing is cv2 calls over whole arrays of points (one ``polylines`` call per
 
 from __future__ import annotations
 
-from collections import OrderedDict
+from collections import OrderedDict, deque
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
 
@@ -23,7 +23,7 @@ from .drawing import (GRID_ACROSS_BGR, GRID_ALONG_BGR, HORIZON_BGR, ZONE_BGR, Ro
                       grid_min_cell_px, horizon_segment, road_grid_segments, world_camera, zone_segments)
 from .geometry import Camera
 from .lanes import DEFAULT_LANE_WIDTH_M, lane_centres
-from .measurement import moved_along_road, not_a_vehicle
+from .measurement import drove_along_road, moved_along_road, not_a_vehicle
 from .outputs import AWAY_FROM_VP1, TOWARDS_VP1, direction_name
 from .traffic_stats import SpeedLimit, as_limit, is_over_limit
 
@@ -291,12 +291,14 @@ class VehicleCounter:
     With ``min_seen_s`` and ``min_passing_m`` (for a chain without speedometer, whose "no vehicle passing" events
     otherwise take them out) a track counts only once speedometer's rule,
     :func:`gst_trafficcal.measurement.not_a_vehicle`, says it is a vehicle passing, judged on what was seen of it so
-    far: in view ``min_seen_s`` (stream seconds, the ``t`` of :meth:`update`; a detector's flicker or a fragment of
-    a vehicle another track follows is not counted) and moved ``min_passing_m`` along the road
-    (:func:`gst_trafficcal.measurement.moved_along_road` over its reference points; a parked vehicle is not counted,
-    nor counted again each time it is occluded and found again).  Without a scale the distance is taken with
-    :data:`gst_trafficcal.drawing.ASSUMED_HEIGHT_M`, as the grid is; a track without reference points (before the
-    vanishing points) is counted on the time in view alone, as speedometer reports one.
+    far: in view ``min_seen_s`` (stream seconds, the ``t`` of :meth:`update`; a detector's flicker or a fragment of a
+    vehicle another track follows is not counted) and moved ``min_passing_m`` along the road
+    (:func:`gst_trafficcal.measurement.moved_along_road` over its reference points; a parked vehicle is not counted, nor
+    counted again each time it is occluded and found again) — or drove that far steadily over its latest points
+    (:func:`gst_trafficcal.measurement.drove_along_road`: a vehicle that stood for most of its stay, then drove off).
+    Without a scale the distance is taken with :data:`gst_trafficcal.drawing.ASSUMED_HEIGHT_M`, as the grid is; a track
+    without reference points (before the vanishing points) is counted on the time in view alone, as speedometer reports
+    one.
     """
 
     seen: dict[int, tuple[str | None, int | None]] = field(default_factory=dict)  # vehicles still around
@@ -378,7 +380,8 @@ class VehicleCounter:
         moved = None
         if (self.min_passing_m > 0 and seen_s >= self.min_seen_s and trail is not None and len(trail.points) >= 2
                 and self._camera is not None):
-            moved = moved_along_road(world_camera(self._camera), np.array(trail.points))
+            cam = world_camera(self._camera)
+            moved = max(moved_along_road(cam, np.array(trail.points)), drove_along_road(cam, np.array(trail.recent)))
         return not_a_vehicle(np.inf if cut else seen_s, moved, self.min_seen_s, self.min_passing_m)
 
     def end(self, t: float | None, still_in_view_s: float) -> None:
@@ -547,15 +550,19 @@ class VehicleCounter:
 class _Trail:
     """A track's reference points (pixels, in time order) for :func:`~gst_trafficcal.measurement.moved_along_road`:
     every ``stride``-th one, at most ``MAX``, so that a parked car in view for hours keeps an even sample of its whole
-    stay in bounded memory and time."""
+    stay in bounded memory and time; and its latest ``RECENT`` at full rate for
+    :func:`~gst_trafficcal.measurement.drove_along_road` (a vehicle that stood, then drove off)."""
 
     points: list[tuple[float, float]] = field(default_factory=list)
     stride: int = 1
     seen: int = 0
+    recent: deque[tuple[float, float]] = field(default_factory=lambda: deque(maxlen=_Trail.RECENT))
 
     MAX = 128
+    RECENT = 64  # 2.6 s at 25 fps
 
     def add(self, point: tuple[float, float]) -> None:
+        self.recent.append(point)
         if self.seen % self.stride == 0:
             self.points.append(point)
             if len(self.points) > self.MAX:

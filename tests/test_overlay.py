@@ -451,6 +451,50 @@ def test_vehicle_counter_counts_only_vehicles_that_moved() -> None:
     assert c3.total == 1
 
 
+def _drive(c: VehicleCounter, cam: Camera, xs: np.ndarray, fps: float = 25.0, y: float = 2.0) -> list[int]:
+    """Feed track #1 at road positions ``xs`` (metres along the road, one per frame) through ``c``; the frames at
+    which it was counted (empty: never)."""
+    counted = []
+    for k, x in enumerate(xs):
+        ref = tuple(float(v) for v in cam.world_to_image(np.array([x, y, 0.0])))
+        c.update([VehicleMark((0, 0, 1, 1), 1, ref_point=ref)], cam, k / fps)
+        if 1 in c.seen:
+            counted.append(k)
+    return counted
+
+
+def test_vehicle_counter_counts_a_vehicle_that_stands_then_drives() -> None:
+    """A vehicle that stands for a minute (a queue at lights, a car leaving its parking place) and then drives off
+    counts once it has driven min_passing_m: a steady movement along the road over its latest points at full rate.
+    The quarter medians of its whole stay alone never counted it (its even sample's last quarter mostly stands)."""
+    cam = _camera()
+    rng = np.random.default_rng(7)
+    stand = 12.0 + rng.normal(0, 0.1, 25 * 60)
+    t = np.arange(1, 25 * 4 + 1) / 25  # then 4 s from a standstill at 2 m/s² up to 8 m/s
+    drive = 12.0 + np.where(t < 4, t ** 2, 16 + 8 * (t - 4)) + rng.normal(0, 0.1, len(t))
+    c = VehicleCounter(min_seen_s=0.5, min_passing_m=3.0)
+    counted = _drive(c, cam, np.concatenate([stand, drive]))
+    assert counted and len(stand) < counted[0] <= len(stand) + 25 * 3, counted[:1]  # within 3 s of driving off
+    assert c.total == 1
+    c.end(len(stand) / 25 + 4, 1.0)
+    assert c.total == 1
+
+
+@pytest.mark.parametrize("jump_m", [0.0, 4.5, -4.5])
+def test_vehicle_counter_never_counts_a_parked_vehicle_whose_point_jumps_for_seconds(jump_m: float) -> None:
+    """A parked vehicle is never counted though its point jitters, or jumps by its length (its front hidden by a
+    passing vehicle) for 2 s every 15 s from 43 s on, and back: one big step among still ones is no steady
+    movement."""
+    cam = _camera()
+    rng = np.random.default_rng(11)
+    k = np.arange(25 * 120)
+    xs = 12.0 + jump_m * ((k >= 25 * 30) & ((k % (25 * 15)) >= 25 * 13)) + rng.normal(0, 0.15, len(k))
+    c = VehicleCounter(min_seen_s=0.5, min_passing_m=3.0)
+    assert not _drive(c, cam, xs)
+    c.end(len(k) / 25, 1.0)
+    assert c.total == 0
+
+
 def test_vehicle_counter_derives_lanes_from_reference_points() -> None:
     """Without lanes in the metadata, the lanes come from where the reference points lie on the road."""
     cam = _camera()
