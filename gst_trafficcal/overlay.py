@@ -294,7 +294,9 @@ class VehicleCounter:
     far: in view ``min_seen_s`` (stream seconds, the ``t`` of :meth:`update`; a detector's flicker or a fragment of a
     vehicle another track follows is not counted) and moved ``min_passing_m`` along the road
     (:func:`gst_trafficcal.measurement.moved_along_road` over its reference points; a parked vehicle is not counted, nor
-    counted again each time it is occluded and found again) — or drove that far steadily over its latest points
+    counted again each time it is occluded and found again; once older than its latest points, the move must hold
+    all along them, which a point jumping by the car's length for a second or two does not) — or drove that far
+    steadily over its latest points
     (:func:`gst_trafficcal.measurement.drove_along_road`: a vehicle that stood for most of its stay, then drove off).
     Without a scale the distance is taken with :data:`gst_trafficcal.drawing.ASSUMED_HEIGHT_M`, as the grid is; a track
     without reference points (before the vanishing points) is counted on the time in view alone, as speedometer reports
@@ -381,7 +383,13 @@ class VehicleCounter:
         if (self.min_passing_m > 0 and seen_s >= self.min_seen_s and trail is not None and len(trail.points) >= 2
                 and self._camera is not None):
             cam = world_camera(self._camera)
-            moved = max(moved_along_road(cam, np.array(trail.points)), drove_along_road(cam, np.array(trail.recent)))
+            pts, recent = np.array(trail.points), np.array(trail.recent)
+            moved = moved_along_road(cam, pts)
+            if len(recent) == _Trail.RECENT:  # a track older than its latest points: the move held all along them,
+                # not a parked car's point jumping by its length for a second or two (the younger ones move early)
+                first = pts[:max(1, len(pts) // 4)]
+                moved = min([moved] + [_between_m(cam, first, q) for q in np.array_split(recent, 4)])
+            moved = max(moved, drove_along_road(cam, recent[-_Trail.STEADY:]))
         return not_a_vehicle(np.inf if cut else seen_s, moved, self.min_seen_s, self.min_passing_m)
 
     def end(self, t: float | None, still_in_view_s: float) -> None:
@@ -559,7 +567,8 @@ class _Trail:
     recent: deque[tuple[float, float]] = field(default_factory=lambda: deque(maxlen=_Trail.RECENT))
 
     MAX = 128
-    RECENT = 64  # 2.6 s at 25 fps
+    RECENT = 128  # 5.1 s at 25 fps
+    STEADY = 64  # the latest of them drove_along_road judges
 
     def add(self, point: tuple[float, float]) -> None:
         self.recent.append(point)
@@ -569,6 +578,12 @@ class _Trail:
                 del self.points[1::2]
                 self.stride *= 2
         self.seen += 1
+
+
+def _between_m(camera: Camera, a: np.ndarray, b: np.ndarray) -> float:
+    """Metres along the road between the medians of two sets of reference points (pixels)."""
+    along = [np.median(camera.to_world(np.asarray(p, np.float64).reshape(-1, 2))[:, 0]) for p in (a, b)]
+    return float(abs(along[1] - along[0]))
 
 
 def _count(counts: dict, key, delta: int, count_none: bool) -> None:
