@@ -652,6 +652,7 @@ def drove_along_road(camera: Camera, px: np.ndarray) -> float:
     total = float(m[-1] - m[0])
     return abs(total) if total and np.all(np.diff(m) * np.sign(total) >= abs(total) / 6) else 0.0
 
+
 def not_a_vehicle(seen_s: float, moved_m: float | None, min_seen_s: float = MIN_SEEN_S,
                   min_passing_m: float = MIN_PASSING_M) -> str:
     """Why a track left unmeasured is no vehicle passing ("" when it may be one): :data:`BRIEF` when it was seen
