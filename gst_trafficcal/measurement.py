@@ -633,9 +633,15 @@ def moved_along_road(camera: Camera, px: np.ndarray) -> float:
     quarter: the medians of its reference points ``px`` (N x 2 pixels in time order, N >= 1) in each.  The medians
     ride out a parked car's point, which jumps by the car's length when its front is not known, and back.  The
     measure of :func:`not_a_vehicle`'s ``moved_m``, for speedometer and for trafficoverlay's own counter."""
-    along = camera.to_world(np.asarray(px, np.float64).reshape(-1, 2))[:, 0]
-    q = max(1, len(along) // 4)
-    return float(abs(np.median(along[-q:]) - np.median(along[:q])))
+    px = np.asarray(px, np.float64).reshape(-1, 2)
+    q = max(1, len(px) // 4)
+    return metres_between(camera, px[:q], px[-q:])
+
+
+def metres_between(camera: Camera, a: np.ndarray, b: np.ndarray) -> float:
+    """Metres along the road (world x) between the medians of two sets of reference points (pixels)."""
+    along = [np.median(camera.to_world(np.asarray(p, np.float64).reshape(-1, 2))[:, 0]) for p in (a, b)]
+    return float(abs(along[1] - along[0]))
 
 
 def drove_along_road(camera: Camera, px: np.ndarray) -> float:

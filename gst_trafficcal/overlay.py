@@ -23,7 +23,7 @@ from .drawing import (GRID_ACROSS_BGR, GRID_ALONG_BGR, HORIZON_BGR, ZONE_BGR, Ro
                       grid_min_cell_px, horizon_segment, road_grid_segments, world_camera, zone_segments)
 from .geometry import Camera
 from .lanes import DEFAULT_LANE_WIDTH_M, lane_centres
-from .measurement import drove_along_road, moved_along_road, not_a_vehicle
+from .measurement import drove_along_road, metres_between, moved_along_road, not_a_vehicle
 from .outputs import AWAY_FROM_VP1, TOWARDS_VP1, direction_name
 from .traffic_stats import SpeedLimit, as_limit, is_over_limit
 
@@ -388,7 +388,7 @@ class VehicleCounter:
             if len(recent) == _Trail.RECENT:  # a track older than its latest points: the move held all along them,
                 # not a parked car's point jumping by its length for a second or two (the younger ones move early)
                 first = pts[:max(1, len(pts) // 4)]
-                moved = min([moved] + [_between_m(cam, first, q) for q in np.array_split(recent, 4)])
+                moved = min([moved] + [metres_between(cam, first, q) for q in np.array_split(recent, 4)])
             moved = max(moved, drove_along_road(cam, recent[-_Trail.STEADY:]))
         return not_a_vehicle(np.inf if cut else seen_s, moved, self.min_seen_s, self.min_passing_m)
 
@@ -578,12 +578,6 @@ class _Trail:
                 del self.points[1::2]
                 self.stride *= 2
         self.seen += 1
-
-
-def _between_m(camera: Camera, a: np.ndarray, b: np.ndarray) -> float:
-    """Metres along the road between the medians of two sets of reference points (pixels)."""
-    along = [np.median(camera.to_world(np.asarray(p, np.float64).reshape(-1, 2))[:, 0]) for p in (a, b)]
-    return float(abs(along[1] - along[0]))
 
 
 def _count(counts: dict, key, delta: int, count_none: bool) -> None:
