@@ -190,21 +190,25 @@ def test_ctrl_c_finishes_the_stream_and_a_second_one_stops_at_once(tmp_path, ctr
     assert signal.getsignal(signal.SIGINT) is signal.default_int_handler  # the handler is put back
 
 
-def test_sigterm_finishes_the_stream_as_ctrl_c_does(tmp_path):
-    """SIGTERM — what systemctl stop, docker stop and Kubernetes send — ends the stream like Ctrl-C (a playable
-    file), says which signal it was, and the process's own SIGTERM handling is put back afterwards."""
+@pytest.mark.parametrize("name", ["SIGTERM", "SIGHUP"])
+def test_sigterm_finishes_the_stream_as_ctrl_c_does(tmp_path, name):
+    """SIGTERM — what systemctl stop, docker stop and Kubernetes send — and SIGHUP — the terminal that started the
+    run closed (an SSH session ended) — end the stream like Ctrl-C (a playable file), say which signal it was, and
+    the process's own handling of the signal is put back afterwards.  (SIGHUP killed the process at once.)"""
     import os
     import signal
 
+    sig = signal.Signals[name]
+
     def terminate(pos, dur):
         if pos >= 0.5:
-            os.kill(os.getpid(), signal.SIGTERM)  # while the bus loop runs
+            os.kill(os.getpid(), sig)  # while the bus loop runs
 
-    before = signal.getsignal(signal.SIGTERM)
+    before = signal.getsignal(sig)
     out = run_pipeline_file(ENDLESS.format(tmp_path / "t.mp4"), progress=terminate, poll_s=0.05)
-    assert out.stopped == "interrupted" and out.stopped_by == "SIGTERM"
+    assert out.stopped == "interrupted" and out.stopped_by == name
     assert _frames(tmp_path / "t.mp4") >= 10  # completed by the end-of-stream: playable up to there
-    assert signal.getsignal(signal.SIGTERM) is before
+    assert signal.getsignal(sig) is before
 
 
 def test_a_live_stream_too_fast_for_the_machine_drops_its_oldest_frames_a_file_never_does(tmp_path):

@@ -1022,6 +1022,54 @@ def test_a_live_stream_stopped_by_sigterm_completes_every_output(clip, rtsp_clip
         assert (out / name).is_file(), name
 
 
+def test_a_run_whose_ssh_session_closes_completes_every_output(clip, rtsp_clip, tmp_path):
+    """`trafficcal run` started from an SSH session that then closes: the terminal hangs up, and the kernel sends
+    the session's process SIGHUP (the run's terminal here is a pseudo-terminal of the test, its controlling one,
+    closed as sshd closes it).  The run ends as at Ctrl-C — the vehicles in view written, a playable overlay, the
+    report — and status.json says "interrupted", though nothing can be printed any more.  Before, SIGHUP killed the
+    process at once: the outputs up to there survived, but status.json said "running" for good."""
+    import fcntl
+    import termios
+    import threading
+    import time
+
+    out = tmp_path / "live"
+    master, slave = os.openpty()
+
+    def controlling_terminal() -> None:  # (after setsid: start_new_session) the pty becomes the session's terminal
+        fcntl.ioctl(0, termios.TIOCSCTTY, 0)
+
+    proc = subprocess.Popen([sys.executable, "-m", "gst_trafficcal", "run", rtsp_clip, "--out", str(out),
+                             "--calibration", str(clip / "calibration.json"), "--status-interval", "1"],
+                            stdin=slave, stdout=slave, stderr=slave, start_new_session=True,
+                            preexec_fn=controlling_terminal)
+    os.close(slave)
+    said = []
+
+    def read_terminal() -> None:  # what the run prints, read as a terminal would (it must not block on a full pty)
+        try:
+            while chunk := os.read(master, 65536):
+                said.append(chunk)
+        except OSError:  # the terminal closed
+            pass
+
+    threading.Thread(target=read_terminal, daemon=True).start()
+    deadline = time.monotonic() + 120
+    while time.monotonic() < deadline and proc.poll() is None:  # until the first vehicle has left
+        if (out / "vehicles.jsonl").is_file() and (out / "vehicles.jsonl").read_text().strip():
+            break
+        time.sleep(0.2)
+    assert proc.poll() is None, b"".join(said)[-3000:]
+    os.close(master)  # the SSH session closes: SIGHUP, and the terminal is gone
+    assert proc.wait(timeout=120) == 130, (proc.returncode, b"".join(said)[-3000:])
+    events = read_events(out / "vehicles.jsonl").events
+    status = read_status(out / "status.json")
+    assert status.state == "interrupted" and status.vehicles == len(events) >= 2
+    assert 12 < count_frames(out / "overlay.mp4") < 150  # completed by the end-of-stream: playable
+    for name in ("calibration.json", "system.json", "vehicles.csv", "intervals.csv", "report.html"):
+        assert (out / name).is_file(), name
+
+
 def test_a_camera_move_is_told_with_what_it_cost():
     """After a run in which the camera moved: a line per move (when, how many vehicles the old calibration
     measured, which one), and how many tracks of the time between the move and its notice were not counted."""

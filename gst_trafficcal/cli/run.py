@@ -240,8 +240,8 @@ class RunSummary:
     warnings: list[str] = field(default_factory=list)
     errors: list[str] = field(default_factory=list)  # output files that could not be written
     duration_s: float | None = None
-    stopped: str = ""  # "interrupted" (Ctrl-C, SIGTERM) or "duration" (--duration): ended before the stream did
-    stopped_by: str = ""  # "interrupted": "SIGINT" or "SIGTERM"
+    stopped: str = ""  # "interrupted" (Ctrl-C, SIGTERM, SIGHUP) or "duration" (--duration): ended before the stream did
+    stopped_by: str = ""  # "interrupted": "SIGINT", "SIGTERM" or "SIGHUP"
     position_s: float | None = None  # how far into the stream the run got
     moves: list = field(default_factory=list)  # gst.runner.Move: when the camera moved, the calibrations around it
     discarded: int = 0  # tracks seen only between a camera move and its notice (not vehicles, not reported)
@@ -748,8 +748,9 @@ def command(videos: tuple[str, ...], out_dir: Path, calibration_path: Path | Non
             start_time: str, interval_min: float, duration_s: float | None, events_url: str,
             reconnect: bool, no_overlay: bool, status_s: float = 5.0, split_every: str = "", zone: str = "") -> None:
     """Calibrate and measure every vehicle of VIDEO (a file, or the URI of a stream: rtsp://, http://, file://)
-    in one pass through the GStreamer elements. Ctrl-C (or --duration, or SIGTERM: a service stopped) ends the
-    run as the end of the stream would, with every output complete; a second Ctrl-C stops at once.
+    in one pass through the GStreamer elements. Ctrl-C (or --duration, or SIGTERM: a service stopped, or SIGHUP: the
+    SSH session that started it closed) ends the run as the end of the stream would, with every output complete; a
+    second Ctrl-C stops at once.
 
     Writes to --out: calibration.json, system.json (BrnoCompSpeed results), vehicles.jsonl, vehicles.csv,
     intervals.csv (the traffic count per --interval, lane and direction), overlay.mp4 (unless --no-overlay),
@@ -847,21 +848,25 @@ def command(videos: tuple[str, ...], out_dir: Path, calibration_path: Path | Non
                         warn=lambda text: console.print(f"[yellow]warning[/]: {text}", highlight=False))
     options = RunOptions(detector, regression_path, body_shapes, limit, interval_min, duration_s, events_url,
                          no_overlay, gt_path, live_clock, start, status=status, split_every_s=split_s, zone=zone)
-    with sigterm_as_ctrl_c():  # a service stopped (systemctl/docker stop, Kubernetes) loses nothing either
-        failed = _run_inputs(console, inputs, out_dir, calibration_path, options, starts, reconnect, status, first)
-    if new and failed and failed != "interrupted" and len(inputs) > 1 and not reconnect:
-        from .run_parts import remove_a_refused_run
+    from .terminal import quiet_when_the_terminal_is_gone
 
-        if remove_a_refused_run(out_dir, inputs, new):  # every file refused: nothing new is left, as for one file
+    with quiet_when_the_terminal_is_gone():  # (the terminal gone with the SSH session: the outputs still complete)
+        with stop_signals_as_ctrl_c():  # a service stopped (systemctl/docker stop, Kubernetes), or the SSH session
+            # that started the run closed, loses nothing either
+            failed = _run_inputs(console, inputs, out_dir, calibration_path, options, starts, reconnect, status, first)
+        if new and failed and failed != "interrupted" and len(inputs) > 1 and not reconnect:
+            from .run_parts import remove_a_refused_run
+
+            if remove_a_refused_run(out_dir, inputs, new):  # every file refused: nothing new is left, as for one file
+                raise InputError(failed)
+        status.update(state="interrupted" if failed == "interrupted" else "failed" if failed else "finished",
+                      error=failed if failed and failed != "interrupted" else status.status.error,
+                      next_attempt_at=None, force=True)
+        sys.stdout.flush()
+        if failed == "interrupted":
+            sys.exit(130)  # the shell's code for Ctrl-C; every output above is complete
+        if failed:
             raise InputError(failed)
-    status.update(state="interrupted" if failed == "interrupted" else "failed" if failed else "finished",
-                  error=failed if failed and failed != "interrupted" else status.status.error,
-                  next_attempt_at=None, force=True)
-    sys.stdout.flush()
-    if failed == "interrupted":
-        sys.exit(130)  # the shell's code for Ctrl-C; every output above is complete
-    if failed:
-        raise InputError(failed)
 
 
 def _run_inputs(console: Any, inputs: list[str], out_dir: Path, calibration_path: Path | None, options: RunOptions,
@@ -912,22 +917,25 @@ def _has_audio(video: Path | str) -> bool | None:
 
 
 @contextmanager
-def sigterm_as_ctrl_c():
-    """SIGTERM — what systemctl stop, docker stop and Kubernetes send — handled as Ctrl-C while the run lasts:
-    inside a pipeline the stream is ended and every output completed (gst.runner), between pipelines (a
-    reconnection's wait) KeyboardInterrupt.  Left alone where a program ignores SIGTERM or outside the main thread."""
+def stop_signals_as_ctrl_c():
+    """SIGTERM — what systemctl stop, docker stop and Kubernetes send — and SIGHUP — the terminal that started the
+    run closed (an SSH session ended) — handled as Ctrl-C while the run lasts: inside a pipeline the stream is ended
+    and every output completed (gst.runner), between pipelines (a reconnection's wait) KeyboardInterrupt.  Left alone
+    where a program ignores the signal (SIGHUP under nohup) or outside the main thread."""
     import signal
     import threading
 
-    if threading.current_thread() is not threading.main_thread() or \
-            signal.getsignal(signal.SIGTERM) is not signal.SIG_DFL:
+    if threading.current_thread() is not threading.main_thread():
         yield
         return
-    signal.signal(signal.SIGTERM, signal.default_int_handler)
+    ours = [sig for sig in (signal.SIGTERM, signal.SIGHUP) if signal.getsignal(sig) is signal.SIG_DFL]
+    for sig in ours:
+        signal.signal(sig, signal.default_int_handler)
     try:
         yield
     finally:
-        signal.signal(signal.SIGTERM, signal.SIG_DFL)
+        for sig in ours:
+            signal.signal(sig, signal.SIG_DFL)
 
 
 def names_start(video: Path | str) -> Any:
@@ -1033,7 +1041,7 @@ def run_one(console, video: Path | str, out_dir: Path, calibration_path: Path | 
     if summary.stopped:
         at = f"{summary.position_s:.1f} s" if summary.position_s is not None else "the start"
         why = "--duration reached" if summary.stopped != "interrupted" else \
-            "stopped (SIGTERM)" if summary.stopped_by == "SIGTERM" else "interrupted (Ctrl-C)"
+            f"stopped ({summary.stopped_by})" if summary.stopped_by in ("SIGTERM", "SIGHUP") else "interrupted (Ctrl-C)"
         console.print(f"[yellow]{why}[/] at {at}: the outputs cover the video up to there", highlight=False)
 
     cal = summary.calibration

@@ -59,7 +59,8 @@ class RunOutcome:
     position_s: float | None = None  # last position seen
     duration_s: float | None = None
     stopped: str = ""  # why the run ended before the stream did ("interrupted", "duration"); "" at the stream's end
-    stopped_by: str = ""  # "interrupted": the signal that did it, "SIGINT" (Ctrl-C) or "SIGTERM" (a service stopped)
+    stopped_by: str = ""  # "interrupted": the signal that did it: "SIGINT" (Ctrl-C), "SIGTERM" (a service stopped) or
+    # "SIGHUP" (the terminal that started it closed: an SSH session ended)
     live: bool = False  # the source was live (a camera): it does not wait for us
     frames_in: int = 0  # frames that reached the live queue (see run_pipeline_file's ``live_queue``), live or not
     frames_dropped: int = 0  # of those, dropped to keep up with a live source (never from a file)
@@ -190,6 +191,11 @@ def _end_stream_at(pad: Gst.Pad, seconds: float, on_end: Callable[[], None]) -> 
     pad.add_probe(Gst.PadProbeType.BUFFER, probe)
 
 
+#: the signals that end a run as the end of the stream would: Ctrl-C; a service stopped (systemctl, docker, Kubernetes);
+#: the terminal that started the run closed (an SSH session ended: the run, killed at once before, left status.json
+#: saying "running")
+STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
+
 LIVE_QUEUE_BUFFERS = 25  # frames a live run's queue holds (a second at 25 fps) before it drops the oldest
 
 
@@ -250,9 +256,10 @@ def run_pipeline_file(description: str, progress: Progress | None = None,
     element finishes as at the stream's end (speedometer writes the vehicles still in view, mp4mux completes a
     playable file): after ``stop_after_s`` seconds of video (``outcome.stopped`` "duration"; exactly, at the first
     frame that late, when the description has an element named ``stop_element`` on the decoded video, else when
-    the pipeline's position gets there), or on Ctrl-C or SIGTERM — what ``systemctl stop``, ``docker stop`` and
-    Kubernetes send — ("interrupted", ``outcome.stopped_by`` the signal; a second one, or no end-of-stream within
-    ``drain_timeout_s``, stops it at once).
+    the pipeline's position gets there), or on Ctrl-C, SIGTERM — what ``systemctl stop``, ``docker stop`` and
+    Kubernetes send — or SIGHUP — the terminal that started it closed, e.g. its SSH session ended — ("interrupted",
+    ``outcome.stopped_by`` the signal; a second one, or no end-of-stream within ``drain_timeout_s``, stops it at
+    once).
     Raises :class:`PipelineError` when the description does not parse, :class:`RunFailed` (with the outcome so
     far) when an element posts an ERROR; the pipeline is stopped first, so elements write what they have.
     """
@@ -324,15 +331,15 @@ def run_pipeline_file(description: str, progress: Progress | None = None,
 
     interrupts = []
 
-    def on_signal(signum, frame) -> None:  # Ctrl-C or SIGTERM: finish the stream; a second one: stop at once
+    def on_signal(signum, frame) -> None:  # Ctrl-C, SIGTERM or SIGHUP: finish the stream; a second one: stop at once
         interrupts.append(signum)
         if len(interrupts) > 1:
             raise KeyboardInterrupt
 
     # only where the signals reach us (the main thread), and not one a process was told to ignore (Ctrl-C in a
-    # background job)
+    # background job, SIGHUP under nohup)
     main = threading.current_thread() is threading.main_thread()
-    previous = {sig: signal.signal(sig, on_signal) for sig in (signal.SIGINT, signal.SIGTERM)
+    previous = {sig: signal.signal(sig, on_signal) for sig in STOP_SIGNALS
                 if main and signal.getsignal(sig) is not signal.SIG_IGN}
     queue = pipeline.get_by_name(live_queue) if live_queue else None
     counted = _count_through(queue) if queue is not None else None  # () -> (frames in, dropped), from the start
