@@ -9,7 +9,8 @@ seconds while the run goes on (a reader never sees half a file), and at once whe
 Fields (``STATUS_FIELDS``; null where unknown): ``state`` (starting, running, reconnecting, finished, interrupted,
 failed), ``source`` (the input; a URI without its password), ``part`` / ``parts_done`` (the file or connection
 being measured, and how many are done), ``position_s`` / ``duration_s`` (stream seconds; no duration for a live
-stream), ``speed_x`` (stream seconds measured per wall-clock second since the last update), ``frames`` /
+stream), ``speed_x`` (stream seconds measured per wall-clock second since the last update; in the final states, over
+the whole run), ``frames`` /
 ``frames_dropped`` (the frames that reached the analysis, and those a live stream dropped because the
 machine could not keep up: a live camera does not wait), ``calibration`` (``state``, ``id``, ``source``,
 ``scale_m`` of the calibration in force),
@@ -103,6 +104,9 @@ class StatusFile:
         self.status = RunStatus(source=source)
         self._written_at: float | None = None
         self._rate_from: tuple[float, float] | None = None  # (wall, position) at the last rate update
+        self._began = clock()  # when the run began (wall): the final speed_x is over the whole run
+        self._stream_s = 0.0  # stream seconds measured in all (every part)
+        self._last_position: float | None = None
         self._failed = False
         self.write()
 
@@ -123,12 +127,22 @@ class StatusFile:
                 self.status.stream_lost_at = None
         for name, value in changes.items():
             setattr(self.status, name, value)
+        if new_state in FINAL_STATES:  # the last interval's rate said nothing of the run (0.008 after a failure)
+            self.status.speed_x = self.overall_speed_x()
         if force or self._written_at is None or self.clock() - self._written_at >= self.every_s:
             self.write()
+
+    def overall_speed_x(self) -> float | None:
+        """Stream seconds measured per wall-clock second over the whole run so far (None before any)."""
+        wall = self.clock() - self._began
+        return round(self._stream_s / wall, 3) if self._stream_s > 0 and wall > 0 else None
 
     def position(self, position_s: float, duration_s: float | None) -> None:
         """The stream position now (the rate ``speed_x`` follows from it)."""
         now = self.clock()
+        last, self._last_position = self._last_position, position_s
+        # (back to an earlier position: a new part, measured from its start)
+        self._stream_s += position_s - last if last is not None and position_s >= last else max(position_s, 0.0)
         if self._rate_from is None or position_s < self._rate_from[1]:
             self._rate_from = (now, position_s)
         elif now - self._rate_from[0] >= min(self.every_s, 5.0):

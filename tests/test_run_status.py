@@ -68,6 +68,26 @@ def test_speed_against_real_time_counts_and_warnings(tmp_path):
     assert got.warnings == ["w2", "w3", "w4", "w5", "w6"]  # the last five
 
 
+@pytest.mark.parametrize("final", ["failed", "interrupted", "finished"])
+def test_the_final_speed_is_the_whole_runs(tmp_path, final):
+    """In a final state, speed_x is the whole run's stream seconds per wall second — every part counted — not the
+    last interval's: a pipeline that stalled before it failed left 0.008, which said nothing of the run."""
+    clock, path = Clock(), tmp_path / "status.json"
+    status = StatusFile(path, "v.mp4", every_s=1.0, clock=clock)
+    for k in range(11):  # part 1: 50 s of video in 10 s
+        status.position(5.0 * k, 50.0)
+        clock.t += 1.0
+    status.position(1.0, 30.0)  # part 2, from its start: 30 s of video in 10 s, the last 5 s of it stalled
+    for k in range(1, 6):
+        clock.t += 1.0
+        status.position(1.0 + 5.792 * k, 30.0)  # to 29.96 s
+    clock.t += 5.0
+    status.position(30.0, 30.0)  # 0.04 s in the last 5 s: stalled
+    assert on_disk(path)["speed_x"] == 0.008
+    status.update(state=final, force=True)
+    assert on_disk(path)["speed_x"] == pytest.approx(80.0 / 21.0, abs=1e-3)  # 80 s of video in 21 s of wall time
+
+
 def test_bad_fields_and_states_are_programming_errors(tmp_path):
     status = StatusFile(tmp_path / "s.json", "v.mp4")
     with pytest.raises(TypeError, match="unknown status fields: colour"):
