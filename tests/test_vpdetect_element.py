@@ -318,3 +318,33 @@ def test_a_mode_set_while_running_applies_from_the_next_start_only():
     assert vpdetect.get_property("mode") == "fixed"
     with pytest.raises(PipelineError, match="mode=fixed needs calibration-file"):
         run_pipeline(pipeline)
+
+
+def test_one_calibration_file_or_views_dir_given_to_two_vpdetects_is_refused_at_start(tmp_path):
+    """Two vpdetects learning into one calibration-file or one views-dir (a tee's branches, two cameras' pipelines
+    of one NVR process): an error at start naming the file and the other writer, as for speedometer's outputs
+    (gst.file_claims). Before, each replaced the other's calibration without a word. Reading one file (mode fixed)
+    is no writing; a file written by a pipeline that has stopped is free again."""
+    cal, views = tmp_path / "cal.json", tmp_path / "views"
+    views.mkdir()
+    src = "videotestsrc num-buffers=3 ! video/x-raw,format=I420,width=160,height=120,framerate=15/1 ! tee name=t"
+
+    def two(first: str, second: str) -> str:
+        return f"{src} t. ! queue ! vpdetect {first} ! fakesink t. ! queue ! vpdetect {second} ! fakesink"
+
+    with pytest.raises(PipelineError, match=r"calibration-file .*cal.json is written already by .*GstVpdetect:"
+                                            r"vpdetect\d+ \(its calibration-file\): two vpdetects learning into one"):
+        run_pipeline(two(f"calibration-file={cal}", f"mode=learn calibration-file={tmp_path / '.' / cal.name}"))
+    with pytest.raises(PipelineError, match=r"views-dir .*views is written already by .*vpdetect\d+ \(its "
+                                            r"views-dir\)"):
+        run_pipeline(two(f"views-dir={views}", f"views-dir={tmp_path / 'x' / '..' / 'views'}"))
+    with pytest.raises(PipelineError, match=r"views-dir .*cal.json is also its calibration-file"):
+        run_pipeline(f"{src} ! vpdetect calibration-file={cal} views-dir={cal} ! fakesink")
+    other = tmp_path / "other"
+    run_pipeline(two(f"calibration-file={cal} views-dir={views}", f"calibration-file={other / 'cal.json'} "
+                                                                  f"views-dir={other}"))
+    save_calibration(Calibration(Camera(np.array([100.0, -80.0]), np.array([-900.0, -20.0]), np.array([80.0, 60.0])),
+                                 (160, 120), state="vps"), cal)
+    run_pipeline(two(f"mode=fixed calibration-file={cal}", f"mode=fixed calibration-file={cal}"))  # readers only
+    for _ in range(2):  # the claims of the refused runs and of a finished one are given back
+        run_pipeline(f"{src} ! vpdetect calibration-file={cal} views-dir={views} ! fakesink")
