@@ -67,6 +67,33 @@ def test_a_long_run_keeps_only_the_latest_messages_and_the_callback_sees_every_o
     assert len(out.named("tccheck")) == MESSAGES_KEPT
 
 
+def test_warnings_like_one_before_are_said_once_with_a_count_every_kind_kept():
+    """A PTZ camera on patrol warns at every move: the run kept each warning, and printed one line per move at the
+    end (hundreds a day).  Now a warning like one before (the same words, other numbers and ids) is counted into the
+    first one's line, which says how many more there were and the last; every other kind keeps its own line."""
+    from gst_trafficcal.gst.runner import RunOutcome
+
+    out = RunOutcome()
+    out.warn("vpdetect0: the video's pixels are not square")
+    for k in range(500):
+        out.warn(f"vpdetect0: the camera moved at {60.0 * k + 12.5:.1f} s (shifted by ({k % 7:+.0f}, -3) px, zoom "
+                 f"+{k % 3}.0 %): learning a new calibration")
+        out.warn(f"vpdetect0: the camera moved at {60.0 * k + 40.0:.1f} s to a view it was calibrated on before: "
+                 f"using calibration {'c0ffee' if k % 2 else 'b4dcafe1'} again")
+    out.warn("bbscale0: no scale: too few vehicles")
+    out.warn("vpdetect0: the video's pixels are not square")  # exactly the same: counted too
+    assert out.warnings == [
+        "vpdetect0: the video's pixels are not square (and 1 more like it, the last: vpdetect0: the video's pixels "
+        "are not square)",
+        "vpdetect0: the camera moved at 12.5 s (shifted by (+0, -3) px, zoom +0.0 %): learning a new calibration "
+        "(and 499 more like it, the last: vpdetect0: the camera moved at 29952.5 s (shifted by (+2, -3) px, zoom "
+        "+1.0 %): learning a new calibration)",
+        "vpdetect0: the camera moved at 40.0 s to a view it was calibrated on before: using calibration b4dcafe1 "
+        "again (and 499 more like it, the last: vpdetect0: the camera moved at 29980.0 s to a view it was "
+        "calibrated on before: using calibration c0ffee again)",
+        "bbscale0: no scale: too few vehicles"]
+
+
 def test_after_a_camera_move_the_run_ends_with_the_new_views_calibration():
     """The calibration a run ended with is the new view's (here: still learning), never the old view's scale that
     an element further down posted a moment after the move; each move says what measured the vehicles before."""

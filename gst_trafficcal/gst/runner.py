@@ -15,6 +15,7 @@ latest :data:`MESSAGES_KEPT`; ``on_message`` sees every one (count or sum there 
 
 from __future__ import annotations
 
+import re
 import signal
 import threading
 import time
@@ -55,6 +56,8 @@ class RunOutcome:
     # other element messages, in order: the latest MESSAGES_KEPT (every one kept grew a run's memory by about 3 kB
     # per vehicle without end; on_message of run_pipeline_file sees them all)
     messages: deque[BusMessage] = field(default_factory=lambda: deque(maxlen=MESSAGES_KEPT))
+    # the elements' warnings, each kind once: a warning like one before (the same words, other numbers: a PTZ camera's
+    # every move) is counted into the first one's line (see warn)
     warnings: list[str] = field(default_factory=list)
     position_s: float | None = None  # last position seen
     duration_s: float | None = None
@@ -64,6 +67,21 @@ class RunOutcome:
     live: bool = False  # the source was live (a camera): it does not wait for us
     frames_in: int = 0  # frames that reached the live queue (see run_pipeline_file's ``live_queue``), live or not
     frames_dropped: int = 0  # of those, dropped to keep up with a live source (never from a file)
+    _kinds: dict[str, list] = field(default_factory=dict, init=False, repr=False)  # warn's: kind -> [line, first text, count]
+
+    def warn(self, text: str) -> None:
+        """Add a warning to ``warnings``: one of a kind not seen yet as it is; one like an earlier one (the same
+        text but for its numbers and names with digits) only counted into that one's line, which then ends with how
+        many more there were and the last of them.  So a run that lasts weeks keeps one line per kind of warning,
+        and prints them once (a PTZ camera on patrol warned once per move)."""
+        kind = _NUMBERS.sub("#", text)
+        seen = self._kinds.get(kind)
+        if seen is None:
+            self._kinds[kind] = [len(self.warnings), text, 1]
+            self.warnings.append(text)
+            return
+        seen[2] += 1
+        self.warnings[seen[0]] = f"{seen[1]} (and {seen[2] - 1} more like it, the last: {text})"
 
     @property
     def calibration(self) -> Calibration | None:
@@ -102,6 +120,9 @@ class RunOutcome:
         """The fields of every element message with structure ``name`` among those kept (the latest
         :data:`MESSAGES_KEPT`)."""
         return [m.fields for m in self.messages if m.name == name]
+
+
+_NUMBERS = re.compile(r"[\w.+\-]*\d[\w.+\-]*")  # what tells warnings of one kind apart: numbers, ids, times
 
 
 class RunFailed(PipelineError):
@@ -313,7 +334,7 @@ def run_pipeline_file(description: str, progress: Progress | None = None,
             return "eos"
         if msg.type == Gst.MessageType.WARNING:
             w, _ = msg.parse_warning()
-            out.warnings.append(f"{msg.src.get_name() if msg.src else 'pipeline'}: {w.message}")
+            out.warn(f"{msg.src.get_name() if msg.src else 'pipeline'}: {w.message}")
             return None
         cal = parse_calibration_message(msg)
         if cal is not None:
