@@ -122,6 +122,72 @@ def test_after_a_camera_move_the_run_ends_with_the_new_views_calibration():
     assert (t, before.id, known.id, known.moved_at) == (60.0, new.with_scale(8.0).id, old.id, 60.0)
 
 
+def _ptz_patrol(moves: int):
+    """The calibrations a run posts while a PTZ camera patrols four presets, each move a few of them with a view
+    picture of 12 kB: the first visit of a preset learnt (learning with the move, the vanishing points, bbscale's
+    scale, a republished one), each return taken up again (vpdetect's known calibration with the move, bbscale's
+    scale put back on)."""
+    from dataclasses import replace
+
+    from gst_trafficcal.calibration import Calibration
+    from gst_trafficcal.geometry import Camera
+
+    def picture(k: int) -> dict:
+        return {"png": f"{k:08d}" + "v" * 12000, "frame_width": 640}
+
+    posted, scaled, k = [], {}, 0
+    for m in range(moves):
+        t, p = 30.0 * m + 10.0, m % 4
+        vps = Calibration(Camera((300.0 - 40 * p, -60.0), (7000.0 - 500 * p, 340.0), (320.0, 180.0)), (640, 360),
+                          state="vps", view=picture(k))
+        k += 1
+        if m == 0:
+            posted.append(("vpdetect0", vps))
+        elif p not in scaled:
+            posted += [("vpdetect0", Calibration(None, (640, 360), state="learning", moved_at=t)), ("vpdetect0", vps)]
+        else:
+            posted += [("vpdetect0", replace(scaled[p].with_scale(None), moved_at=t, view=picture(k))),
+                       ("bbscale0", replace(scaled[p], moved_at=t, view=picture(k + 1)))]
+            k += 2
+            continue
+        scaled[p] = vps.with_scale(8.0 + p, view=picture(k))
+        posted += [("bbscale0", scaled[p]), ("bbscale0", vps.with_scale(8.1 + p, view=picture(k + 1)))]
+        scaled[p] = posted[-1][1]
+        k += 2
+    return posted
+
+
+def test_a_run_of_many_posted_calibrations_keeps_the_views_and_moves_not_every_picture():
+    """A PTZ camera on patrol without --split-every: the run kept every calibration posted, 12 kB each with its view
+    picture — 9 MB a day.  Posted through add, those before the last move are folded: the calibration the run ends
+    with, the moves and each view's last scaled calibration (its picture, saved for the next part) are those of
+    every calibration posted, while the pictures held stay as many as the views, however long the patrol."""
+    from gst_trafficcal.gst.runner import RunOutcome
+
+    def said(out):
+        def key(c):
+            return None if c is None else (c.id, c.state, c.moved_at)
+        final = out.calibration
+        return (key(final), final.view, [(m.t, key(m.before), key(m.known)) for m in out.moves],
+                [(key(c), c.view) for c in out.scaled_views])
+
+    def pictures(out) -> int:
+        cals = [c for _, c in out.calibrations] + out.scaled_views
+        cals += [c for m in out.moves for c in (m.before, m.known) if c is not None]
+        return len({c.view["png"] for c in cals if c.view is not None})
+
+    posted = _ptz_patrol(400)
+    assert len(posted) > 800
+    out = RunOutcome()
+    for n, (element, cal) in enumerate(posted, 1):
+        out.add(element, cal)
+        if n % 97 == 0 or n == len(posted):
+            assert said(out) == said(RunOutcome(calibrations=posted[:n])), n  # the same as with every one kept
+            assert len(out.calibrations) <= 4 and pictures(out) <= 4 + 4, n
+    assert len(out.moves) == 399 and len(out.scaled_views) == 4
+    assert pictures(RunOutcome(calibrations=posted)) > 800  # what was kept before
+
+
 def test_errors_name_the_element_and_the_cause(tmp_path):
     text = tmp_path / "notes.mp4"
     text.write_text("hello\n" * 100)

@@ -261,19 +261,6 @@ class RunSummary:
         return c is not None and c.camera is not None and c.camera.scale is not None
 
 
-def _scaled_views(outcome) -> list:
-    """The last calibration with a scale and a view posted for each view (vanishing points) in the run."""
-    from ..calibration import latest_per_view
-
-    out: list = []
-    for _, c in outcome.calibrations:
-        if c.camera is not None and c.camera.scale is not None and c.view is not None:
-            out = latest_per_view(out, c)
-    return out
-
-
-
-
 def _stamp(path: Path) -> tuple[int, int, int] | None:
     """What tells one version of a file from another (inode, size, modification time), None when there is none."""
     try:
@@ -487,7 +474,7 @@ def measure_video(video: Path | str, out_dir: Path, description: str, console, l
                          moves=outcome.moves,
                          discarded=counts["discarded"], not_counted=(counts["brief"], counts["stationary"]),
                          remeasured=counts["remeasured"], remeasured_speeds=counts["remeasured_speeds"],
-                         scaled=_scaled_views(outcome))
+                         scaled=outcome.scaled_views)
     if status is not None:
         for w in outcome.warnings:
             status.warning(w)

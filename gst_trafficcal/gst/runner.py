@@ -10,7 +10,9 @@ Our elements must be findable: :func:`ensure_elements` puts ``elements/`` on the
     outcome.calibration, outcome.messages, outcome.warnings
 
 A run may last weeks (a live camera): of the elements' messages — several per vehicle — the outcome keeps only the
-latest :data:`MESSAGES_KEPT`; ``on_message`` sees every one (count or sum there what must cover the whole run).
+latest :data:`MESSAGES_KEPT`; ``on_message`` sees every one (count or sum there what must cover the whole run).  Of
+the calibrations posted before the last camera move it keeps what its answers need (:meth:`RunOutcome.add`), and
+each kind of warning once (:meth:`RunOutcome.warn`).
 """
 
 from __future__ import annotations
@@ -21,10 +23,10 @@ import threading
 import time
 from collections import deque
 from collections.abc import Callable, Iterable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any, NamedTuple
 
-from ..calibration import Calibration, same_vanishing_points
+from ..calibration import Calibration, latest_per_view, same_vanishing_points
 from ._gi import Gst
 from .calibration_event import parse_calibration_message
 from .element import register_plugin_file
@@ -49,10 +51,48 @@ class Move(NamedTuple):
 
 
 @dataclass
+class _Folded:
+    """What the calibrations posted before the last camera move leave for :class:`RunOutcome`'s answers: the moves
+    (their calibrations without their view pictures), the calibration with a scale in force at the end, every view's
+    vanishing points, and the last calibration with a scale and a view of each view (with its picture: saved for the
+    next part).  Bounded by the camera's views and moves, however many calibrations were posted."""
+
+    moves: list[Move] = field(default_factory=list)
+    before: Calibration | None = None
+    seen: list[Calibration] = field(default_factory=list)  # one per vanishing points, without its view picture
+    scaled: list[Calibration] = field(default_factory=list)  # one per view: latest_per_view
+
+
+def _without_view(cal: Calibration | None) -> Calibration | None:
+    return cal if cal is None or cal.view is None else replace(cal, view=None)
+
+
+def _moves(cals: Iterable[Calibration], out: list[Move], before: Calibration | None
+           ) -> tuple[list[Move], Calibration | None]:
+    """:attr:`RunOutcome.moves` on from ``out`` (a copy is extended) and ``before`` (the calibration with a scale in
+    force) over ``cals``; the moves and the calibration with a scale in force after them."""
+    out = list(out)
+    for c in cals:
+        if c.moved_at is not None:
+            known = c if c.camera is not None else None
+            if not out or out[-1].t != c.moved_at:  # the same news passed on by several elements
+                out.append(Move(float(c.moved_at), before, known))
+            elif known is not None and (out[-1].known is None or known.camera.scale is not None):
+                out[-1] = out[-1]._replace(known=known)
+            before = known if known is not None and known.camera.scale is not None else None
+        elif c.camera is not None and c.camera.scale is not None:
+            before = c
+    return out, before
+
+
+@dataclass
 class RunOutcome:
     """What the bus said during a run that reached end-of-stream."""
 
-    calibrations: list[tuple[str, Calibration]] = field(default_factory=list)  # (element name, calibration)
+    # (element name, calibration): those since the last camera move when posted through add — the earlier ones are
+    # folded into what the answers below need (a PTZ camera on patrol posts a few per move, 12 kB each with its view
+    # picture: kept, they grew a run by 9 MB a day); all when given whole
+    calibrations: list[tuple[str, Calibration]] = field(default_factory=list)
     # other element messages, in order: the latest MESSAGES_KEPT (every one kept grew a run's memory by about 3 kB
     # per vehicle without end; on_message of run_pipeline_file sees them all)
     messages: deque[BusMessage] = field(default_factory=lambda: deque(maxlen=MESSAGES_KEPT))
@@ -67,7 +107,55 @@ class RunOutcome:
     live: bool = False  # the source was live (a camera): it does not wait for us
     frames_in: int = 0  # frames that reached the live queue (see run_pipeline_file's ``live_queue``), live or not
     frames_dropped: int = 0  # of those, dropped to keep up with a live source (never from a file)
-    _kinds: dict[str, list] = field(default_factory=dict, init=False, repr=False)  # warn's: kind -> [line, first text, count]
+    _kinds: dict[str, list] = field(default_factory=dict, init=False, repr=False)  # warn's: kind -> [line, first, n]
+    _folded: _Folded = field(default_factory=_Folded, init=False, repr=False)  # calibrations before the last move
+
+    def add(self, element: str, cal: Calibration) -> None:
+        """A calibration posted by ``element``.  At a camera move the ones before are folded (:class:`_Folded`):
+        the answers stay those of every calibration posted, the memory that of the views and the moves."""
+        if cal.moved_at is not None and self.calibrations:
+            f, cals = self._folded, [c for _, c in self.calibrations]
+            moves, before = _moves(cals, f.moves, f.before)
+            f.moves = [Move(m.t, _without_view(m.before), _without_view(m.known)) for m in moves]
+            f.before = _without_view(before)
+            for c in cals:
+                if c.camera is not None:
+                    f.seen = latest_per_view(f.seen, _without_view(c))
+                if c.camera is not None and c.camera.scale is not None and c.view is not None:
+                    f.scaled = latest_per_view(f.scaled, c)
+            self.calibrations = []
+        self.calibrations.append((element, cal))
+
+    @property
+    def calibration(self) -> Calibration | None:
+        """The calibration the run ended with: the last one posted, preferring one with a scale (the one
+        speedometer measured with) over a later one without; when the camera moved, one of the new view only."""
+        cals = [c for _, c in self.calibrations]
+        moved = [i for i, c in enumerate(cals) if c.moved_at is not None]
+        if moved:  # the new view's: not the old one's, even if an element further down posted it a little later
+            old = self._folded.seen + [c for c in cals[:moved[-1]] if c.camera is not None]
+            t = cals[moved[-1]].moved_at  # (a view seen before and taken up again carries the move itself)
+            cals = [c for c in cals[moved[-1]:]
+                    if c.moved_at == t or not any(same_vanishing_points(c, o) for o in old)]
+        if not cals:
+            return None
+        with_scale = [c for c in cals if c.camera is not None and c.camera.scale is not None]
+        return with_scale[-1] if with_scale else cals[-1]
+
+    @property
+    def moves(self) -> list[Move]:
+        """Each time the camera moved: when, the calibration with a scale in force before, and the known view's
+        calibration vpdetect took up again (the one with the most said about it, e.g. bbscale's with the scale)."""
+        return _moves((c for _, c in self.calibrations), self._folded.moves, self._folded.before)[0]
+
+    @property
+    def scaled_views(self) -> list[Calibration]:
+        """The last calibration with a scale and a view posted for each view (vanishing points) in the run."""
+        out = list(self._folded.scaled)
+        for _, c in self.calibrations:
+            if c.camera is not None and c.camera.scale is not None and c.view is not None:
+                out = latest_per_view(out, c)
+        return out
 
     def warn(self, text: str) -> None:
         """Add a warning to ``warnings``: one of a kind not seen yet as it is; one like an earlier one (the same
@@ -82,39 +170,6 @@ class RunOutcome:
             return
         seen[2] += 1
         self.warnings[seen[0]] = f"{seen[1]} (and {seen[2] - 1} more like it, the last: {text})"
-
-    @property
-    def calibration(self) -> Calibration | None:
-        """The calibration the run ended with: the last one posted, preferring one with a scale (the one
-        speedometer measured with) over a later one without; when the camera moved, one of the new view only."""
-        cals = [c for _, c in self.calibrations]
-        moved = [i for i, c in enumerate(cals) if c.moved_at is not None]
-        if moved:  # the new view's: not the old one's, even if an element further down posted it a little later
-            old = [c for c in cals[:moved[-1]] if c.camera is not None]
-            t = cals[moved[-1]].moved_at  # (a view seen before and taken up again carries the move itself)
-            cals = [c for c in cals[moved[-1]:]
-                    if c.moved_at == t or not any(same_vanishing_points(c, o) for o in old)]
-        if not cals:
-            return None
-        with_scale = [c for c in cals if c.camera is not None and c.camera.scale is not None]
-        return with_scale[-1] if with_scale else cals[-1]
-
-    @property
-    def moves(self) -> list[Move]:
-        """Each time the camera moved: when, the calibration with a scale in force before, and the known view's
-        calibration vpdetect took up again (the one with the most said about it, e.g. bbscale's with the scale)."""
-        out, before = [], None
-        for _, c in self.calibrations:
-            if c.moved_at is not None:
-                known = c if c.camera is not None else None
-                if not out or out[-1].t != c.moved_at:  # the same news passed on by several elements
-                    out.append(Move(float(c.moved_at), before, known))
-                elif known is not None and (out[-1].known is None or known.camera.scale is not None):
-                    out[-1] = out[-1]._replace(known=known)
-                before = known if known is not None and known.camera.scale is not None else None
-            elif c.camera is not None and c.camera.scale is not None:
-                before = c
-        return out
 
     def named(self, name: str) -> list[dict[str, Any]]:
         """The fields of every element message with structure ``name`` among those kept (the latest
@@ -338,7 +393,7 @@ def run_pipeline_file(description: str, progress: Progress | None = None,
             return None
         cal = parse_calibration_message(msg)
         if cal is not None:
-            out.calibrations.append((msg.src.get_name() if msg.src else "", cal))
+            out.add(msg.src.get_name() if msg.src else "", cal)
             if on_calibration is not None:
                 on_calibration(*out.calibrations[-1])
             return None
