@@ -998,28 +998,18 @@ def test_a_live_stream_stopped_by_sigterm_completes_every_output(clip, rtsp_clip
     """`docker stop`, `systemctl stop` and Kubernetes send SIGTERM: the run ends as at Ctrl-C — the vehicles in view
     written, a playable overlay, the report, status "interrupted" — and says it was stopped."""
     import signal
-    import time
 
     out = tmp_path / "live"
     proc = subprocess.Popen([sys.executable, "-m", "gst_trafficcal", "run", rtsp_clip, "--out", str(out),
                              "--calibration", str(clip / "calibration.json"), "--status-interval", "1"],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    deadline = time.monotonic() + 120
-    while time.monotonic() < deadline and proc.poll() is None:  # until the first vehicle has left
-        if (out / "vehicles.jsonl").is_file() and (out / "vehicles.jsonl").read_text().strip():
-            break
-        time.sleep(0.2)
+    _wait_for_a_vehicle(proc, out)
     assert proc.poll() is None, proc.communicate()
     proc.send_signal(signal.SIGTERM)
     stdout, stderr = proc.communicate(timeout=120)
     assert proc.returncode == 130, stdout[-2000:] + stderr[-2000:]
     assert "stopped (SIGTERM) at" in stdout and "Traceback" not in stderr
-    events = read_events(out / "vehicles.jsonl").events
-    status = read_status(out / "status.json")
-    assert status.state == "interrupted" and status.vehicles == len(events) >= 2
-    assert 12 < count_frames(out / "overlay.mp4") < 150  # completed by the end-of-stream: playable
-    for name in ("calibration.json", "system.json", "vehicles.csv", "intervals.csv", "report.html"):
-        assert (out / name).is_file(), name
+    _assert_interrupted_with_every_output(out)
 
 
 def test_a_run_whose_ssh_session_closes_completes_every_output(clip, rtsp_clip, tmp_path):
@@ -1031,7 +1021,6 @@ def test_a_run_whose_ssh_session_closes_completes_every_output(clip, rtsp_clip, 
     import fcntl
     import termios
     import threading
-    import time
 
     out = tmp_path / "live"
     master, slave = os.openpty()
@@ -1054,20 +1043,11 @@ def test_a_run_whose_ssh_session_closes_completes_every_output(clip, rtsp_clip, 
             pass
 
     threading.Thread(target=read_terminal, daemon=True).start()
-    deadline = time.monotonic() + 120
-    while time.monotonic() < deadline and proc.poll() is None:  # until the first vehicle has left
-        if (out / "vehicles.jsonl").is_file() and (out / "vehicles.jsonl").read_text().strip():
-            break
-        time.sleep(0.2)
+    _wait_for_a_vehicle(proc, out)
     assert proc.poll() is None, b"".join(said)[-3000:]
     os.close(master)  # the SSH session closes: SIGHUP, and the terminal is gone
     assert proc.wait(timeout=120) == 130, (proc.returncode, b"".join(said)[-3000:])
-    events = read_events(out / "vehicles.jsonl").events
-    status = read_status(out / "status.json")
-    assert status.state == "interrupted" and status.vehicles == len(events) >= 2
-    assert 12 < count_frames(out / "overlay.mp4") < 150  # completed by the end-of-stream: playable
-    for name in ("calibration.json", "system.json", "vehicles.csv", "intervals.csv", "report.html"):
-        assert (out / name).is_file(), name
+    _assert_interrupted_with_every_output(out)
 
 
 def test_a_camera_move_is_told_with_what_it_cost():
@@ -1229,3 +1209,25 @@ def test_a_rotated_video_is_analysed_upright(tmp_path):
     cap = cv2.VideoCapture(str(tmp_path / "out" / "overlay.mp4"))
     assert cap.read()[1].shape == (640, 360, 3)
     cap.release()
+
+
+def _wait_for_a_vehicle(proc: subprocess.Popen, out: Path) -> None:
+    """Until the live run ``proc`` has written its first vehicle (it left the view) to ``out``, or ended."""
+    import time
+
+    deadline = time.monotonic() + 120
+    while time.monotonic() < deadline and proc.poll() is None:
+        if (out / "vehicles.jsonl").is_file() and (out / "vehicles.jsonl").read_text().strip():
+            break
+        time.sleep(0.2)
+
+
+def _assert_interrupted_with_every_output(out: Path) -> None:
+    """A live run stopped by a signal: status.json "interrupted" counting every vehicle written, an overlay
+    completed by the end-of-stream (playable), and every other output."""
+    events = read_events(out / "vehicles.jsonl").events
+    status = read_status(out / "status.json")
+    assert status.state == "interrupted" and status.vehicles == len(events) >= 2
+    assert 12 < count_frames(out / "overlay.mp4") < 150
+    for name in ("calibration.json", "system.json", "vehicles.csv", "intervals.csv", "report.html"):
+        assert (out / name).is_file(), name
