@@ -432,3 +432,22 @@ def test_frame_bgr_reduced_equals_the_full_conversion_reduced(fmt: str) -> None:
     else:
         assert diff.max() == 0
     assert got["full"].std() > 30  # a real picture
+
+
+def test_the_stream_clock_after_a_flush_and_by_an_offset_given():
+    """The first frame after a flushing seek is another moment: a frame back goes on one interval after the last
+    (not a frame out of order, given the last time again), no interval is measured across a seek forward; a clock
+    that saw fewer frames (flushed on their way to it) follows the offset given from upstream to the same times,
+    and never goes back for one."""
+    from gst_trafficcal.gst.buffers import StreamClock
+
+    up, down = StreamClock(), StreamClock()
+    for k in range(150):  # up saw 6 s, down 3 s: the rest was in a queue when the seek came
+        up(0.04 * k)
+        if k <= 75:
+            down(0.04 * k)
+    assert up(5.92, flushed=True) == pytest.approx(6.0) and up.jumps == [(5.92, pytest.approx(6.0))]
+    assert down.follow(5.92, up.offset) == up.last and down.jumps == [(5.92, up.last)]
+    assert [up(5.96), up(6.0)] == [down(5.96), down(6.0)] == [pytest.approx(6.04), pytest.approx(6.08)]
+    assert up(20.0, flushed=True) == 20.08 and up(20.04) == pytest.approx(20.12) and max(up._steps) < 0.05
+    assert down.follow(1.0, 0.0) == pytest.approx(6.12) and len(down.jumps) == 2  # an offset that would go back

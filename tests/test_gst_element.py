@@ -5,6 +5,7 @@ from __future__ import annotations
 import os
 import subprocess
 import threading
+import time
 from pathlib import Path
 
 import numpy as np
@@ -220,3 +221,44 @@ def test_subclass_with_fewer_formats_names_its_own_in_the_error() -> None:
     run = run_pipeline("videotestsrc num-buffers=1 ! video/x-raw,width=32,height=24 ! videoconvert ! tcgrayonly ! "
                        "appsink name=sink")
     assert [f.format for f in run.frames] == ["GRAY8"]
+
+
+@pytest.mark.parametrize("target", [4.0, 5.92, 8.0])
+def test_a_frame_has_one_time_in_every_element_after_a_flushing_seek(target):
+    """A flushing seek (at 6 s, back to 4 s, a frame-and-a-bit back, forward to 8 s) with a ``queue`` between two
+    elements holding frames the seek flushes: each frame after it has the same time in both, and the time never
+    goes back in either.  Before, each element's clock went on from the last frame it had seen: the one downstream
+    of the queue, frames behind, gave every frame after a seek back a time seconds before the upstream one's
+    (clock_event: the upstream element's offset is pushed before the frame)."""
+    pipeline = Gst.parse_launch("videotestsrc num-buffers=300 ! video/x-raw,width=64,height=48,framerate=25/1 "
+                                "! tccheck name=up ! queue max-size-buffers=200 max-size-time=0 max-size-bytes=0 "
+                                "name=q ! tccheck name=down ! appsink name=sink")
+    sought: list[bool] = []
+
+    def seek_at_6s(pad, info):
+        if not sought and info.get_buffer().pts >= 6 * Gst.SECOND:
+            sought.append(True)
+            pipeline.call_async(lambda p: p.seek_simple(Gst.Format.TIME, Gst.SeekFlags.FLUSH | Gst.SeekFlags.ACCURATE,
+                                                        int(target * Gst.SECOND)))
+        return Gst.PadProbeReturn.OK
+
+    def slow(pad, info):  # the element after the queue is slower: the queue holds frames when the seek comes
+        time.sleep(0.004)
+        return Gst.PadProbeReturn.OK
+
+    pipeline.get_by_name("up").get_static_pad("src").add_probe(Gst.PadProbeType.BUFFER, seek_at_6s)
+    pipeline.get_by_name("q").get_static_pad("src").add_probe(Gst.PadProbeType.BUFFER, slow)
+    run = run_pipeline(pipeline)
+    up, down = ([(m.fields["stream"], m.fields["t"]) for m in run.messages if m.source == name and m.name == "tccheck"]
+                for name in ("up", "down"))
+    for seen in (up, down):
+        assert all(b[1] > a[1] for a, b in zip(seen, seen[1:])), seen  # never back, never twice
+    first = next(i for i in range(1, len(up)) if abs(up[i][0] - up[i - 1][0] - 0.04) > 1e-6)  # after the seek
+    assert up[first][0] == pytest.approx(target, abs=1e-6) and up[first - 1][0] >= 6.0
+    lost = [f for f in up[:first] if f not in down]  # flushed in the queue
+    assert len(lost) >= 5, (len(lost), up[first - 1], down[:3])
+    assert down[-(len(up) - first):] == up[first:]  # the frames after the seek: the same times
+    if target < 6.0:
+        assert up[first][1] == pytest.approx(up[first - 1][1] + 0.04)  # goes on after the last frame before it
+    else:
+        assert up[first][1] == pytest.approx(target)

@@ -394,8 +394,9 @@ class StreamClock:
     without a jitter buffer), not a new part: it is given the time of the frame before it and the timestamps keep
     their own time (each such frame used to move the time on by a frame for good: a second ahead after 25 of them,
     and every speed measured across one too low).  A second step back in a row is a jump after all (reverse
-    playback).  Every element applies the same rule to the same buffers, so their times agree.  A plain file or
-    live stream is its timestamps exactly."""
+    playback).  Every element applies the same rule to the same buffers, so their times agree; after a flushing
+    seek, whose flush dropped frames between the elements, those downstream take the offset of the first
+    (:meth:`follow`).  A plain file or live stream is its timestamps exactly."""
 
     def __init__(self) -> None:
         self.offset = 0.0
@@ -405,15 +406,19 @@ class StreamClock:
         self._steps: list[float] = []
         self._held: float | None = None  # the timestamp of the frame just held at the time before it
 
-    def __call__(self, pts_s: float | None) -> float | None:
+    def __call__(self, pts_s: float | None, flushed: bool = False) -> float | None:
+        """The time of a frame at stream time ``pts_s``; ``flushed``: the first timed frame after a flushing seek,
+        another moment whichever way it went: not a frame out of order, and no frame interval measured across it."""
         if pts_s is None:
             return None
         t = pts_s + self.offset
         held, self._held = self._held, None
+        if flushed:
+            held = None
         if self.last is not None:
-            if t < self.last:
+            if t < self.last or (flushed and t <= self.last):
                 step = float(np.median(self._steps)) if self._steps else 0.04
-                if held is None and self.last - t <= 2 * step + 1e-9:
+                if not flushed and held is None and self.last - t <= 2 * step + 1e-9:
                     self._held = pts_s
                     return self.last
                 self.offset += self.last + step - t
@@ -422,7 +427,23 @@ class StreamClock:
             else:
                 if held is not None:  # the frame held is followed by one going on: it was out of order
                     self.out_of_order += 1
-                if t > self.last:
+                if t > self.last and not flushed:
                     self._steps = (self._steps + [t - self.last])[-25:]
         self.last = t = round(t, 9)  # nanoseconds, as the timestamps (no float residue from the offset)
+        return t
+
+    def follow(self, pts_s: float | None, offset: float) -> float | None:
+        """The time of a frame at stream time ``pts_s`` by the ``offset`` an element upstream gave it
+        (:mod:`.clock_event`): after a flushing seek the elements' clocks had seen different frames (those flushed
+        on their way between them), and each going on from its own last frame would put them frames apart.  Should
+        the offset take this clock back (it is not fed by that element alone), the frame is timed as a flushed one
+        of its own."""
+        if pts_s is None:
+            return None
+        t = round(pts_s + offset, 9)
+        if self.last is not None and t < self.last:
+            return self(pts_s, flushed=True)
+        if offset > self.offset:
+            self.jumps.append((pts_s, t))
+        self.offset, self.last, self._held = offset, t, None
         return t

@@ -30,7 +30,8 @@ What the base does:
 - ``self.buffer_t``: the time of the buffer being transformed, in seconds — its stream time (its timestamp mapped
   by the segment: a file's own time, from 0 even when its timestamps start elsewhere), never going backwards
   (:class:`~gst_trafficcal.gst.buffers.StreamClock`: parts joined by ``concat``, a seek back), the same in every
-  element; None when the buffer has no timestamp;
+  element (after a jump the first element's clock offset goes downstream before the frame, :mod:`.clock_event`:
+  frames flushed between two elements do not put them apart); None when the buffer has no timestamp;
 - hook :meth:`on_jump` at the first timed buffer after the stream jumped (a flushing seek, either way; timestamps
   gone back: parts joined by ``concat``): nothing seen before it continues after it (tracks end there);
 - keeps the latest calibration received from upstream in ``self.calibration`` (hook
@@ -64,6 +65,7 @@ from ._gi import GLib, GObject, Gst, GstBase, GstVideo
 from .buffers import (SUPPORTED_FORMATS, StreamClock, format_name, frame_bgr, frame_gray, frame_planes,
                       stream_seconds, video_caps_string, video_info_from_caps)
 from .calibration_event import calibration_event, calibration_message, parse_calibration_event
+from .clock_event import clock_event, parse_clock_event
 from .meta import make_structure
 
 
@@ -112,7 +114,9 @@ class TrafficcalTransform(GstBase.BaseTransform):
         self.stream_clock = StreamClock()
         self.buffer_t: float | None = None
         self._segment: Gst.Segment | None = None  # the last SEGMENT event's: buffer_t is stream time
+        self._segment_seqnum: int | None = None  # its seqnum (a seek's after a flushing seek)
         self._flushed_mid_run = False  # a FLUSH_STOP (a flushing seek) after frames: on_jump at the next timed one
+        self._given_offset: float | None = None  # the clock's offset an element upstream gave the next frame
         self._said_untimed = False  # warn_untimed: said once per run
         self._said_non_square = False  # warn_non_square: said once per run
         self._views_warned = False  # keep_scale_view: said once per run
@@ -322,6 +326,9 @@ class TrafficcalTransform(GstBase.BaseTransform):
             self.calibration = cal
             if not self.on_calibration(cal):
                 return True  # consumed: not forwarded
+        elif event.type == Gst.EventType.CUSTOM_DOWNSTREAM and (given := parse_clock_event(event)) is not None:
+            if self._segment_seqnum in (None, given[1]):  # of the segment we have: the frames after it follow it
+                self._given_offset = given[0]
         elif event.type == Gst.EventType.CUSTOM_DOWNSTREAM:
             try:
                 if not self.on_custom_event(event):
@@ -330,8 +337,10 @@ class TrafficcalTransform(GstBase.BaseTransform):
                 self.post_warning(f"ignoring invalid {event.get_structure().get_name()} event: {exc}")
         elif event.type == Gst.EventType.SEGMENT:
             self._segment = event.parse_segment().copy()
+            self._segment_seqnum = event.get_seqnum()
         elif event.type == Gst.EventType.FLUSH_STOP:  # a flushing seek: the next frame is another moment
             self._flushed_mid_run = self._flushed_mid_run or self.stream_clock.last is not None
+            self._given_offset = None
         elif event.type == Gst.EventType.EOS:
             try:
                 self.on_eos()
@@ -347,10 +356,18 @@ class TrafficcalTransform(GstBase.BaseTransform):
 
     def do_transform_ip(self, buffer: Gst.Buffer) -> Gst.FlowReturn:
         self._push_pending_calibration()
-        jumps = len(self.stream_clock.jumps)
-        self.buffer_t = self.stream_clock(stream_seconds(buffer, self._segment))
+        clock = self.stream_clock
+        jumps, offset, pts_s = len(clock.jumps), clock.offset, stream_seconds(buffer, self._segment)
+        given, self._given_offset = self._given_offset, (self._given_offset if pts_s is None else None)
+        if given is not None:  # an element upstream timed this frame after a jump: the same time here
+            self.buffer_t = clock.follow(pts_s, given)
+        else:
+            self.buffer_t = clock(pts_s, flushed=self._flushed_mid_run)
+            if self.buffer_t is not None and (self._flushed_mid_run or clock.offset != offset):
+                # the elements downstream go on from another last frame (frames were flushed between): tell them
+                self.srcpad.push_event(clock_event(clock.offset, self._segment_seqnum or 0))
         try:
-            if self.buffer_t is not None and (self._flushed_mid_run or len(self.stream_clock.jumps) > jumps):
+            if self.buffer_t is not None and (self._flushed_mid_run or len(clock.jumps) > jumps):
                 self._flushed_mid_run = False
                 self.on_jump(self.buffer_t)
             return self.transform_frame(buffer)

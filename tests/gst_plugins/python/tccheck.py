@@ -2,11 +2,13 @@
 
 Passthrough (it never writes). Per frame it reads the ROIs (read_vehicle_rois) and posts an
 element message ``tccheck`` with their count, the first ROI's box and mean, and the id of the
-calibration it received from upstream through the base class (empty when none).
+calibration it received from upstream through the base class (empty when none), and the frame's time in the
+element (``t``: its ``buffer_t``, -1 when untimed) with its stream time (``stream``).
 """
 
 from gst_trafficcal.gst.element import TrafficcalTransform
 from gst_trafficcal.gst._gi import GObject, Gst
+from gst_trafficcal.gst.buffers import stream_seconds
 from gst_trafficcal.gst.meta import read_vehicle_rois
 
 
@@ -25,7 +27,9 @@ class TcCheck(TrafficcalTransform):
 
     def transform_frame(self, buffer):
         rois = read_vehicle_rois(buffer, self.frame_size)
-        fields = {"rois": len(rois), "calibration": self.calibration.id if self.calibration else ""}
+        fields = {"rois": len(rois), "calibration": self.calibration.id if self.calibration else "",
+                  "t": -1.0 if self.buffer_t is None else self.buffer_t,
+                  "stream": stream_seconds(buffer, self._segment) or 0.0}
         if rois:
             fields["box"] = list(rois[0].box)
             fields["mean"] = rois[0].params.get("tc-test", {}).get("mean", -1.0)
