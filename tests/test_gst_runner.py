@@ -297,11 +297,18 @@ def test_sigterm_finishes_the_stream_as_ctrl_c_does(tmp_path, name):
         if pos >= 0.5:
             os.kill(os.getpid(), sig)  # while the bus loop runs
 
-    before = signal.getsignal(sig)
-    out = run_pipeline_file(ENDLESS.format(tmp_path / "t.mp4"), progress=terminate, poll_s=0.05)
-    assert out.stopped == "interrupted" and out.stopped_by == name
-    assert _frames(tmp_path / "t.mp4") >= 10  # completed by the end-of-stream: playable up to there
-    assert signal.getsignal(sig) is before
+    # as in a login session: a test run under nohup ignores SIGHUP, and the runner leaves an ignored signal alone
+    # (the stream would never end)
+    inherited = signal.signal(sig, signal.SIG_DFL) if sig == signal.SIGHUP else None
+    try:
+        before = signal.getsignal(sig)
+        out = run_pipeline_file(ENDLESS.format(tmp_path / "t.mp4"), progress=terminate, poll_s=0.05)
+        assert out.stopped == "interrupted" and out.stopped_by == name
+        assert _frames(tmp_path / "t.mp4") >= 10  # completed by the end-of-stream: playable up to there
+        assert signal.getsignal(sig) is before
+    finally:
+        if inherited is not None:
+            signal.signal(sig, inherited)
 
 
 def test_a_live_stream_too_fast_for_the_machine_drops_its_oldest_frames_a_file_never_does(tmp_path):

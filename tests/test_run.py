@@ -1019,6 +1019,7 @@ def test_a_run_whose_ssh_session_closes_completes_every_output(clip, rtsp_clip, 
     report — and status.json says "interrupted", though nothing can be printed any more.  Before, SIGHUP killed the
     process at once: the outputs up to there survived, but status.json said "running" for good."""
     import fcntl
+    import signal
     import termios
     import threading
 
@@ -1027,6 +1028,7 @@ def test_a_run_whose_ssh_session_closes_completes_every_output(clip, rtsp_clip, 
 
     def controlling_terminal() -> None:  # (after setsid: start_new_session) the pty becomes the session's terminal
         fcntl.ioctl(0, termios.TIOCSCTTY, 0)
+        signal.signal(signal.SIGHUP, signal.SIG_DFL)  # as in a login session (tests run under nohup ignore it)
 
     proc = subprocess.Popen([sys.executable, "-m", "gst_trafficcal", "run", rtsp_clip, "--out", str(out),
                              "--calibration", str(clip / "calibration.json"), "--status-interval", "1"],
