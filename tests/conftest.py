@@ -207,3 +207,21 @@ class Receiver:
     def close(self):
         self.server.shutdown()
         self.server.server_close()
+
+
+def seek_once(pipeline, pad, target_s: float, at_s: float = 6.0) -> list[bool]:
+    """A flushing, accurate seek of ``pipeline`` to ``target_s`` when the first buffer at or after ``at_s`` passes
+    ``pad`` (asked from the pipeline's thread, as a player does); the list returned holds True once it was asked."""
+    from gst_trafficcal.gst._gi import Gst
+
+    sought: list[bool] = []
+
+    def probe(_pad, info):
+        if not sought and info.get_buffer().pts >= at_s * Gst.SECOND:
+            sought.append(True)
+            pipeline.call_async(lambda p: p.seek_simple(Gst.Format.TIME, Gst.SeekFlags.FLUSH | Gst.SeekFlags.ACCURATE,
+                                                        int(target_s * Gst.SECOND)))
+        return Gst.PadProbeReturn.OK
+
+    pad.add_probe(Gst.PadProbeType.BUFFER, probe)
+    return sought

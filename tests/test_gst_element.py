@@ -19,6 +19,7 @@ from gst_trafficcal.gst._gi import Gst  # noqa: E402
 from gst_trafficcal.gst.element import TrafficcalTransform, register_plugin_file  # noqa: E402
 from gst_trafficcal.gst.env import gst_environment  # noqa: E402
 from gst_trafficcal.gst.pipeline import PipelineError, run_pipeline  # noqa: E402
+from .conftest import seek_once  # noqa: E402
 
 PLUGINS = Path(__file__).resolve().parent / "gst_plugins"
 
@@ -233,20 +234,12 @@ def test_a_frame_has_one_time_in_every_element_after_a_flushing_seek(target):
     pipeline = Gst.parse_launch("videotestsrc num-buffers=300 ! video/x-raw,width=64,height=48,framerate=25/1 "
                                 "! tccheck name=up ! queue max-size-buffers=200 max-size-time=0 max-size-bytes=0 "
                                 "name=q ! tccheck name=down ! appsink name=sink")
-    sought: list[bool] = []
-
-    def seek_at_6s(pad, info):
-        if not sought and info.get_buffer().pts >= 6 * Gst.SECOND:
-            sought.append(True)
-            pipeline.call_async(lambda p: p.seek_simple(Gst.Format.TIME, Gst.SeekFlags.FLUSH | Gst.SeekFlags.ACCURATE,
-                                                        int(target * Gst.SECOND)))
-        return Gst.PadProbeReturn.OK
 
     def slow(pad, info):  # the element after the queue is slower: the queue holds frames when the seek comes
         time.sleep(0.004)
         return Gst.PadProbeReturn.OK
 
-    pipeline.get_by_name("up").get_static_pad("src").add_probe(Gst.PadProbeType.BUFFER, seek_at_6s)
+    seek_once(pipeline, pipeline.get_by_name("up").get_static_pad("src"), target)
     pipeline.get_by_name("q").get_static_pad("src").add_probe(Gst.PadProbeType.BUFFER, slow)
     run = run_pipeline(pipeline)
     up, down = ([(m.fields["stream"], m.fields["t"]) for m in run.messages if m.source == name and m.name == "tccheck"]

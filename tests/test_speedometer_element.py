@@ -22,7 +22,7 @@ from gst_trafficcal.gst.pipeline import PipelineError, run_pipeline  # noqa: E40
 from gst_trafficcal.outputs import read_events, read_events_csv  # noqa: E402
 from gst_trafficcal.synth.groundtruth import read_jsonl  # noqa: E402
 
-from .conftest import VIDEOS, require_shared, track_spans  # noqa: E402
+from .conftest import VIDEOS, require_shared, seek_once, track_spans  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 ELEMENTS = ROOT / "elements" / "python"
@@ -642,16 +642,8 @@ def test_a_seek_ends_every_track_and_no_vehicle_is_measured_across_it(clip, tmp_
     pipeline = Gst.parse_launch(f"{source(clip)} ! {detector(clip)} name=det ! {chain} "
                                 f"calibration-file={clip / 'calibration.json'} events-file={events_file} "
                                 "! appsink name=sink")
-    sought: list[bool] = []
 
-    def seek_at_6s(pad, info):
-        if not sought and info.get_buffer().pts >= 6 * Gst.SECOND:
-            sought.append(True)
-            pipeline.call_async(lambda p: p.seek_simple(Gst.Format.TIME, Gst.SeekFlags.FLUSH | Gst.SeekFlags.ACCURATE,
-                                                        int(target * Gst.SECOND)))
-        return Gst.PadProbeReturn.OK
-
-    pipeline.get_by_name("det").get_static_pad("src").add_probe(Gst.PadProbeType.BUFFER, seek_at_6s)
+    seek_once(pipeline, pipeline.get_by_name("det").get_static_pad("src"), target)
     run = run_pipeline(pipeline)
     pts = [f.pts for f in run.frames]
     after = next(i for i in range(1, len(pts)) if abs(pts[i] - pts[i - 1] - 0.08) > 0.01)  # the first frame after it
