@@ -1213,6 +1213,41 @@ def test_a_rotated_video_is_analysed_upright(tmp_path):
     cap.release()
 
 
+def test_a_rotated_stream_takes_a_calibration_of_its_upright_picture(tmp_path):
+    """A stream's rotation is not read before the run starts (videoflip video-direction=auto turns it by its tag):
+    here an MP4 of a phone, read over HTTP.  The elements are first told the stored 640x360 and, once the tag has
+    come (before any frame), the turned 360x640.  A --calibration of the upright picture was refused at those first
+    caps (a calibration of 360x640 images but the video is 640x360); the size is now checked at the first frame."""
+    import functools
+    import threading
+    from http.server import SimpleHTTPRequestHandler, ThreadingHTTPServer
+
+    from .conftest import encoded, rotation_tagged
+
+    rotation_tagged(encoded(tmp_path / "stored.mp4", "width=640,height=360", frames=25), tmp_path / "p.mp4")
+    cal = tmp_path / "portrait.json"
+    cal.write_text(json.dumps(PORTRAIT))
+
+    class Quiet(SimpleHTTPRequestHandler):
+        def log_message(self, *args):
+            pass
+
+    server = ThreadingHTTPServer(("127.0.0.1", 0), functools.partial(Quiet, directory=str(tmp_path)))
+    threading.Thread(target=server.serve_forever, daemon=True).start()
+    try:
+        uri = f"http://127.0.0.1:{server.server_port}/p.mp4"
+        proc = trafficcal("run", uri, "--out", tmp_path / "out", "--calibration", cal)
+    finally:
+        server.shutdown()
+        server.server_close()
+    assert proc.returncode == 0, proc.stdout[-2000:] + proc.stderr[-2000:]
+    assert "videoflip video-direction=auto ! videoscale" in proc.stdout
+    assert load_calibration(tmp_path / "out" / "calibration.json").image_size == (360, 640)
+    cap = cv2.VideoCapture(str(tmp_path / "out" / "overlay.mp4"))
+    assert cap.read()[1].shape == (640, 360, 3)
+    cap.release()
+
+
 def _wait_for_a_vehicle(proc: subprocess.Popen, out: Path) -> None:
     """Until the live run ``proc`` has written its first vehicle (it left the view) to ``out``, or ended."""
     import time

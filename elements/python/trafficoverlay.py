@@ -136,7 +136,7 @@ class TrafficOverlay(TrafficcalTransform):
         self._yuv = (kr, kb, full) if ok else (0.299, 0.114, full)
         wrong = self.file_calibration_mismatch(self._file_cal, self.calibration_file)
         if wrong:
-            self.post_error(f"trafficoverlay: {wrong}")
+            self.refuse_size(f"trafficoverlay: {wrong}")  # at the first frame: a stream's rotation may turn it
         from gst_trafficcal.gst.buffers import format_name
 
         if format_name(info) == "GRAY8" and not self._said_grey:  # a thermal or monochrome camera, as it came

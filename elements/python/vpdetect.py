@@ -187,8 +187,9 @@ class VpDetect(TrafficcalTransform):
                 if cal.camera is None:
                     raise ValueError(f"{path}: holds no vanishing points (state {cal.state})")
                 wrong = self.file_calibration_mismatch(cal, path)
-                if wrong:
-                    raise ValueError(wrong)
+                if wrong:  # said at the first frame (a stream's rotation may turn it before), published at none
+                    self.refuse_size(f"vpdetect: {wrong}")
+                    return
             except Exception as exc:
                 self.post_error(f"vpdetect: {exc}")
                 return

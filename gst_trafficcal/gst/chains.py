@@ -10,7 +10,9 @@ in silence).  Both pass a video that is upright and of square pixels through unt
 
 A file's rotation is read before the pipeline starts and given to videoflip: with ``video-direction=auto`` the
 elements are first told the stored size (caps come before the tag) and only then the turned one, and a calibration
-file of the upright picture was refused at the first.  A stream's is not known up front: ``auto`` there.
+file of the upright picture was refused at the first.  A stream's is not known up front: ``auto`` there, and the
+elements check a calibration's (and a zone's) size at the first frame, by when the tag has turned the caps
+(``TrafficcalTransform.refuse_size``).
 """
 
 from __future__ import annotations

@@ -123,6 +123,8 @@ class TrafficcalTransform(GstBase.BaseTransform):
         self._pending_calibration: Calibration | None = None
         self._refused_caps: set[str] = set()
         self._streaming = False  # caps negotiated, until stopped: READY_ONLY properties are read by now
+        self._framed = False  # a frame came in this run
+        self._held_at_caps: list[tuple[bool, str]] = []  # (an error?, text) about these caps, said at the first frame
 
     # ------------------------------------------------------------------ properties
 
@@ -216,6 +218,17 @@ class TrafficcalTransform(GstBase.BaseTransform):
                 f"pixels of {w}x{h}): calibrate this video's size (without the file, or trafficcal calibrate), or "
                 f"scale the video to {w}x{h} before the elements (videoscale ! video/x-raw,width={w},height={h})")
 
+    def refuse_size(self, text: str, error: bool = True) -> None:
+        """Say ``text`` (an ERROR, or a WARNING when not ``error``) about the negotiated frame size: now once frames
+        have come, else at the first frame if the caps still stand then.  Before the first frame the size may change:
+        a stream's rotation is known from its tag, and ``videoflip video-direction=auto`` announces the stored size
+        first and the turned one when the tag comes, before any frame (a calibration of the upright picture was
+        refused at the first caps)."""
+        if self._framed:
+            (self.post_error if error else self.post_warning)(text)
+        else:
+            self._held_at_caps.append((error, text))
+
     def keep_scale_view(self, cal: Calibration, folder: str) -> None:
         """Keep ``cal`` (a scale found for a view) in the camera's views ``folder`` (``views-dir``, as vpdetect reads
         it), so that after a restart vpdetect announces the view with its scale at once; a folder that cannot be
@@ -268,15 +281,15 @@ class TrafficcalTransform(GstBase.BaseTransform):
 
     def zone_fits(self, zone: Any, size: tuple[int, int], name: str) -> bool:
         """Check a detection ``zone`` (gst_trafficcal.zone.Zone) against frames of ``size``: an ERROR (False) when it
-        covers none of their pixels, a WARNING when it looks written for another resolution; ``name`` starts the
-        text."""
+        covers none of their pixels, a WARNING when it looks written for another resolution (both said at the first
+        frame if these caps still stand then: :meth:`refuse_size`); ``name`` starts the text."""
         wrong = zone.check(size)
         if wrong:
-            self.post_error(f"{name}: {wrong}")
+            self.refuse_size(f"{name}: {wrong}")
             return False
         doubt = zone.doubt(size)
         if doubt:
-            self.post_warning(f"{name}: {doubt}")
+            self.refuse_size(f"{name}: {doubt}", error=False)
         return True
 
     def post_info(self, text: str) -> None:
@@ -312,6 +325,7 @@ class TrafficcalTransform(GstBase.BaseTransform):
         self.video_info = info
         self.frame_size = (int(info.width), int(info.height))
         self._streaming = True
+        self._held_at_caps = []  # what was wrong with the caps before these no longer applies
         self.on_caps(info)
         return True
 
@@ -355,6 +369,12 @@ class TrafficcalTransform(GstBase.BaseTransform):
             self.srcpad.push_event(calibration_event(cal))
 
     def do_transform_ip(self, buffer: Gst.Buffer) -> Gst.FlowReturn:
+        self._framed = True
+        held, self._held_at_caps = self._held_at_caps, []
+        for error, text in held:  # the caps refused before the first frame (refuse_size) stand: say it now
+            (self.post_error if error else self.post_warning)(text)
+        if any(error for error, _ in held):
+            return Gst.FlowReturn.ERROR
         self._push_pending_calibration()
         clock = self.stream_clock
         jumps, offset, pts_s = len(clock.jumps), clock.offset, stream_seconds(buffer, self._segment)
