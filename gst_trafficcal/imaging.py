@@ -49,10 +49,32 @@ def squared(frame: np.ndarray, par: Fraction) -> np.ndarray:
     return cv2.resize(frame, size, interpolation=cv2.INTER_LINEAR)
 
 
-def video_rotation(path: str | Path) -> int | None:
-    """Degrees (0, 90, 180 or 270) a video file's frames are turned clockwise when shown (a phone's or a body
-    camera's display matrix), as OpenCV's FFmpeg reads it (and applies it to the frames it gives); None when
-    OpenCV cannot open the file (GStreamer may still play it: it then turns it by the tag it reads)."""
+# videoflip's video-direction for each display matrix that turns or mirrors a picture, as the 2x2 matrix taking a
+# stored pixel's (x, y) about the centre (y down) to where it is shown; a display matrix's a, b, c, d give [[a, c],
+# [b, d]].  horiz, vert, ul-lr and ur-ll are a mirrored picture (a selfie camera's, a mirror-image recording), as
+# GStreamer's qtdemux tags it flip-rotate-0, flip-rotate-180, flip-rotate-270 (and flip-rotate-90: 1.22 does not
+# tag ur-ll) and ``videoflip video-direction=auto`` shows it.
+DIRECTIONS: dict[str, tuple[tuple[int, int], tuple[int, int]]] = {
+    "identity": ((1, 0), (0, 1)), "90r": ((0, -1), (1, 0)), "180": ((-1, 0), (0, -1)), "90l": ((0, 1), (-1, 0)),
+    "horiz": ((-1, 0), (0, 1)), "vert": ((1, 0), (0, -1)), "ul-lr": ((0, 1), (1, 0)), "ur-ll": ((0, -1), (-1, 0))}
+_ROTATIONS = {0: "identity", 90: "90r", 180: "180", 270: "90l"}  # degrees clockwise
+
+
+def video_direction(path: str | Path) -> str | None:
+    """The videoflip ``video-direction`` that shows a video file's frames as its display matrix says (a phone's or
+    a body camera's turned picture, a mirrored one): read from the MP4/MOV video track's header, else OpenCV's
+    rotation (what its FFmpeg reads and applies); None when neither can tell (GStreamer may still play the file:
+    it then turns it by the tag it reads, ``video-direction=auto``)."""
+    direction = mp4_direction(path)
+    if direction is not None:
+        return direction
+    degrees = opencv_rotation(path)
+    return None if degrees is None else _ROTATIONS[degrees]
+
+
+def opencv_rotation(path: str | Path) -> int | None:
+    """Degrees (0, 90, 180 or 270) OpenCV's FFmpeg turns a video file's frames clockwise (its display matrix's
+    rotation; a mirrored one is read as a rotation, without the mirroring); None when OpenCV cannot open it."""
     from .fileio import quiet_ffmpeg
 
     with quiet_ffmpeg():
@@ -63,3 +85,101 @@ def video_rotation(path: str | Path) -> int | None:
         return int(round(cap.get(cv2.CAP_PROP_ORIENTATION_META) / 90.0)) % 4 * 90
     finally:
         cap.release()
+
+
+def mp4_direction(path: str | Path) -> str | None:
+    """The :data:`DIRECTIONS` name of the display matrix of an MP4/MOV file's first video track ("identity" when it
+    neither turns nor mirrors, or does something else: a scaling or an odd angle); None when the file is not one
+    whose boxes can be read (another container, cut off before its header)."""
+    import struct
+
+    def boxes(data: bytes, start: int = 0, end: int | None = None):
+        end = len(data) if end is None else end
+        while start + 8 <= end:
+            size, kind = struct.unpack_from(">I4s", data, start)
+            head = 8
+            if size == 1 and start + 16 <= end:
+                size, head = struct.unpack_from(">Q", data, start + 8)[0], 16
+            elif size == 0:
+                size = end - start
+            if size < head or start + size > end:
+                return
+            yield kind, start + head, start + size
+            start += size
+
+    try:
+        moov = _top_level_box(Path(path), b"moov")
+    except OSError:
+        return None
+    if moov is None:
+        return None
+    for kind, a, b in boxes(moov):
+        if kind != b"trak":
+            continue
+        inner = {k: (x, y) for k, x, y in boxes(moov, a, b)}
+        if b"tkhd" not in inner or not _is_video(moov, inner.get(b"mdia"), boxes):
+            continue
+        x = inner[b"tkhd"][0]
+        start = x + (4 + 8 + 8 + 4 + 4 + 8 if moov[x] == 1 else 4 + 4 + 4 + 4 + 4 + 4) + 8 + 8
+        if start + 36 > inner[b"tkhd"][1]:
+            return None
+        ma, mb, _, mc, md = struct.unpack_from(">5i", moov, start)
+        m = tuple(tuple(round(v / 65536) for v in row) for row in ((ma, mc), (mb, md)))
+        return next((name for name, known in DIRECTIONS.items() if known == m), "identity")
+    return None
+
+
+def _top_level_box(path: Path, kind: bytes, limit: int = 64 << 20) -> bytes | None:
+    """The contents of the file's first top-level box ``kind`` (skipping the others by seeking: a recording's
+    media data may come first), None when there is none or it is larger than ``limit``."""
+    import struct
+
+    with path.open("rb") as f:
+        size_total = path.stat().st_size
+        pos = 0
+        while pos + 8 <= size_total:
+            f.seek(pos)
+            size, found = struct.unpack(">I4s", f.read(8))
+            head = 8
+            if size == 1:
+                size, head = struct.unpack(">Q", f.read(8))[0], 16
+            elif size == 0:
+                size = size_total - pos
+            if size < head:
+                return None
+            if found == kind:
+                return f.read(size - head) if size - head <= limit else None
+            pos += size
+    return None
+
+
+def _is_video(moov: bytes, mdia: tuple[int, int] | None, boxes) -> bool:
+    """Whether a track's ``mdia`` box (its span in ``moov``) has the video handler."""
+    if mdia is None:
+        return False
+    for kind, a, _ in boxes(moov, *mdia):
+        if kind == b"hdlr":
+            return moov[a + 8:a + 12] == b"vide"
+    return False
+
+
+def apply_direction(frame: np.ndarray, matrix: tuple[tuple[int, int], tuple[int, int]]) -> np.ndarray:
+    """``frame`` (H x W [x C]) shown by ``matrix`` (a :data:`DIRECTIONS` value, or a product of them)."""
+    (m00, m01), (m10, m11) = matrix
+    if m00 == 0:  # the axes swap: shown x is ±stored y, shown y is ±stored x
+        frame, sx, sy = frame.swapaxes(0, 1), m01, m10
+    else:
+        sx, sy = m00, m11
+    return np.ascontiguousarray(frame[::sy, ::sx])
+
+
+def opencv_fixup(path: str | Path):
+    """What still turns OpenCV's frames of a video file (turned already by the rotation it reads: :func:`
+    opencv_rotation`) into the picture its display matrix shows (:func:`video_direction`, as trafficcal run and the
+    scripts show it): a flip for a mirrored file, None for all others."""
+    direction, degrees = mp4_direction(path), opencv_rotation(path)
+    if direction is None or degrees is None or DIRECTIONS[direction] == DIRECTIONS[_ROTATIONS[degrees]]:
+        return None
+    want, done = np.array(DIRECTIONS[direction]), np.array(DIRECTIONS[_ROTATIONS[degrees]])
+    rest = tuple(tuple(int(v) for v in row) for row in want @ done.T)  # want = rest @ done (done's inverse: .T)
+    return lambda frame: apply_direction(frame, rest)

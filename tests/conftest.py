@@ -146,10 +146,11 @@ def encoded(dst: Path, caps: str, frames: int = 100, src: Path | None = None) ->
     return dst
 
 
-def rotation_tagged(src: Path, dst: Path, degrees: int = 90) -> Path:
+def rotation_tagged(src: Path, dst: Path, degrees: int | str = 90) -> Path:
     """``src`` (an MP4 of one video track) with the display matrix a phone writes for a picture taken turned by
     ``degrees`` clockwise (the track header's matrix; the frames stay as stored): players, OpenCV and GStreamer's
-    ``videoflip video-direction=auto`` show it turned upright."""
+    ``videoflip video-direction=auto`` show it turned upright.  ``degrees`` may also name a mirroring as videoflip's
+    video-direction does: "horiz", "vert", "ul-lr" (the picture transposed), "ur-ll" (across the other diagonal)."""
     import struct
 
     data = bytearray(src.read_bytes())
@@ -158,7 +159,9 @@ def rotation_tagged(src: Path, dst: Path, degrees: int = 90) -> Path:
     # after the box's type: version and flags, 3 times and the track id and a reserved word (of 4 or 8 bytes),
     # the duration, 8 reserved bytes, then layer, alternate group, volume and 2 reserved bytes
     start = i + 4 + 4 + (8 + 8 + 4 + 4 + 8 if data[i + 4] == 1 else 4 + 4 + 4 + 4 + 4) + 8 + 8
-    a, b, c, d = {90: (0, 1, -1, 0), 180: (-1, 0, 0, -1), 270: (0, -1, 1, 0)}[degrees]
+    # (a, b, c, d): a stored pixel (x, y) is shown at (a x + c y, b x + d y) (ISO/IEC 14496-12's matrix)
+    a, b, c, d = {90: (0, 1, -1, 0), 180: (-1, 0, 0, -1), 270: (0, -1, 1, 0), "horiz": (-1, 0, 0, 1),
+                  "vert": (1, 0, 0, -1), "ul-lr": (0, 1, 1, 0), "ur-ll": (0, -1, -1, 0)}[degrees]
     struct.pack_into(">9i", data, start, a << 16, b << 16, 0, c << 16, d << 16, 0, 0, 0, 1 << 30)
     dst.write_bytes(bytes(data))
     return dst

@@ -66,31 +66,52 @@ def test_a_rotated_or_squeezed_video_is_pictured_as_the_elements_see_it(tmp_path
         assert np.abs(frame.astype(int) - opencv.astype(int)).mean() < 4.0
 
 
-@pytest.mark.parametrize("degrees", [90, 180, 270])
-def test_the_pipelines_turn_a_rotated_video_as_opencv_does(tmp_path, degrees):
-    """The videoflip trafficcal run and the scripts put before the elements for a file's rotation (read before the
-    pipeline starts) turns the frames as OpenCV does (trafficcal calibrate, the report's picture): the same frame."""
-    from gst_trafficcal.cli.run import first_frame, rotation_of
+def _first(video, chain):
+    """The first frame of ``video`` through ``decodebin ! videoconvert ! CHAIN`` as BGR."""
     from gst_trafficcal.gst._gi import Gst
     from gst_trafficcal.gst.buffers import frame_bgr, video_info_from_caps
-    from gst_trafficcal.gst.chains import analysed_video
 
-    from .conftest import encoded, rotation_tagged
-
-    video = rotation_tagged(encoded(tmp_path / "stored.mp4", "width=320,height=180", frames=3), tmp_path / "r.mp4",
-                            degrees)
-    assert rotation_of(video) == degrees and rotation_of(f"file://{video}") == degrees
-    pipeline = Gst.parse_launch(" ! ".join([f"filesrc location={video}", "decodebin", "videoconvert",
-                                            *analysed_video(rotation_of(video)), "videoconvert",
-                                            "video/x-raw,format=BGR", "appsink name=sink"]))
+    pipeline = Gst.parse_launch(" ! ".join([f"filesrc location={video}", "decodebin", "videoconvert", *chain,
+                                            "videoconvert", "video/x-raw,format=BGR", "appsink name=sink"]))
     pipeline.set_state(Gst.State.PAUSED)
     try:
         assert pipeline.get_state(10 * Gst.SECOND)[0] == Gst.StateChangeReturn.SUCCESS
         sample = pipeline.get_by_name("sink").emit("try-pull-preroll", 0)
         with frame_bgr(sample.get_buffer(), video_info_from_caps(sample.get_caps())) as bgr:
-            frame = np.array(bgr, copy=True)
+            return np.array(bgr, copy=True)
     finally:
         pipeline.set_state(Gst.State.NULL)
-    opencv = first_frame(video)
-    assert frame.shape == opencv.shape == ((320, 180, 3) if degrees != 180 else (180, 320, 3))
-    assert np.abs(frame.astype(int) - opencv.astype(int)).mean() < 4.0
+
+
+# a stored frame as its display matrix shows it (independent of the code under test)
+SHOWN = {90: lambda f: np.rot90(f, -1), 180: lambda f: f[::-1, ::-1], 270: lambda f: np.rot90(f, 1),
+         "horiz": lambda f: f[:, ::-1], "vert": lambda f: f[::-1], "ul-lr": lambda f: f.swapaxes(0, 1),
+         "ur-ll": lambda f: f[::-1, ::-1].swapaxes(0, 1)}
+
+
+@pytest.mark.parametrize("degrees", [90, 180, 270, "horiz", "vert", "ul-lr", "ur-ll"])
+def test_the_pipelines_turn_a_rotated_video_as_opencv_does(tmp_path, capsys, degrees):
+    """The videoflip trafficcal run and the scripts put before the elements for a file's rotation or mirroring
+    (read before the pipeline starts) shows the frames as the display matrix says, as OpenCV's frames do
+    (trafficcal calibrate, the report's picture), as the snapshot does, and as GStreamer's videoflip
+    video-direction=auto does by the tag where GStreamer 1.22 tags it (not ur-ll).  Mirrored matrices were read as
+    OpenCV's rotation (a horizontal mirroring as turned by 180°: the picture upside down) or not at all (ur-ll)."""
+    from gst_trafficcal.cli.run import direction_of, first_frame
+    from gst_trafficcal.gst.chains import analysed_video, main
+    from gst_trafficcal.vanishing.frames import luma_frames
+
+    from .conftest import encoded, rotation_tagged
+
+    stored = encoded(tmp_path / "stored.mp4", "width=320,height=180", frames=3)
+    video = rotation_tagged(stored, tmp_path / "r.mp4", degrees)
+    assert direction_of(video) == direction_of(f"file://{video}") != "identity"
+    frame = _first(video, analysed_video(direction_of(video)))
+    expected = SHOWN[degrees](_first(stored, []))
+    assert frame.shape == expected.shape == ((180, 320, 3) if degrees in (180, "horiz", "vert") else (320, 180, 3))
+    assert main(["analysed", str(video)]) == 0  # the scripts' (pipelines/lib.sh)
+    assert capsys.readouterr().out.split()[:2] == ["videoflip", f"video-direction={direction_of(video)}"]
+    for other in (expected, first_frame(video), first_frame_bgr(video), luma_frames(video).first_bgr):
+        assert other.shape == frame.shape
+        assert np.abs(frame.astype(int) - other.astype(int)).mean() < 4.0
+    if degrees != "ur-ll":
+        assert np.abs(frame.astype(int) - _first(video, analysed_video(None)).astype(int)).mean() < 4.0

@@ -17,7 +17,7 @@ def _frame(image: Path | None, video: str | None, at_s: float):
     from .run import first_frame, is_stream, local_file, shown_source
 
     from ..fileio import cannot_open_video, open_video, video_file
-    from ..imaging import capture_par, squared
+    from ..imaging import capture_par, opencv_fixup, squared
 
     if image is not None:
         if not image.is_file():
@@ -50,7 +50,9 @@ def _frame(image: Path | None, video: str | None, at_s: float):
         cap.release()
     if not ok or frame is None:
         raise InputError(f"{video}: cannot read a frame (not a video, or shorter than {at_s:g} s)")
-    return squared(frame, par)  # of square pixels, as the calibration's (trafficcal run's) frames
+    fixup = opencv_fixup(video)  # a mirrored file shown mirrored, as trafficcal run shows it
+    # of square pixels, as the calibration's (trafficcal run's) frames
+    return squared(fixup(frame) if fixup else frame, par)
 
 
 @click.command(help="Write a self-contained report.html (calibration picture, speed histogram and statistics with "

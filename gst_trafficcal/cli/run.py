@@ -97,13 +97,13 @@ def source_elements(video: Path | str) -> list[str]:
     return [f"filesrc location={quote(video)}", "decodebin"]
 
 
-def rotation_of(video: Path | str) -> int | None:
-    """Degrees a video file's frames are turned clockwise when shown (a phone's display matrix, as OpenCV reads and
-    applies it), for the pipeline's videoflip; None for a stream, or a file OpenCV cannot open (then the tag
-    GStreamer reads turns it: ``video-direction=auto``)."""
-    from ..imaging import video_rotation
+def direction_of(video: Path | str) -> str | None:
+    """The videoflip video-direction that shows a video file's frames as its display matrix says (a phone's turned
+    picture, a mirrored one: :func:`gst_trafficcal.imaging.video_direction`); None for a stream, or a file whose
+    matrix cannot be read (then the tag GStreamer reads turns it: ``video-direction=auto``)."""
+    from ..imaging import video_direction
 
-    return None if is_stream(video) else video_rotation(local_file(str(video)) or video)
+    return None if is_stream(video) else video_direction(local_file(str(video)) or video)
 
 
 def shown_source(video: Path | str) -> str:
@@ -213,7 +213,7 @@ def pipeline_description(video: Path | str, paths: RunPaths, calibration: Path |
     where = f" zone={quote(zone)}" if zone else ""
     vp, det = vp + where, det + where
     # upright and of square pixels, as the camera model needs them (gst.chains)
-    chain = [*source_elements(video), f"videoconvert name={STOP_ELEMENT}", *analysed_video(rotation_of(video)),
+    chain = [*source_elements(video), f"videoconvert name={STOP_ELEMENT}", *analysed_video(direction_of(video)),
              *([f"{QUEUE} name={LIVE_QUEUE}"] if queues else []), vp, det, *([QUEUE] if queues else []),
              "tracker" if body_shapes == "auto" else f"tracker body-shapes={body_shapes}"]
     if bbscale:
@@ -547,7 +547,7 @@ def first_frame(video: Path | str):
     import cv2
 
     from ..fileio import quiet_ffmpeg
-    from ..imaging import capture_par, squared
+    from ..imaging import capture_par, opencv_fixup, squared
 
     with quiet_ffmpeg():  # a refusal is handled here
         if is_uri(video):
@@ -560,8 +560,9 @@ def first_frame(video: Path | str):
             par = capture_par(cap)
         finally:
             cap.release()
-    if ok:  # upright already (OpenCV applies a rotated file's display matrix), of square pixels now
-        return squared(frame, par)
+    if ok:  # upright already (OpenCV applies a rotated file's display matrix; a mirrored one's flip: the fix-up)
+        fixup = None if is_stream(video) else opencv_fixup(local_file(str(video)) or video)
+        return squared(fixup(frame) if fixup else frame, par)
     if is_uri(video) or not Path(video).is_file():
         return None
     from ..gst.snapshot import first_frame_bgr

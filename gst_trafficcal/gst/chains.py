@@ -8,7 +8,7 @@ as stored, where OpenCV — trafficcal calibrate, the report's picture — turns
 square pixels makes a DVR's 704x576 D1 or a 480x360 stored for a 640x360 picture measurable (speeds were 35 % off
 in silence).  Both pass a video that is upright and of square pixels through untouched.
 
-A file's rotation is read before the pipeline starts and given to videoflip: with ``video-direction=auto`` the
+A file's rotation or mirroring is read before the pipeline starts and given to videoflip: with ``video-direction=auto`` the
 elements are first told the stored size (caps come before the tag) and only then the turned one, and a calibration
 file of the upright picture was refused at the first.  A stream's is not known up front: ``auto`` there, and the
 elements check a calibration's (and a zone's) size at the first frame, by when the tag has turned the caps
@@ -23,20 +23,18 @@ SQUARE_I420 = "video/x-raw,format=I420,pixel-aspect-ratio=1/1"
 # an encoder's input: I420 of an even size, which x264 needs (an odd-sized video is scaled by a pixel, 1281x721 to
 # 1282x722; videoscale passes an even one through untouched)
 EVEN_I420 = "video/x-raw,format=I420,width=[2,32768,2],height=[2,32768,2]"
-# videoflip's video-direction for a picture stored turned by so many degrees counter-clockwise (shown turned back)
-_DIRECTIONS = {0: "identity", 90: "90r", 180: "180", 270: "90l"}
 
 
-def upright(rotation: int | None) -> str:
-    """The videoflip that shows frames as their file's display matrix says (``rotation``: degrees clockwise, as
-    :func:`gst_trafficcal.imaging.video_rotation` reads it; None: not known before the stream plays)."""
-    return f"videoflip video-direction={'auto' if rotation is None else _DIRECTIONS[rotation % 360]}"
+def upright(direction: str | None) -> str:
+    """The videoflip that shows frames as their file's display matrix says (``direction``: a video-direction, as
+    :func:`gst_trafficcal.imaging.video_direction` reads it; None: not known before the stream plays)."""
+    return f"videoflip video-direction={direction or 'auto'}"
 
 
-def analysed_video(rotation: int | None) -> list[str]:
-    """The elements between the decoder's ``videoconvert`` and the analysis: the video turned upright (``rotation``
+def analysed_video(direction: str | None) -> list[str]:
+    """The elements between the decoder's ``videoconvert`` and the analysis: the video turned upright (``direction``
     as :func:`upright` takes it) and scaled to square pixels, in I420."""
-    return [upright(rotation), "videoscale", SQUARE_I420]
+    return [upright(direction), "videoscale", SQUARE_I420]
 
 
 def main(argv: list[str]) -> int:
@@ -44,9 +42,9 @@ def main(argv: list[str]) -> int:
     trafficcal run reads it) joined by ``!``, one word per line (for bash's mapfile); ``even-i420``:
     :data:`EVEN_I420`."""
     if len(argv) == 2 and argv[0] == "analysed":
-        from ..cli.run import rotation_of
+        from ..cli.run import direction_of
 
-        words = " ! ".join(analysed_video(rotation_of(argv[1]))).split(" ")
+        words = " ! ".join(analysed_video(direction_of(argv[1]))).split(" ")
     elif argv == ["even-i420"]:
         words = [EVEN_I420]
     else:

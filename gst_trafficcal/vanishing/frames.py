@@ -10,7 +10,7 @@ rounding, and their calibrations of one clip differed.
 
 from __future__ import annotations
 
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass
 from fractions import Fraction
@@ -20,7 +20,7 @@ import cv2
 import numpy as np
 
 from ..errors import InputError
-from ..imaging import capture_par, square_size, squared
+from ..imaging import capture_par, opencv_fixup, square_size, squared
 
 # Y' = 16 + 219/255 (0.299 R + 0.587 G + 0.114 B), ITU-R BT.601 limited range (what decoders output)
 _K = 219.0 / 255.0
@@ -58,6 +58,7 @@ class LumaFrames:
     planar: bool
     first_bgr: np.ndarray | None
     par: Fraction = Fraction(1)
+    fixup: Callable[[np.ndarray], np.ndarray] | None = None  # imaging.opencv_fixup: a mirrored file's flip
 
     def __iter__(self) -> Iterator[tuple[float, np.ndarray]]:
         with _quiet():
@@ -74,7 +75,8 @@ class LumaFrames:
                     break
                 msec = cap.get(cv2.CAP_PROP_POS_MSEC)
                 t = msec / 1000.0 if n and msec > 0 else n / self.fps
-                yield t, squared(img if self.planar else luma(img), self.par)
+                img = img if self.planar else luma(img)
+                yield t, squared(self.fixup(img) if self.fixup else img, self.par)
                 n += 1
         finally:
             cap.release()
@@ -113,8 +115,11 @@ def luma_frames(path: str | Path) -> LumaFrames:
                 ycap.release()
         planar = bool(yok and y.ndim == 2 and y.shape == (h, w)
                       and float(np.mean(np.abs(y.astype(np.int16) - luma(first).astype(np.int16)))) < 3.0)
+    fixup = opencv_fixup(path)
+    if first_bgr is not None and fixup:
+        first_bgr = fixup(first_bgr)
     return LumaFrames(path, fps, count, square_size(w, h, par), planar,
-                      None if first_bgr is None else squared(first_bgr, par), par)
+                      None if first_bgr is None else squared(first_bgr, par), par, fixup)
 
 
 def _open(path: Path, planar: bool) -> cv2.VideoCapture:
