@@ -8,9 +8,10 @@ as stored, where OpenCV — trafficcal calibrate, the report's picture — turns
 square pixels makes a DVR's 704x576 D1 or a 480x360 stored for a 640x360 picture measurable (speeds were 35 % off
 in silence).  Both pass a video that is upright and of square pixels through untouched.
 
-A file's rotation or mirroring is read before the pipeline starts and given to videoflip: with ``video-direction=auto`` the
-elements are first told the stored size (caps come before the tag) and only then the turned one, and a calibration
-file of the upright picture was refused at the first.  A stream's is not known up front: ``auto`` there, and the
+A file's rotation or mirroring is read before the pipeline starts and given to videoflip: with
+``video-direction=auto`` the elements are first told the stored size (caps come before the tag) and only then the
+turned one, and a calibration file of the upright picture was refused at the first (GStreamer 1.22 does not tag an
+``ur-ll`` mirroring at all).  A stream's is not known up front: ``auto`` there, and the
 elements check a calibration's (and a zone's) size at the first frame, by when the tag has turned the caps
 (``TrafficcalTransform.refuse_size``).
 """
