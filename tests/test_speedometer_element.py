@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import re
 import stat
 import subprocess
 import threading
@@ -33,7 +34,7 @@ def _elements() -> None:
     register_plugin_file(ELEMENTS / "speedometer.py")
     register_plugin_file(ELEMENTS / "tracker.py")
     register_plugin_file(ELEMENTS / "vehicledetect.py")
-    for name in ("tcgtdetect", "tcroisource", "tcmarker"):
+    for name in ("tcgtdetect", "tcroisource", "tcmarker", "tcjitter"):
         register_plugin_file(TEST_PLUGINS / f"{name}.py")
 
 
@@ -134,6 +135,20 @@ def test_speeds_match_the_ground_truth(clip, implicit):
     again = load_calibration(out / "results.json")
     assert again.image_size == cal.image_size == (480, 270) and np.allclose(again.camera.vp2, cal.camera.vp2)
     assert results.calibration is not None and results.calibration.scale == pytest.approx(cal.camera.brno_scale())
+
+
+def test_frame_times_of_arrival_are_said_to_jitter(clip, implicit, tmp_path):
+    """Frames timed when they arrive (a source with do-timestamp=true: here each delayed by a random 0-80 ms, the
+    clip's frame interval) scatter the speeds and lose vehicles (benchmarks/frame_jitter.py); the speedometer says
+    once that the frame times jitter and what to do.  The clip's own timestamps are regular: nothing said."""
+    out, run, events, results = implicit
+    assert not [w for w in run.warnings if "jitter" in w], run.warnings
+    run2, events2, results2 = measure(clip, tmp_path, f"{detector(clip)} ! tcjitter jitter=0.08",
+                                      f"calibration-file={clip / 'calibration.json'}")
+    said = [w for w in run2.warnings if "frame times jitter" in w]
+    assert len(said) == 1 and "do-timestamp=true" in said[0], said
+    assert re.search(r"intervals of (79|80|81) ms vary by", said[0]), said
+    assert len(gt_speed_errors(clip, events2, results2)) < len(gt_speed_errors(clip, events, results))
 
 
 def test_every_vehicle_is_in_every_output(implicit, limit, webhook):

@@ -42,6 +42,7 @@ each vehicle measured again at the end is sent once more — a ``trafficcal-spee
 ``events-url`` POST, its new fields with ``revised: true`` — so a receiver replaces what it got for that run and id.
 """
 
+from gst_trafficcal.frame_jitter import FrameJitter
 from gst_trafficcal.gst._gi import GObject, Gst
 from gst_trafficcal.gst.element import READY_ONLY, TrafficcalTransform, upstream_element
 from gst_trafficcal.gst.untracked import UNTRACKED_AFTER_S, UntrackedWatch
@@ -164,6 +165,7 @@ class Speedometer(TrafficcalTransform):
         self._said_reverse = False  # _say_jumps: said that the timestamps keep going back
         self._said_out_of_order = False  # said that frames come out of order (StreamClock.out_of_order)
         self._dts = []
+        self._jitter = FrameJitter()  # frame times of arrival, not of capture (do-timestamp=true): said once
         self._own_stage = None  # bbscale's stage, built at start
         self._stage = None  # ... in use: no bbscale upstream, no scale given (decided at the first frame)
         self._scaled = None  # the upstream calibration with the λ that stage found
@@ -372,6 +374,9 @@ class Speedometer(TrafficcalTransform):
         if self._last_pts is not None and t > self._last_pts and len(self._dts) < 50:
             self._dts.append(t - self._last_pts)  # the frame rate of variable-rate caps, for BrnoCompSpeed
         self._last_pts = t
+        jitter = self._jitter.add(t)
+        if jitter:
+            self.post_warning(f"speedometer: {jitter}")
         if self._start is None and self.start_datetime:
             from gst_trafficcal.clock import NOW, start_from_now
 
