@@ -93,31 +93,17 @@ def mp4_direction(path: str | Path) -> str | None:
     whose boxes can be read (another container, cut off before its header)."""
     import struct
 
-    def boxes(data: bytes, start: int = 0, end: int | None = None):
-        end = len(data) if end is None else end
-        while start + 8 <= end:
-            size, kind = struct.unpack_from(">I4s", data, start)
-            head = 8
-            if size == 1 and start + 16 <= end:
-                size, head = struct.unpack_from(">Q", data, start + 8)[0], 16
-            elif size == 0:
-                size = end - start
-            if size < head or start + size > end:
-                return
-            yield kind, start + head, start + size
-            start += size
-
     try:
         moov = _top_level_box(Path(path), b"moov")
     except OSError:
         return None
     if moov is None:
         return None
-    for kind, a, b in boxes(moov):
+    for kind, a, b in _boxes(moov):
         if kind != b"trak":
             continue
-        inner = {k: (x, y) for k, x, y in boxes(moov, a, b)}
-        if b"tkhd" not in inner or not _is_video(moov, inner.get(b"mdia"), boxes):
+        inner = {k: (x, y) for k, x, y in _boxes(moov, a, b)}
+        if b"tkhd" not in inner or not _is_video(moov, inner.get(b"mdia")):
             continue
         x = inner[b"tkhd"][0]
         start = x + (4 + 8 + 8 + 4 + 4 + 8 if moov[x] == 1 else 4 + 4 + 4 + 4 + 4 + 4) + 8 + 8
@@ -153,11 +139,29 @@ def _top_level_box(path: Path, kind: bytes, limit: int = 64 << 20) -> bytes | No
     return None
 
 
-def _is_video(moov: bytes, mdia: tuple[int, int] | None, boxes) -> bool:
+def _boxes(data: bytes, start: int = 0, end: int | None = None):
+    """(type, contents' start, end) of each ISO-BMFF box in ``data[start:end]``, up to one that does not fit."""
+    import struct
+
+    end = len(data) if end is None else end
+    while start + 8 <= end:
+        size, kind = struct.unpack_from(">I4s", data, start)
+        head = 8
+        if size == 1 and start + 16 <= end:
+            size, head = struct.unpack_from(">Q", data, start + 8)[0], 16
+        elif size == 0:
+            size = end - start
+        if size < head or start + size > end:
+            return
+        yield kind, start + head, start + size
+        start += size
+
+
+def _is_video(moov: bytes, mdia: tuple[int, int] | None) -> bool:
     """Whether a track's ``mdia`` box (its span in ``moov``) has the video handler."""
     if mdia is None:
         return False
-    for kind, a, _ in boxes(moov, *mdia):
+    for kind, a, _ in _boxes(moov, *mdia):
         if kind == b"hdlr":
             return moov[a + 8:a + 12] == b"vide"
     return False
