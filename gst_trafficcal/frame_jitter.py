@@ -23,8 +23,10 @@ LIMIT = 0.1  # the intervals' median deviation from their median, as a fraction 
 class FrameJitter:
     """Frame times in; once, the text saying that their intervals jitter (their median absolute deviation over
     :data:`WINDOW` intervals above :data:`LIMIT` of the median interval).  A camera's own timestamps keep a constant
-    interval (0 deviation), and so do frames dropped now and then (their longer intervals are few)."""
+    interval (0 deviation), and so do dropped frames: whole multiples of the caps' ``interval``, however many, and a
+    few among many when the caps give no rate."""
 
+    interval: float | None = None  # the caps' frame interval (s) when they give a rate, else the intervals' median
     window: int = WINDOW
     limit: float = LIMIT
     said: bool = False
@@ -41,8 +43,10 @@ class FrameJitter:
         if len(self._intervals) < self.window:
             return None
         dts, self._intervals = np.array(self._intervals), []
-        median = float(np.median(dts))
-        spread = float(np.median(np.abs(dts - median)))
+        median = self.interval or float(np.median(dts))
+        # deviation from the nearest whole number of frame intervals: frames dropped (a leaky queue behind a slow
+        # machine, a camera's own drops) leave whole multiples of the caps' interval, however many they are
+        spread = float(np.median(np.abs(dts - median * np.maximum(np.round(dts / median), 1))))
         if median <= 0 or spread <= self.limit * median:
             return None
         self.said = True

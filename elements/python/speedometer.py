@@ -282,6 +282,8 @@ class Speedometer(TrafficcalTransform):
         wrong = self.file_calibration_mismatch(self._file_cal, self.calibration_file)
         if wrong:
             self.refuse_size(f"speedometer: {wrong}")  # at the first frame: a stream's rotation may turn it
+        # frames dropped on the way (a leaky queue) leave whole multiples of the caps' interval: no jitter
+        self._jitter.interval = info.fps_d / info.fps_n if info.fps_n > 0 and info.fps_d > 0 else None
         if info.fps_n > 0 and info.fps_d > 0 and self._outputs is not None and self._outputs.brno is not None:
             self._caps_fps = info.fps_n / info.fps_d
             self._outputs.brno.fps = self._caps_fps  # BrnoCompSpeed frame numbers = t * fps (checked: _fix_fps)
