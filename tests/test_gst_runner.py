@@ -94,6 +94,27 @@ def test_warnings_like_one_before_are_said_once_with_a_count_every_kind_kept():
         "bbscale0: no scale: too few vehicles"]
 
 
+def test_warnings_of_two_elements_are_not_counted_as_one_kind():
+    """Grouping by words merged vpdetect1's warnings into vpdetect0's line (the digits of the name were taken for a
+    number): two cameras' elements in one pipeline now keep a line each; a number inside the text still groups."""
+    from gst_trafficcal.gst.runner import RunOutcome
+
+    out = RunOutcome()
+    for k in range(3):
+        out.warn(f"vpdetect0: the camera moved at {10.0 * k:.1f} s: learning a new calibration")
+        out.warn(f"vpdetect1: the camera moved at {10.0 * k + 5:.1f} s: learning a new calibration")
+    out.warn("pipeline: 2 frames late")
+    out.warn("the clock jumped by 3 s")
+    out.warn("the clock jumped by 4 s")
+    assert out.warnings == [
+        "vpdetect0: the camera moved at 0.0 s: learning a new calibration (and 2 more like it, the last: vpdetect0: "
+        "the camera moved at 20.0 s: learning a new calibration)",
+        "vpdetect1: the camera moved at 5.0 s: learning a new calibration (and 2 more like it, the last: vpdetect1: "
+        "the camera moved at 25.0 s: learning a new calibration)",
+        "pipeline: 2 frames late",
+        "the clock jumped by 3 s (and 1 more like it, the last: the clock jumped by 4 s)"]
+
+
 def test_after_a_camera_move_the_run_ends_with_the_new_views_calibration():
     """The calibration a run ended with is the new view's (here: still learning), never the old view's scale that
     an element further down posted a moment after the move; each move says what measured the vehicles before."""

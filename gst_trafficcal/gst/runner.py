@@ -161,8 +161,11 @@ class RunOutcome:
         """Add a warning to ``warnings``: one of a kind not seen yet as it is; one like an earlier one (the same
         text but for its numbers and names with digits) only counted into that one's line, which then ends with how
         many more there were and the last of them.  So a run that lasts weeks keeps one line per kind of warning,
-        and prints them once (a PTZ camera on patrol warned once per move)."""
-        kind = _NUMBERS.sub("#", text)
+        and prints them once (a PTZ camera on patrol warned once per move).  The element that warned (the text's
+        first word, before ": ") is kept as it is: vpdetect0's warnings and vpdetect1's (two cameras in one
+        pipeline) are kinds of their own, not one line counting both."""
+        source, sep, words = text.partition(": ")
+        kind = f"{source}{sep}{_NUMBERS.sub('#', words)}" if sep and " " not in source else _NUMBERS.sub("#", text)
         seen = self._kinds.get(kind)
         if seen is None:
             self._kinds[kind] = [len(self.warnings), text, 1]
