@@ -314,12 +314,18 @@ def _row(name: list[str], lane, direction, events: list, limit: SpeedLimit, tota
 
 def write_intervals_csv(path: str | Path, rows: Sequence[IntervalRow]) -> Path:
     """The interval table as CSV (columns :data:`INTERVAL_FIELDS`, empty cell = unknown), written atomically."""
+    return atomic_write_text(path, intervals_csv_text(rows), "interval table")
+
+
+def intervals_csv_text(rows: Sequence[IntervalRow], header: bool = True) -> str:
+    """The CSV text of ``rows`` (:func:`write_intervals_csv`), with the header line or without."""
     buf = io.StringIO()
     w = csv.DictWriter(buf, fieldnames=INTERVAL_FIELDS, lineterminator="\n")
-    w.writeheader()
+    if header:
+        w.writeheader()
     for r in rows:
         w.writerow({k: "" if v is None else v for k, v in r.to_dict().items()})
-    return atomic_write_text(path, buf.getvalue(), "interval table")
+    return buf.getvalue()
 
 
 @dataclass(frozen=True, slots=True)
@@ -383,30 +389,40 @@ class CountedVehicles:
         return len(self._speeds)
 
     def __iter__(self):
-        w = self._words
-        for k, speed in enumerate(self._speeds):
-            lane = self._lanes[k]
-            yield CountedVehicle(self._times[2 * k], self._times[2 * k + 1], None if lane < 0 else lane,
-                                 w[self._names[2 * k + 1]], None if speed != speed else speed, w[self._names[2 * k]])
+        for k in range(len(self._speeds)):
+            yield self[k]
+
+    def __getitem__(self, k: int) -> CountedVehicle:
+        w, speed, lane = self._words, self._speeds[k], self._lanes[k]
+        return CountedVehicle(self._times[2 * k], self._times[2 * k + 1], None if lane < 0 else lane,
+                              w[self._names[2 * k + 1]], None if speed != speed else speed, w[self._names[2 * k]])
 
 
 class IntervalTable:
     """``intervals.csv`` kept while a stream plays: the speedometer's vehicles (:meth:`vehicle`) and frame times
     (:meth:`frame`) in; the file rewritten (atomically) once an interval has ended and ``grace_s`` more have passed
     (time for the vehicles in view at its end to leave), and at the end (:meth:`close`) with every interval, the
-    last one partial.  A live stream measured for days has its counts on disk as they come, and a process that is
-    killed loses only the intervals not yet closed."""
+    last one partial.  The interval still open is on disk too, as it grows: its rows, with the seconds of it watched
+    so far, are written after the closed ones whenever a vehicle was counted since the last write and ``open_every_s``
+    of stream time have passed, and replaced when it closes — a process that is killed (kill -9, a power cut) loses
+    at most that last minute's vehicles.  Those writes recount only the open interval's vehicles (the closed rows'
+    text is kept from the last close), so a table of weeks costs a file write, not a recount, each time."""
 
     def __init__(self, path: str | Path, interval_s: float = 900.0, start: datetime | None = None,
-                 limit: "SpeedLimit | float | None" = None, grace_s: float = 30.0) -> None:
+                 limit: "SpeedLimit | float | None" = None, grace_s: float = 30.0, open_every_s: float = 60.0) -> None:
         _check_interval(interval_s)
         self.path = Path(path)
         self.interval_s, self.start, self.limit, self.grace_s = float(interval_s), start, limit, float(grace_s)
+        self.open_every_s = float(open_every_s)
         self.events = CountedVehicles()
         self.first_t: float | None = None
         self.last_t: float | None = None
         self._dt = 0.0  # the last frame's duration: the video covers it too
         self._written_until: float | None = None  # stream time up to which the file holds closed intervals
+        self._closed_text = ""  # the closed intervals' rows as last written (CSV, no header)
+        self._open = array("q")  # which of ``events`` are counted in the intervals not closed yet (8 bytes each)
+        self._open_written_t: float | None = None  # stream time of the last write of the open interval
+        self._changed = False  # a vehicle counted since the last write
 
     def frame(self, t: float) -> bool:
         """A frame at stream time ``t`` (s); True when the file was rewritten."""
@@ -416,14 +432,22 @@ class IntervalTable:
             self._dt = t - self.last_t
         self.last_t = max(t, self.last_t if self.last_t is not None else t)
         closed = last_boundary(t - self.grace_s, self.interval_s, self.start)
-        if closed <= self.first_t or (self._written_until is not None and closed <= self._written_until):
-            return False
-        self._written_until = closed
-        self._write(closed)
-        return True
+        if closed > self.first_t and (self._written_until is None or closed > self._written_until):
+            self._written_until = closed
+            self._write(closed)
+            return True
+        if self._changed and (self._open_written_t is None or t - self._open_written_t >= self.open_every_s):
+            self._write_open()
+            return True
+        return False
 
     def vehicle(self, event) -> None:
+        n = len(self.events)
         self.events.append(event)
+        if len(self.events) > n and (self._written_until is None or
+                                     self._middle(self.events[n]) >= self._written_until):
+            self._open.append(n)
+            self._changed = True
 
     def revise(self, event) -> None:
         """A vehicle measured again at the end (speedometer ``remeasure``): its counted fields replaced."""
@@ -436,15 +460,34 @@ class IntervalTable:
     def close(self) -> None:
         """Every interval the stream reached, the open one too (its ``observed_s`` says how much of it)."""
         if self.first_t is not None:
-            self._write(self.last_t + self._dt)
+            self._write(self.last_t + self._dt, keep=False)
         else:
             write_intervals_csv(self.path, [])
 
-    def _write(self, until: float) -> None:
-        def middle(e) -> float:
-            return 0.5 * (e.first_timestamp_s + e.last_timestamp_s)
+    @staticmethod
+    def _middle(e) -> float:
+        return 0.5 * (e.first_timestamp_s + e.last_timestamp_s)
 
-        events = [e for e in self.events if e.first_timestamp_s is not None and e.last_timestamp_s is not None
-                  and middle(e) < until]
-        write_intervals_csv(self.path, interval_rows(events, self.interval_s, self.start, self.limit,
-                                                     covered=[(self.first_t, until)]))
+    def _write(self, until: float, keep: bool = True) -> None:
+        """Every interval up to stream time ``until`` counted anew (the vehicles that left late included); with
+        ``keep`` that text is kept as the closed rows and the open interval's rows follow it."""
+        events = [e for e in self.events if self._middle(e) < until]
+        rows = interval_rows(events, self.interval_s, self.start, self.limit, covered=[(self.first_t, until)])
+        if not keep:
+            write_intervals_csv(self.path, rows)
+            return
+        self._closed_text = intervals_csv_text(rows, header=False)
+        self._open = array("q", (k for k in self._open if self._middle(self.events[k]) >= until))
+        self._write_open()
+
+    def _write_open(self) -> None:
+        """The closed rows as last counted, then the open interval's up to the last frame (the seconds of it watched
+        so far); nothing of it before its first frame."""
+        self._changed, self._open_written_t = False, self.last_t
+        since = self.first_t if self._written_until is None else max(self.first_t, self._written_until)
+        until = self.last_t + self._dt
+        events = [e for e in (self.events[k] for k in self._open) if self._middle(e) < until]
+        rows = interval_rows(events, self.interval_s, self.start, self.limit,
+                             covered=[(since, until)]) if until > since else []
+        atomic_write_text(self.path, intervals_csv_text([]) + self._closed_text + intervals_csv_text(rows, False),
+                          "interval table")

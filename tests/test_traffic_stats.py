@@ -230,26 +230,23 @@ def test_every_watched_interval_has_a_row_and_says_how_much_of_it_was_watched() 
 
 
 def test_the_interval_table_is_on_disk_as_the_intervals_close(tmp_path) -> None:
-    """A stream of 2000 s at 1 frame/s, a vehicle every 100 s: nothing on disk before the first quarter hour
-    has ended and 30 s more have passed; then that quarter (9 vehicles, 900 s watched); after the second, both;
-    at the end all three, the last one 200 s watched."""
+    """A stream of 2000 s at 1 frame/s, a vehicle every 100 s: the closed quarter hours are on disk once each has
+    ended and 30 s more have passed (9 vehicles, 900 s watched); at the end all three, the last one 200 s watched."""
     import csv
 
     from gst_trafficcal.traffic_stats import IntervalTable
 
     path = tmp_path / "intervals.csv"
     table = IntervalTable(path, 900, grace_s=30)
-    written = []
+    closed = []
     for t in range(2000):
         if t % 100 == 50:
             table.vehicle(_event(t, t - 5, 60.0))
-        if table.frame(float(t)):
-            written.append(t)
+        if table.frame(float(t)) and t in (930, 1830):
             with open(path, newline="") as f:
                 rows = [r for r in csv.DictReader(f) if r["lane"] == "all"]
-            assert [(r["interval_start"], r["vehicles"], r["observed_s"]) for r in rows] == [
-                ("0:00:00", "9", "900.0"), ("0:15:00", "9", "900.0")][:len(written)]
-    assert written == [930, 1830]
+            closed.append([(r["interval_start"], r["vehicles"], r["observed_s"]) for r in rows][:-1])
+    assert closed == [[("0:00:00", "9", "900.0")], [("0:00:00", "9", "900.0"), ("0:15:00", "9", "900.0")]]
     table.close()
     with open(path, newline="") as f:
         rows = [r for r in csv.DictReader(f) if r["lane"] == "all"]
@@ -258,3 +255,33 @@ def test_the_interval_table_is_on_disk_as_the_intervals_close(tmp_path) -> None:
     empty = IntervalTable(tmp_path / "none.csv", 900)
     empty.close()
     assert (tmp_path / "none.csv").read_text().startswith("interval_start,interval_end,observed_s,")
+
+
+def test_the_open_interval_is_on_disk_as_it_grows(tmp_path) -> None:
+    """The interval still open had no row until it closed: a run killed outright (kill -9, a power cut) lost what
+    was counted in it.  Now, whenever a vehicle was counted and a minute of stream has passed, the file holds what a
+    clean stop at that moment would have written (the open interval with the seconds of it watched so far); between
+    vehicles it is not rewritten; the table at the end is the same as before."""
+    import csv
+
+    from gst_trafficcal.traffic_stats import IntervalTable, interval_rows, intervals_csv_text
+
+    path = tmp_path / "intervals.csv"
+    table = IntervalTable(path, 900, grace_s=30)
+    events, writes = [], []
+    for t in range(2000):
+        if t % 100 == 50:
+            events.append(_event(t, t - 5, 60.0, lane=t % 200 // 100))
+            table.vehicle(events[-1])
+        if table.frame(float(t)):
+            writes.append(t)
+            # what the file holds now, if the process died here: the table of a stop at this frame
+            assert path.read_text() == intervals_csv_text(interval_rows(events, 900, covered=[(0.0, t + 1.0)]))
+    assert writes == [50, 150, 250, 350, 450, 550, 650, 750, 850, 930, 990, 1050, 1150, 1250, 1350, 1450, 1550,
+                      1650, 1750, 1830, 1890, 1950]  # a vehicle each (at most one a minute), and each close
+    with open(path, newline="") as f:
+        rows = [r for r in csv.DictReader(f) if r["lane"] == "all"]
+    assert [(r["interval_start"], r["vehicles"], r["observed_s"]) for r in rows] == [
+        ("0:00:00", "9", "900.0"), ("0:15:00", "9", "900.0"), ("0:30:00", "2", "151.0")]  # killed at 1999 s
+    table.close()
+    assert path.read_text() == intervals_csv_text(interval_rows(events, 900, covered=[(0.0, 2000.0)]))

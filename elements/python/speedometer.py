@@ -35,7 +35,8 @@ lines) / ``csv-file``; per frame with tracked vehicles, a line in ``frames-file`
 ``results-file`` gets the BrnoCompSpeed results JSON
 (rewritten atomically now and then and at end of stream); ``intervals-file`` the traffic count per ``interval``
 minutes, lane and direction (:class:`gst_trafficcal.traffic_stats.IntervalTable`: rewritten as each interval
-closes, so a live stream's counts are on disk as they come, and at the end; every watched interval has a row,
+closes, the open one's rows after them, at most once a minute of stream, as vehicles come — so a live stream's
+counts are on disk as they come, also after a kill -9 — and at the end; every watched interval has a row,
 zero when no vehicle passed, and says how many seconds of it were watched).  A failed write (full disk) stops
 the pipeline with an error naming the file; every vehicle written before stays in the files.  With ``remeasure``,
 each vehicle measured again at the end is sent once more — a ``trafficcal-speed-revised`` message and an
@@ -69,7 +70,8 @@ class Speedometer(TrafficcalTransform):
                          "frames/posX/posY), rewritten atomically (empty: none)", "", _RW),
         "intervals-file": (str, "Intervals file", "CSV traffic count per interval, lane and direction (counts, "
                            "speeds, V85, over the limit, classes, seconds watched), rewritten as each interval "
-                           "closes and at the end of the stream (empty: none)", "", _RW),
+                           "closes, with the open one's rows so far at most once a minute as vehicles come, and at "
+                           "the end of the stream (empty: none)", "", _RW),
         "append": (bool, "Append", "Add to an existing events-file, csv-file and frames-file instead of replacing "
                    "them, so a pipeline started again into the same files (a service restarted after a crash or a "
                    "reboot) keeps what it measured before; results-file and intervals-file, tables of one run, are "
