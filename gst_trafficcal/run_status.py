@@ -286,19 +286,24 @@ def health(status: RunStatus, max_age_s: float = 60.0, now: datetime | None = No
     Unhealthy: the run failed; a run not ended whose file was not updated for ``max_age_s`` (the process hangs or
     is gone) or whose process is gone (checked on the machine that wrote it); a stream lost (reconnecting) for
     longer than ``max_age_s``; ``updated_at`` more than ``CLOCK_SKEW_S`` in the future (the writer's clock is ahead:
-    its age, so whether it hangs, cannot be told).  A run that finished or was interrupted ended as it should:
-    healthy."""
+    its age, so whether it hangs, cannot be told — in an ended run's status too: a file from another machine's
+    clock, or one written after this machine's clock was set back, whose times cannot be trusted).  A run that
+    finished or was interrupted ended as it should: healthy."""
     now = now or datetime.now().astimezone()
     why = []
     if status.state == "failed":
         why.append(f"the run failed: {status.error or 'no reason recorded'}")
-    if status.state in FINAL_STATES:
-        return why
     age = age_s(status.updated_at, now)
     if age is not None and age < -CLOCK_SKEW_S:
         clocks = ("this machine's clock was set back since" if status.host == socket.gethostname() else
                   f"the clocks of the writer{f' ({status.host})' if status.host else ''} and this machine differ")
-        why.append(f"updated_at lies {-age:.0f} s in the future: {clocks}; whether the run hangs cannot be told")
+        doubt = ("its times cannot be trusted" if status.state in FINAL_STATES else
+                 "whether the run hangs cannot be told")
+        why.append(f"updated_at lies {-age:.0f} s in the future: {clocks}; {doubt}")
+    if status.state in FINAL_STATES:
+        return why
+    if age is not None and age < -CLOCK_SKEW_S:
+        pass
     elif age is None or age > max_age_s:
         why.append("status not updated for " + ("an unknown time" if age is None else f"{age:.0f} s") +
                    f" (more than {max_age_s:g} s): the run hangs or is gone")

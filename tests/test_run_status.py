@@ -352,7 +352,13 @@ def test_a_status_from_the_future_is_clock_skew_not_healthy(tmp_path):
     here = health(replace(away, host=socket.gethostname()), 60, now - timedelta(seconds=CLOCK_SKEW_S + 1))
     assert here[0].startswith(f"updated_at lies {CLOCK_SKEW_S + 1:.0f} s in the future: this machine's clock was "
                               "set back since")
-    assert health(replace(away, state="finished"), 60, now - timedelta(seconds=3600)) == []  # ended: its age is moot
+    # ended, but dated in the future (healthy before): suspicious, not healthy; a skew of a second or two is fine
+    assert health(replace(away, state="finished"), 60, now - timedelta(seconds=3600)) == [
+        "updated_at lies 3600 s in the future: the clocks of the writer (nvr-07) and this machine differ; its times "
+        "cannot be trusted"]
+    assert health(replace(away, state="finished"), 60, now - timedelta(seconds=2)) == []
+    assert health(replace(away, state="failed", error="x"), 60, now - timedelta(seconds=3600))[1].startswith(
+        "updated_at lies 3600 s in the future")
 
     data = on_disk(tmp_path / "status.json")
     ahead = (datetime.now().astimezone() + timedelta(days=1000)).isoformat(timespec="milliseconds")
@@ -370,6 +376,13 @@ def test_a_status_from_the_future_is_clock_skew_not_healthy(tmp_path):
     values = {s.name: s.value for f in text_string_to_metric_families(metrics.stdout) for s in f.samples}
     assert metrics.returncode == 1 and values["trafficcal_healthy"] == 0.0
     assert -1000 * 86400 <= values["trafficcal_status_age_seconds"] < -999 * 86400  # the skew, the run unhealthy
+    data.update(state="finished")  # an ended run's status from the future was healthy (exit 0): now suspicious
+    (tmp_path / "status.json").write_text(json.dumps(data))
+    run = subprocess.run([sys.executable, "-m", "gst_trafficcal", "status", str(tmp_path)], capture_output=True,
+                         text=True, timeout=60)
+    assert run.returncode == 1 and re.search(r"UNHEALTHY: updated_at lies \d+ s in the future: the clocks of the "
+                                             r"writer \(nvr-07\) and this machine differ; its times cannot be "
+                                             r"trusted", run.stdout), run.stdout
 
 
 def test_a_camera_folder_without_a_status_is_reported_not_skipped(tmp_path):

@@ -96,8 +96,8 @@ def command(paths: tuple[Path, ...], max_age_s: float, as_json: bool, prometheus
 
     Exit code 0 when the run is healthy (running and updated within --max-age, or ended as it should), 1 when not
     (failed; no update for --max-age seconds; its process gone; the stream lost for --max-age seconds; its last
-    update in the future: the clocks differ), 2 when there is no readable status: usable as a container or service
-    health check, e.g. HEALTHCHECK CMD trafficcal status /out --max-age 60.
+    update in the future, also an ended run's: the clocks differ), 2 when there is no readable status: usable as a
+    container or service health check, e.g. HEALTHCHECK CMD trafficcal status /out --max-age 60.
 
     Several runs — several OUT_DIRs, or a folder holding one OUT_DIR per camera (trafficcal status /srv/cameras)
     — are a line each and a count; exit code 0 when every one is healthy, 1 when any is not or has no readable
