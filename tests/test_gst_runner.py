@@ -190,7 +190,7 @@ def test_a_run_of_many_posted_calibrations_keeps_the_views_and_moves_not_every_p
             return None if c is None else (c.id, c.state, c.moved_at)
         final = out.calibration
         return (key(final), final.view, [(m.t, key(m.before), key(m.known)) for m in out.moves],
-                [(key(c), c.view) for c in out.scaled_views])
+                out.moves_earlier, [(key(c), c.view) for c in out.scaled_views])
 
     def pictures(out) -> int:
         cals = [c for _, c in out.calibrations] + out.scaled_views
@@ -205,8 +205,35 @@ def test_a_run_of_many_posted_calibrations_keeps_the_views_and_moves_not_every_p
         if n % 97 == 0 or n == len(posted):
             assert said(out) == said(RunOutcome(calibrations=posted[:n])), n  # the same as with every one kept
             assert len(out.calibrations) <= 4 and pictures(out) <= 4 + 4, n
-    assert len(out.moves) == 399 and len(out.scaled_views) == 4
+    assert len(out.moves) + out.moves_earlier[0] == 399 and len(out.scaled_views) == 4
     assert pictures(RunOutcome(calibrations=posted)) > 800  # what was kept before
+
+
+def test_a_patrol_keeps_the_latest_moves_in_full_and_counts_the_others():
+    """The list of camera moves grew by 1-2 kB a move (the calibrations around each) and the run printed a line per
+    move: a PTZ patrol of a day, hundreds.  Now the latest MOVES_KEPT are kept in full, the earlier ones counted
+    (how many, the first's and the last's time), however long the patrol; what is kept is what every calibration
+    posted says."""
+    import pickle
+
+    from gst_trafficcal.gst.runner import MOVES_KEPT, RunOutcome
+
+    posted = _ptz_patrol(400)
+    out = RunOutcome()
+    sizes = []
+    for n, (element, cal) in enumerate(posted, 1):
+        out.add(element, cal)
+        if n in (len(posted) // 2, len(posted)):
+            sizes.append(len(pickle.dumps(out._folded.moves)))
+    whole = RunOutcome(calibrations=posted)
+    def said(moves):
+        return [(m.t, *[None if c is None else (c.id, c.state, c.moved_at) for c in (m.before, m.known)])
+                for m in moves]
+
+    assert len(out.moves) == MOVES_KEPT and said(out.moves) == said(whole.moves)
+    assert out.moves_earlier == whole.moves_earlier == (399 - MOVES_KEPT, 40.0, 30.0 * (399 - MOVES_KEPT) + 10.0)
+    assert out.moves[0].t == 30.0 * (400 - MOVES_KEPT) + 10.0 and out.moves[-1].t == 30.0 * 399 + 10.0
+    assert sizes[1] <= sizes[0] * 1.1  # bounded: twice the moves, no more memory
 
 
 def test_errors_name_the_element_and_the_cause(tmp_path):

@@ -1077,6 +1077,15 @@ def test_a_camera_move_is_told_with_what_it_cost():
     console = Console(record=True, width=200)
     print_moves(console, RunSummary(None, events))
     assert console.export_text() == ""
+    # a patrol: the moves before the latest ones kept are one line with their count, not a line each
+    console = Console(record=True, width=400)
+    print_moves(console, RunSummary(None, events, moves=[Move(34.8, old), Move(38.0, None, old)],
+                                    moves_earlier=(300, 1.0, 15.0)))
+    text = console.export_text()
+    assert "The camera moved 302 times: 300 times from 1.0 s to 15.0 s (2 vehicles seen until then, each measured " \
+           "with the calibration in force as it passed), then the latest 2:" in text
+    assert "The camera moved at 34.8 s: the 1 vehicles seen before were measured with" in text
+    assert len(text.splitlines()) == 3
 
 
 def test_a_source_that_sends_nothing_ends_the_run_with_an_error(tmp_path):

@@ -244,6 +244,8 @@ class RunSummary:
     stopped_by: str = ""  # "interrupted": "SIGINT", "SIGTERM" or "SIGHUP"
     position_s: float | None = None  # how far into the stream the run got
     moves: list = field(default_factory=list)  # gst.runner.Move: when the camera moved, the calibrations around it
+    # (the latest gst.runner.MOVES_KEPT); the moves before those: how many, the first's and the last's time
+    moves_earlier: tuple[int, float | None, float | None] = (0, None, None)
     discarded: int = 0  # tracks seen only between a camera move and its notice (not vehicles, not reported)
     not_counted: tuple[int, int] = (0, 0)  # tracks that were no vehicle passing, not reported: (brief, stationary)
     remeasured: int = 0  # vehicles measured under an earlier calibration, measured again with the final one at the end
@@ -471,7 +473,7 @@ def measure_video(video: Path | str, out_dir: Path, description: str, console, l
     summary = RunSummary(outcome.calibration, _read_vehicle_events(paths, earlier), outcome.warnings,
                          duration_s=outcome.duration_s, stopped=outcome.stopped, stopped_by=outcome.stopped_by,
                          position_s=outcome.position_s,
-                         moves=outcome.moves,
+                         moves=outcome.moves, moves_earlier=outcome.moves_earlier,
                          discarded=counts["discarded"], not_counted=(counts["brief"], counts["stationary"]),
                          remeasured=counts["remeasured"], remeasured_speeds=counts["remeasured_speeds"],
                          scaled=outcome.scaled_views)
@@ -588,8 +590,16 @@ def evaluate_run(gt_path: Path, summary: RunSummary, paths: RunPaths):
 
 
 def print_moves(console, summary: RunSummary) -> None:
-    """One line per camera move vpdetect noticed: when, and which calibration measured the vehicles before."""
+    """One line per camera move vpdetect noticed (the latest gst.runner.MOVES_KEPT; one line counts the earlier
+    ones): when, and which calibration measured the vehicles before."""
     since = float("-inf")
+    n_earlier, first, last = summary.moves_earlier
+    if n_earlier:
+        n = sum(e.first_timestamp_s < last for e in summary.events)
+        console.print(f"[yellow]The camera moved {n_earlier + len(summary.moves)} times[/]: {n_earlier} times from "
+                      f"{first:.1f} s to {last:.1f} s ({n} vehicles seen until then, each measured with the "
+                      f"calibration in force as it passed), then the latest {len(summary.moves)}:", highlight=False)
+        since = last
     for t, before, known in summary.moves:
         n = sum(since <= e.first_timestamp_s < t for e in summary.events)
         since = t

@@ -40,6 +40,8 @@ __all__ = ["Move", "PipelineError", "RunFailed", "RunOutcome", "ensure_elements"
 Progress = Callable[[float, "float | None"], None]
 
 MESSAGES_KEPT = 1000  # element messages an outcome keeps, the latest (a busy road's day posts 50 000 and more)
+MOVES_KEPT = 20  # camera moves an outcome keeps in full, the latest (a PTZ camera on patrol moves hundreds of times a
+# day, 1-2 kB each with the calibrations around it); the earlier ones are counted (RunOutcome.moves_earlier)
 
 
 class Move(NamedTuple):
@@ -55,9 +57,12 @@ class _Folded:
     """What the calibrations posted before the last camera move leave for :class:`RunOutcome`'s answers: the moves
     (their calibrations without their view pictures), the calibration with a scale in force at the end, every view's
     vanishing points, and the last calibration with a scale and a view of each view (with its picture: saved for the
-    next part).  Bounded by the camera's views and moves, however many calibrations were posted."""
+    next part).  Bounded by the camera's views and :data:`MOVES_KEPT`, however many calibrations were posted and
+    however often the camera moved: of the moves before the latest ones only how many, the first's and the last's
+    time are kept (``earlier``)."""
 
     moves: list[Move] = field(default_factory=list)
+    earlier: tuple[int, float | None, float | None] = (0, None, None)  # moves not kept: (count, first t, last t)
     before: Calibration | None = None
     seen: list[Calibration] = field(default_factory=list)  # one per vanishing points, without its view picture
     scaled: list[Calibration] = field(default_factory=list)  # one per view: latest_per_view
@@ -83,6 +88,17 @@ def _moves(cals: Iterable[Calibration], out: list[Move], before: Calibration | N
         elif c.camera is not None and c.camera.scale is not None:
             before = c
     return out, before
+
+
+def _latest_moves(moves: list[Move], earlier: tuple[int, float | None, float | None]
+                  ) -> tuple[list[Move], tuple[int, float | None, float | None]]:
+    """The latest :data:`MOVES_KEPT` of ``moves`` and the count and times of those before them, on from
+    ``earlier`` (the ones left out already)."""
+    cut = len(moves) - MOVES_KEPT
+    if cut <= 0:
+        return moves, earlier
+    n, first, _ = earlier
+    return moves[cut:], (n + cut, moves[0].t if first is None else first, moves[cut - 1].t)
 
 
 @dataclass
@@ -116,7 +132,8 @@ class RunOutcome:
         if cal.moved_at is not None and self.calibrations:
             f, cals = self._folded, [c for _, c in self.calibrations]
             moves, before = _moves(cals, f.moves, f.before)
-            f.moves = [Move(m.t, _without_view(m.before), _without_view(m.known)) for m in moves]
+            f.moves, f.earlier = _latest_moves(moves, f.earlier)
+            f.moves = [Move(m.t, _without_view(m.before), _without_view(m.known)) for m in f.moves]
             f.before = _without_view(before)
             for c in cals:
                 if c.camera is not None:
@@ -144,9 +161,20 @@ class RunOutcome:
 
     @property
     def moves(self) -> list[Move]:
-        """Each time the camera moved: when, the calibration with a scale in force before, and the known view's
-        calibration vpdetect took up again (the one with the most said about it, e.g. bbscale's with the scale)."""
-        return _moves((c for _, c in self.calibrations), self._folded.moves, self._folded.before)[0]
+        """The latest :data:`MOVES_KEPT` times the camera moved (:attr:`moves_earlier` counts the others): when, the
+        calibration with a scale in force before, and the known view's calibration vpdetect took up again (the one
+        with the most said about it, e.g. bbscale's with the scale)."""
+        return self._moves_and_earlier()[0]
+
+    @property
+    def moves_earlier(self) -> tuple[int, float | None, float | None]:
+        """The moves before :attr:`moves`, not kept: how many, when the first and the last of them were (None, None
+        when there are none)."""
+        return self._moves_and_earlier()[1]
+
+    def _moves_and_earlier(self) -> tuple[list[Move], tuple[int, float | None, float | None]]:
+        moves = _moves((c for _, c in self.calibrations), self._folded.moves, self._folded.before)[0]
+        return _latest_moves(moves, self._folded.earlier)
 
     @property
     def scaled_views(self) -> list[Calibration]:
