@@ -842,8 +842,10 @@ def test_several_files_all_refused_leave_no_new_out(tmp_path):
     out.mkdir(parents=True)
     proc = trafficcal("run", bad, worse, "--out", out, "--no-overlay")
     assert proc.returncode == 2 and sorted(p.name for p in out.iterdir()) == [
-        "parts.csv", "status.json", "vehicles.csv", "vehicles.jsonl"]
+        "parts.csv", "run.log", "status.json", "vehicles.csv", "vehicles.jsonl"]
     assert read_status(out / "status.json").state == "failed"
+    log = (out / "run.log").read_text()  # each file's failure as it came, and the run's error at the end
+    assert "notes.mp4: failed: " in log and "list.mp4: failed: " in log and "trafficcal: error: notes.mp4: " in log
 
 
 def test_duration_counts_the_video_of_all_the_files(clip, tmp_path):
@@ -1105,6 +1107,54 @@ def test_a_source_that_sends_nothing_ends_the_run_with_an_error(tmp_path):
     proc = subprocess.run([sys.executable, "-m", "gst_trafficcal", "run", uri, "--out", str(tmp_path / "out2"),
                            "--no-overlay"], capture_output=True, text=True, timeout=120, env=env)
     assert "STALL_TIMEOUT must be a number of seconds, got 'soon'" in one_line_error(proc)
+
+
+def test_a_final_error_reaches_run_log_when_the_terminal_is_gone(tmp_path):
+    """A run whose terminal is gone (its SSH session closed; here a pipe whose reader left before the first line)
+    ended with its error in status.json only: nothing could print it.  Now --out/run.log holds what the terminal
+    would have said that matters afterwards — the start, the error as the command line prints it, each line dated —
+    and a later run into the same --out adds to it."""
+    from .conftest import closed_port
+
+    uri = f"udp://127.0.0.1:{closed_port()}"
+    out = tmp_path / "out"
+    env = dict(os.environ, STALL_TIMEOUT="1")
+    for _ in range(2):
+        read, write = os.pipe()
+        os.close(read)  # the reader is gone: every write of the run fails (EPIPE)
+        proc = subprocess.run([sys.executable, "-m", "gst_trafficcal", "run", uri, "--out", str(out), "--no-overlay"],
+                              stdout=write, stderr=write, timeout=120, env=env)
+        os.close(write)
+        assert proc.returncode == 2
+    status = json.loads((out / "status.json").read_text())
+    assert status["state"] == "failed" and "no frame for 1 s" in status["error"]
+    lines = (out / "run.log").read_text().splitlines()
+    assert len(lines) == 4 and all(re.match(r"\d{4}-\d\d-\d\dT\d\d:\d\d:\d\d\.\d{3}[+-]\d\d:\d\d ", ln) for ln in lines)
+    assert f"trafficcal run started: {uri} into {out} (process " in lines[0]
+    assert f"trafficcal: error: {uri}: cannot be processed: no frame for 1 s: the source stopped sending" in lines[1]
+    assert "trafficcal run started" in lines[2] and "trafficcal: error:" in lines[3]
+
+
+def test_run_log_is_appended_in_dated_lines_and_kept_small(tmp_path):
+    """run.log: stderr's text in pieces becomes whole dated lines; past its size the file moves to run.log.1 (the
+    one before that dropped), so a run of months keeps two small files; a log that cannot be written is said once
+    and never stops the run."""
+    from gst_trafficcal.cli.terminal import RunLog
+
+    log = RunLog(tmp_path / "run.log", max_bytes=400)
+    log.stream("trafficcal: warn")
+    log.stream("ing: one\ntwo")
+    log.flush()
+    assert [ln.split(" ", 1)[1] for ln in (tmp_path / "run.log").read_text().splitlines()] == [
+        "trafficcal: warning: one", "two"]
+    for k in range(40):
+        log.line(f"line {k}")
+    kept = (tmp_path / "run.log.1").read_text() + (tmp_path / "run.log").read_text()
+    assert (tmp_path / "run.log").stat().st_size <= 400 and (tmp_path / "run.log.1").stat().st_size <= 400
+    assert kept.rstrip().endswith("line 39") and "line 30" in kept and not (tmp_path / "run.log.2").exists()
+    broken = RunLog(tmp_path / "no" / "such" / "run.log")
+    broken.line("x")  # said once on stderr, no exception
+    broken.line("y")
 
 
 def test_a_truncated_file_is_measured_up_to_where_it_ends_and_says_so(clip, tmp_path):

@@ -843,12 +843,15 @@ def command(videos: tuple[str, ...], out_dir: Path, calibration_path: Path | Non
                       f"measured again) in {kept[0]}", highlight=False)
     status = StatusFile(out_dir / "status.json", shown_source(inputs[0]) if len(inputs) == 1 else
                         f"{len(inputs)} files: {', '.join(shown_source(v) for v in inputs)}", every_s=status_s,
-                        warn=lambda text: console.print(f"[yellow]warning[/]: {text}", highlight=False))
+                        warn=lambda text: say(console, text))
     options = RunOptions(detector, regression_path, body_shapes, limit, interval_min, duration_s, events_url,
                          no_overlay, gt_path, live_clock, start, status=status, split_every_s=split_s, zone=zone)
-    from .terminal import quiet_when_the_terminal_is_gone
+    from .terminal import RunLog, quiet_when_the_terminal_is_gone, say
 
-    with quiet_when_the_terminal_is_gone():  # (the terminal gone with the SSH session: the outputs still complete)
+    log = RunLog(out_dir / "run.log")  # what the screen said that must outlive it: warnings, errors, the end
+    log.line(f"trafficcal run started: {status.status.source} into {out_dir} (process {status.status.pid} on "
+             f"{status.status.host})")
+    with quiet_when_the_terminal_is_gone(log):  # (the terminal gone with the SSH session: the outputs still complete)
         with stop_signals_as_ctrl_c():  # a service stopped (systemctl/docker stop, Kubernetes), or the SSH session
             # that started the run closed, loses nothing either
             failed = _run_inputs(console, inputs, out_dir, calibration_path, options, starts, reconnect, status, first)
@@ -856,10 +859,14 @@ def command(videos: tuple[str, ...], out_dir: Path, calibration_path: Path | Non
             from .run_parts import remove_a_refused_run
 
             if remove_a_refused_run(out_dir, inputs, new):  # every file refused: nothing new is left, as for one file
+                log.close()  # (its run.log went with the rest)
                 raise InputError(failed)
         status.update(state="interrupted" if failed == "interrupted" else "failed" if failed else "finished",
                       error=failed if failed and failed != "interrupted" else status.status.error,
                       next_attempt_at=None, force=True)
+        s = status.status
+        log.line(f"trafficcal run {s.state}: {s.vehicles} vehicles, {s.measured} measured" +
+                 (f", at {s.position_s:.1f} s of the stream" if s.position_s is not None else ""))
         sys.stdout.flush()
         if failed == "interrupted":
             sys.exit(130)  # the shell's code for Ctrl-C; every output above is complete
@@ -1040,7 +1047,10 @@ def run_one(console, video: Path | str, out_dir: Path, calibration_path: Path | 
         at = f"{summary.position_s:.1f} s" if summary.position_s is not None else "the start"
         why = "--duration reached" if summary.stopped != "interrupted" else \
             f"stopped ({summary.stopped_by})" if summary.stopped_by in ("SIGTERM", "SIGHUP") else "interrupted (Ctrl-C)"
+        from .terminal import log_line
+
         console.print(f"[yellow]{why}[/] at {at}: the outputs cover the video up to there", highlight=False)
+        log_line(f"{why} at {at}: the outputs cover the video up to there")
 
     cal = summary.calibration
     if cal is None or cal.camera is None:
@@ -1067,8 +1077,10 @@ def run_one(console, video: Path | str, out_dir: Path, calibration_path: Path | 
         summary.warnings.append(empty)
         if options.status is not None:
             options.status.warning(empty)
+    from .terminal import say
+
     for w in summary.warnings:
-        console.print(f"[yellow]warning[/]: {w}", highlight=False)
+        say(console, w)
 
     ev = None
     if gt_path is not None:

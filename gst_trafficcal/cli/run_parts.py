@@ -15,6 +15,7 @@ from pathlib import Path
 from ..clock import next_boundary
 from ..errors import InputError
 from .run import RunOptions, run_one
+from .terminal import log_line, say
 
 
 def run_files(console, videos: list[Path], out_dir: Path, calibration_path: Path | None,
@@ -103,6 +104,7 @@ def run_parts(console, parts, total: int | None, out_dir: Path, calibration_path
         except InputError as exc:
             text = str(exc)  # the part's label once: "notes.mp4: cannot be processed", not "notes.mp4: notes.mp4: ..."
             failures.append(f"{label}: {text.removeprefix(f'{video}: ')}")
+            log_line(f"{label}: failed: {text}")
             rows.append([label, "–", "–", "–", "–", "", f"[red]failed[/]: {exc}"])
             records.append({"part": label, "folder": name, "status": "failed", "error": str(exc)})
             _write_parts(out_dir / "parts.csv", records)
@@ -116,7 +118,7 @@ def run_parts(console, parts, total: int | None, out_dir: Path, calibration_path
                         dc_replace(cal, source=f"{cal.source}, kept from {label}")
                     save_view(kept, options.views_dir)
                 except InputError as exc:
-                    console.print(f"[yellow]warning[/]: {exc}", highlight=False)
+                    say(console, str(exc))
             if opts.start is not None and not live:
                 dated.append((opts.start, summary.events, summary.watched_s))
             st = speed_stats([e.speed_kmh for e in summary.events if e.speed_kmh is not None])
@@ -159,6 +161,7 @@ def run_parts(console, parts, total: int | None, out_dir: Path, calibration_path
             continue
         console.print(f"[yellow]{why}[/]: connecting again in {wait:g} s (Ctrl-C stops)", highlight=False,
                       soft_wrap=True)
+        log_line(f"{name}: {why}: connecting again in {wait:g} s")
         if options.status is not None:
             from datetime import datetime, timedelta
 
@@ -206,7 +209,7 @@ class _AllVehicles:
             self.writers = EventWriters.open(out_dir / "vehicles.jsonl", out_dir / "vehicles.csv",
                                              extra_columns=("part",))
         except InputError as exc:
-            console.print(f"[yellow]warning[/]: {exc}: no table of every part's vehicles", highlight=False)
+            say(console, f"{exc}: no table of every part's vehicles")
 
     def add(self, part: str, events: list, start, live_clock: bool) -> None:
         from ..outputs import stream_start
@@ -222,8 +225,7 @@ class _AllVehicles:
             for e in _on_clock(events, shift, ndigits=3):
                 self.writers.write(e, {"part": part})
         except InputError as exc:
-            self.console.print(f"[yellow]warning[/]: {exc}: the table of every part's vehicles is incomplete",
-                               highlight=False)
+            say(self.console, f"{exc}: the table of every part's vehicles is incomplete")
 
     def close(self) -> None:
         if self.writers is not None:
@@ -252,7 +254,7 @@ def _write_day_intervals(console, path: Path, dated: list, options: RunOptions) 
                              covered=covered if len(covered) == len(dated) else None)
         write_intervals_csv(path, rows)
     except InputError as exc:
-        console.print(f"[yellow]warning[/]: {exc}", highlight=False)
+        say(console, str(exc))
         return
     console.print(f"[bold]Wrote[/] {path}: {len(events)} vehicles of {len(dated)} files in "
                   f"{len({r.start for r in rows})} intervals of {options.interval_min:g} min", highlight=False)
@@ -296,7 +298,7 @@ def remove_a_refused_run(out_dir: Path, videos: list[Path], made: list[Path]) ->
 
     if any((out_dir / name).exists() for name in _output_names(videos)):
         return False
-    for name in ("status.json", "parts.csv", "vehicles.jsonl", "vehicles.csv", "intervals.csv"):
+    for name in ("status.json", "parts.csv", "vehicles.jsonl", "vehicles.csv", "intervals.csv", "run.log"):
         with contextlib.suppress(FileNotFoundError):
             (out_dir / name).unlink()
     remove_empty_folders([*made, out_dir / "views"])
