@@ -1054,6 +1054,34 @@ def test_a_run_whose_ssh_session_closes_completes_every_output(clip, rtsp_clip, 
     _assert_interrupted_with_every_output(out)
 
 
+def test_a_run_killed_outright_keeps_the_open_intervals_count(clip, rtsp_clip, tmp_path):
+    """kill -9 (a power cut, the OOM killer) in the middle of a quarter hour: intervals.csv held only its header
+    until the interval closed, so every vehicle counted in it was lost from the table.  Now the open interval's row
+    is on disk as vehicles come: after the kill it counts the vehicles written before it, with the seconds of the
+    interval watched so far."""
+    import csv
+    import signal
+    import time
+
+    out = tmp_path / "live"
+    proc = subprocess.Popen([sys.executable, "-m", "gst_trafficcal", "run", rtsp_clip, "--out", str(out),
+                             "--calibration", str(clip / "calibration.json"), "--no-overlay"],
+                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    try:
+        _wait_for_a_vehicle(proc, out)
+        assert proc.poll() is None
+        time.sleep(1.0)
+        os.kill(proc.pid, signal.SIGKILL)
+    finally:
+        proc.kill()
+        proc.wait(timeout=60)
+    events = read_events(out / "vehicles.jsonl").events
+    with open(out / "intervals.csv", newline="") as f:
+        rows = [r for r in csv.DictReader(f) if r["lane"] == "all"]
+    assert len(rows) == 1 and 1 <= int(rows[0]["vehicles"]) <= len(events), rows
+    assert 0 < float(rows[0]["observed_s"]) < 900
+
+
 def test_a_camera_move_is_told_with_what_it_cost():
     """After a run in which the camera moved: a line per move (when, how many vehicles the old calibration
     measured, which one), and how many tracks of the time between the move and its notice were not counted."""
