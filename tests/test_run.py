@@ -715,6 +715,8 @@ def test_an_earlier_runs_outputs_that_are_symlinks_stay_links(clip, tmp_path):
 def test_an_out_folder_another_run_is_writing_into_is_refused(clip, tmp_path):
     """Two runs into one --out would overwrite each other's files: while the run whose status.json is there goes on
     (its process alive: here this test's), a second one is refused in one line; once it ended, it is not."""
+    from datetime import datetime, timedelta
+
     from gst_trafficcal.run_status import StatusFile
 
     running = StatusFile(tmp_path / "status.json", "rtsp://cam/1")
@@ -722,6 +724,16 @@ def test_an_out_folder_another_run_is_writing_into_is_refused(clip, tmp_path):
     line = one_line_error(trafficcal("run", clip / "video.mp4", "--out", tmp_path))
     assert line.startswith(f"trafficcal: error: {tmp_path}: another run is writing there (process {os.getpid()} on ")
     assert line.endswith("reading rtsp://cam/1): give another --out, or stop that run first")
+    # another machine's run whose clock is a day ahead: refused as before, but saying why it cannot be told and
+    # what to do (it said "another run is writing there" until that machine's date came, with no word of the clock)
+    data = json.loads((tmp_path / "status.json").read_text())
+    ahead = (datetime.now().astimezone() + timedelta(days=1)).isoformat(timespec="milliseconds")
+    (tmp_path / "status.json").write_text(json.dumps({**data, "host": "nvr-07", "updated_at": ahead}))
+    line = one_line_error(trafficcal("run", clip / "video.mp4", "--out", tmp_path))
+    assert re.search(r"another run may be writing there \(process \d+ on nvr-07, reading rtsp://cam/1\): its "
+                     r"status.json is dated 86[34]\d\d s in the future, the clocks of nvr-07 and this one differ, so "
+                     r"whether it still runs cannot be told: stop that run, or remove .*status.json if it is gone",
+                     line), line
     running.update(state="interrupted")
     ended = trafficcal("run", clip / "video.mp4", "--out", tmp_path, "--duration", "1", "--no-overlay")
     assert ended.returncode == 0, ended.stdout[-2000:] + ended.stderr[-2000:]

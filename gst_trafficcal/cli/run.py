@@ -306,9 +306,18 @@ def earlier_status(out_dir: Path):
 def refuse_a_busy_out(out_dir: Path, earlier) -> None:
     """InputError when the run of ``earlier`` (``out_dir``'s status) is still writing into ``out_dir`` (not ended,
     its process alive): two runs would overwrite each other's files."""
-    from ..run_status import still_running
+    from datetime import datetime
+
+    from ..run_status import CLOCK_SKEW_S, age_s, still_running
 
     if earlier is not None and still_running(earlier):
+        age = age_s(earlier.updated_at, datetime.now().astimezone())
+        if age is not None and age < -CLOCK_SKEW_S:  # another machine's, taken at its word: it cannot be told
+            raise InputError(f"{out_dir}: another run may be writing there (process {earlier.pid} on {earlier.host}"
+                             f", reading {earlier.source}): its status.json is dated {-age:.0f} s in the future, "
+                             f"the clocks of {earlier.host or 'its machine'} and this one differ, so whether it "
+                             f"still runs cannot be told: stop that run, or remove {out_dir / 'status.json'} if it "
+                             "is gone (and set the clocks right: NTP)")
         raise InputError(f"{out_dir}: another run is writing there (process {earlier.pid} on {earlier.host}, "
                          f"{earlier.state} since {earlier.state_since}, reading {earlier.source}): give another "
                          "--out, or stop that run first")
