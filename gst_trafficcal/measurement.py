@@ -55,6 +55,7 @@ import numpy as np
 
 from .calibration import Calibration
 from .detection.records import box_iou
+from .frame_rate import FrameSpacing, frames_needed
 from .geometry import Camera
 from .lanes import LaneModel, lateral_offset
 from .outputs import AWAY_FROM_VP1, TOWARDS_VP1, VehicleEvent
@@ -238,6 +239,7 @@ class SpeedMeter:
         # too fast, and its points disagree with the vehicle's own motion (every 4th frame so: no vehicle measured)
         self.same_time = 0
         self.t: float | None = None
+        self.spacing = FrameSpacing()  # the stream's time between frames: min_track_length as a duration below 12.5 fps
         if calibration is not None:
             self.set_calibration(calibration)
 
@@ -308,6 +310,7 @@ class SpeedMeter:
             raise ValueError(f"timestamps must not go backwards ({t:.6f} s after {self.t:.6f} s)")
         sightings = self._one_per_id(t, sightings)
         self.t = t
+        self.spacing.add(t)
         seen = []
         for s in sightings:
             if s.id in self._retired:  # a track that went on across a camera move: not this vehicle any more
@@ -491,17 +494,24 @@ class SpeedMeter:
             rec.live_label_at = n
         return LiveSpeed(m.speed_kmh, m.agreement, m.n_pairs, rec.live_label)
 
+    @property
+    def points_needed(self) -> int:
+        """Reference points a vehicle needs: ``min_track_length``, or where the stream's frames are more than
+        0.08 s apart the ones that cover its time at 25 fps (10: 0.4 s), at least τ + 1
+        (:func:`~gst_trafficcal.frame_rate.frames_needed`: at 10 and 5 fps 6 points, not 1 and 2 s of track)."""
+        return frames_needed(self.min_track_length, self.spacing.seconds, self.tau + 1)
+
     def _speed(self, px: np.ndarray, times: np.ndarray) -> VehicleSpeed:
         """:func:`~gst_trafficcal.speed.vehicle_speed` with the meter's minimum track length (reference points
         before and after dropping the ones that are not the vehicle's own)."""
         none = np.zeros(len(px), bool)
-        if len(px) < self.min_track_length:
-            return VehicleSpeed(None, 0, f"track too short ({len(px)} reference points, needs "
-                                f"{self.min_track_length})", none)
+        needed = self.points_needed
+        if len(px) < needed:
+            return VehicleSpeed(None, 0, f"track too short ({len(px)} reference points, needs {needed})", none)
         m = vehicle_speed(self.camera, px, times, self.tau, self.checks)
-        if m.measured and m.kept.sum() < self.min_track_length:
+        if m.measured and m.kept.sum() < needed:
             return VehicleSpeed(None, 0, f"track too short ({int(m.kept.sum())} consistent reference points of "
-                                f"{len(px)}, needs {self.min_track_length})", m.kept)
+                                f"{len(px)}, needs {needed})", m.kept)
         return m
 
     def remeasure(self) -> list[MeasuredVehicle]:

@@ -115,7 +115,8 @@ class Speedometer(TrafficcalTransform):
         "tau": (int, "Tau", "Observations between the two points of each speed sample (more for a vehicle that "
                 "covers less than 4 m of road in tau observations)", 1, 1000, 5, _RW),
         "min-track-length": (int, "Minimum track length", "Reference points a vehicle needs to be measured "
-                             "(at least tau + 1)", 2, 100000, 10, _RW),
+                             "(at least tau + 1); frames more than 0.08 s apart: as many as cover this many 25 fps "
+                             "frames' time (10: 0.4 s), at least tau + 1", 2, 100000, 10, _RW),
         "views-dir": (str, "Views folder", "The camera's views folder (vpdetect views-dir): a scale this element "
                       "finds itself (no bbscale upstream) is kept there with its view, so that after a restart "
                       "vpdetect gives the view with its scale at once; empty = none", "", _RW),

@@ -23,7 +23,8 @@ class Tracker(TrafficcalTransform):
                        "object_id and a trafficcal-vehicle structure (3D box, road-plane reference point)",
                        "gst-trafficcal")
     __gproperties__ = {
-        "min-hits": (int, "Minimum hits", "Detections needed before a track is confirmed and gets an object_id",
+        "min-hits": (int, "Minimum hits", "Detections needed before a track is confirmed and gets an object_id "
+                     "(frames more than 0.08 s apart: as many as cover this many 25 fps frames' time, at least 2)",
                      1, 1000, 3, _RW),
         "max-lost": (float, "Maximum lost time", "Seconds a confirmed track survives without a detection",
                      0.0, 60.0, 1.5, _RW),

@@ -4,8 +4,9 @@
   predictions of the tracks' detection boxes, cost 1 − IoU with a centre-distance fallback for small, fast
   boxes, gated by IoU/distance and size ratio.  (The detector's box is steadier from frame to frame than the
   hull's, which changes when blobs merge or split; the hull feeds the 3D box.)
-* States: tentative until ``n_init`` hits, confirmed, lost while unmatched (predicted), finished after
-  ``max_lost`` seconds without a match.  Time comes from the caller's timestamps (buffer PTS), never frame
+* States: tentative until ``n_init`` hits (frames more than 0.08 s apart: the hits covering ``n_init`` 25 fps
+  frames' time, at least 2, :func:`~gst_trafficcal.frame_rate.frames_needed`), confirmed, lost while unmatched
+  (predicted), finished after ``max_lost`` seconds without a match.  Time comes from the caller's timestamps (buffer PTS), never frame
   counts, so dropped frames only widen the prediction step.
 * The paper's heuristic: a detection partly covered by a nearer one is not measured, so only fully visible
   vehicles give 3D boxes and reference points.  It still keeps its track alive (association and the 2D Kalman
@@ -34,6 +35,7 @@ from scipy.optimize import linear_sum_assignment
 
 from ..detection.records import Detections, box_iou, clip_boxes
 from ..errors import InputError
+from ..frame_rate import FrameSpacing, frames_needed
 from ..geometry import Camera
 from .box3d import (CORNER_BITS, TypicalHeight, _boxes, _pad_hulls, fit_shapes, pixels_to_road, track_choice,
                     track_class, world_rays, world_to_pixels)
@@ -132,7 +134,7 @@ class Track:
 class TrackerConfig:
     """Tracker tuning; times in seconds."""
 
-    n_init: int = 3  # hits before a track is confirmed
+    n_init: int = 3  # hits before a track is confirmed (below 12.5 fps fewer: the same time, at least 2)
     max_lost: float = 1.5  # seconds a confirmed track survives without a match (long occlusions)
     tentative_lost: float = 0.25  # seconds a tentative track survives without a match (detectors run every
     # N-th frame leave gaps; a false positive rarely recurs at the predicted place)
@@ -218,6 +220,7 @@ class Tracker:
         self.finished: list[Track] = []
         self._ids = itertools.count(1)
         self.t: float | None = None
+        self.spacing = FrameSpacing()  # the stream's time between frames: n_init as a duration below 12.5 fps
         self._silhouettes = False  # this frame's hulls get the car body shapes (set by update)
         self.occluders: OccluderMap | None = OccluderMap() if self.config.occluders else None
         self.typical_height = TypicalHeight()  # of the vehicles whose body shape is chosen (plane units)
@@ -258,6 +261,9 @@ class Tracker:
             raise InputError(f"timestamps must not go backwards ({t:.6f} s after {self.t:.6f} s)")
         dt = 0.0 if self.t is None else t - self.t
         self.t = t
+        self.spacing.add(t)
+        # hits that confirm a track: n_init, or below 12.5 fps those covering its time at 25 fps (at least 2)
+        n_init = frames_needed(cfg.n_init, self.spacing.seconds, min(2, cfg.n_init))
         n = len(detections)
         hulls = list(hulls) if hulls is not None else [None] * n
         if len(hulls) != n:
@@ -299,7 +305,7 @@ class Tracker:
             tr.observations.append(obs)
             tr.hits += 1
             tr.last_t = t
-            if tr.state is TrackState.LOST or (tr.state is TrackState.TENTATIVE and tr.hits >= cfg.n_init):
+            if tr.state is TrackState.LOST or (tr.state is TrackState.TENTATIVE and tr.hits >= n_init):
                 tr.state = TrackState.CONFIRMED
                 tr.ever_confirmed = True
             matched_tracks.add(ti)
