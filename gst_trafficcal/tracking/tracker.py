@@ -6,8 +6,8 @@
   hull's, which changes when blobs merge or split; the hull feeds the 3D box.)
 * States: tentative until ``n_init`` hits (frames more than 0.08 s apart: the hits covering ``n_init`` 25 fps
   frames' time, at least 2, :func:`~gst_trafficcal.frame_rate.frames_needed`), confirmed, lost while unmatched
-  (predicted), finished after ``max_lost`` seconds without a match.  Time comes from the caller's timestamps (buffer PTS), never frame
-  counts, so dropped frames only widen the prediction step.
+  (predicted), finished after ``max_lost`` seconds without a match.  Time comes from the caller's timestamps
+  (buffer PTS), never frame counts, so dropped frames only widen the prediction step.
 * The paper's heuristic: a detection partly covered by a nearer one is not measured, so only fully visible
   vehicles give 3D boxes and reference points.  It still keeps its track alive (association and the 2D Kalman
   filter), so a vehicle that passes behind another one keeps its id; it never starts a track.
