@@ -1306,8 +1306,13 @@ def test_a_rotated_video_is_analysed_upright(tmp_path):
     proc = trafficcal("run", video, "--out", tmp_path / "out", "--calibration", cal)
     assert proc.returncode == 0, proc.stdout[-2000:] + proc.stderr[-2000:]
     assert "videoflip video-direction=90r ! videoscale" in proc.stdout
-    assert load_calibration(tmp_path / "out" / "calibration.json").image_size == (360, 640)
-    cap = cv2.VideoCapture(str(tmp_path / "out" / "overlay.mp4"))
+    _assert_upright_outputs(tmp_path / "out")
+
+
+def _assert_upright_outputs(out: Path) -> None:
+    """The run calibrated and drew the upright (portrait) picture of a rotation-tagged 640x360 video."""
+    assert load_calibration(out / "calibration.json").image_size == (360, 640)
+    cap = cv2.VideoCapture(str(out / "overlay.mp4"))
     assert cap.read()[1].shape == (640, 360, 3)
     cap.release()
 
@@ -1341,10 +1346,7 @@ def test_a_rotated_stream_takes_a_calibration_of_its_upright_picture(tmp_path):
         server.server_close()
     assert proc.returncode == 0, proc.stdout[-2000:] + proc.stderr[-2000:]
     assert "videoflip video-direction=auto ! videoscale" in proc.stdout
-    assert load_calibration(tmp_path / "out" / "calibration.json").image_size == (360, 640)
-    cap = cv2.VideoCapture(str(tmp_path / "out" / "overlay.mp4"))
-    assert cap.read()[1].shape == (640, 360, 3)
-    cap.release()
+    _assert_upright_outputs(tmp_path / "out")
 
 
 def _wait_for_a_vehicle(proc: subprocess.Popen, out: Path) -> None:
