@@ -69,6 +69,7 @@ from .vehicles.classify import MAX_Z, classify_dimensions, refined_label
 DEFAULT_MIN_TRACK_LENGTH = 10
 MIN_SEEN_S = 0.5  # an unmeasured track seen for less is no vehicle of its own (a fragment, a detector's flicker)
 MIN_PASSING_M = 3.0  # an unmeasured track that moved less along the road did not pass (parked, fixed)
+DRIVE_OFF_POINTS = 64  # a track's latest reference points drove_along_road judges (2.6 s at 25 fps)
 BRIEF = "brief"  # SpeedMeter.not_counted's reasons
 STATIONARY = "stationary"
 END_AFTER_MARGIN = 0.4  # seconds beyond the tracker's coasting time (max_lost) before a vehicle counts as gone
@@ -624,7 +625,8 @@ class SpeedMeter:
         if len(px) >= 2 and cam is not None and cam.scale is not None and seen_s >= self.min_seen_s:
             # only for a track seen long enough to tell (a vehicle the end of the stream cut after a moment has not
             # gone far yet)
-            moved = moved_along_road(cam, px)
+            # or drove off after standing for most of its stay (a queue at lights), as trafficoverlay counts it
+            moved = max(moved_along_road(cam, px), drove_along_road(cam, px[-DRIVE_OFF_POINTS:]))
         why = not_a_vehicle(np.inf if rec.cut else seen_s, moved, self.min_seen_s, self.min_passing_m)
         if why:
             self.not_counted[why] += 1

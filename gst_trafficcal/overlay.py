@@ -23,7 +23,7 @@ from .drawing import (GRID_ACROSS_BGR, GRID_ALONG_BGR, HORIZON_BGR, ZONE_BGR, Ro
                       grid_min_cell_px, horizon_segment, road_grid_segments, world_camera, zone_segments)
 from .geometry import Camera
 from .lanes import DEFAULT_LANE_WIDTH_M, lane_centres
-from .measurement import drove_along_road, metres_between, moved_along_road, not_a_vehicle
+from .measurement import DRIVE_OFF_POINTS, drove_along_road, metres_between, moved_along_road, not_a_vehicle
 from .outputs import AWAY_FROM_VP1, TOWARDS_VP1, direction_name
 from .traffic_stats import SpeedLimit, as_limit, is_over_limit
 
@@ -568,7 +568,7 @@ class _Trail:
 
     MAX = 128
     RECENT = 128  # 5.1 s at 25 fps
-    STEADY = 64  # the latest of them drove_along_road judges
+    STEADY = DRIVE_OFF_POINTS  # the latest of them drove_along_road judges, as speedometer does
 
     def add(self, point: tuple[float, float]) -> None:
         self.recent.append(point)

@@ -615,6 +615,28 @@ def test_tracks_that_are_no_vehicle_passing_are_not_reported(scene, truth):
     assert not_a_vehicle(0.5, None) == not_a_vehicle(2.0, 3.0) == ""
 
 
+def test_a_vehicle_that_stands_then_drives_off_unmeasured_is_still_reported(scene, truth):
+    """A box standing for 16 s (a queue at lights) that then drives 16 m off in 4 s, from a standstill: left without
+    a speed, it is still a vehicle passing, as trafficoverlay's counter has it (its latest points drove steadily
+    along the road).  The quarter medians of its whole stay alone took it for a parked one (its last quarter mostly
+    stands) and it was not reported."""
+    meter = SpeedMeter(calibration=cal_of(scene.camera))
+    still = next(s for f in scene.frames[200:] for s in sightings(f))
+    out = []
+    for f in scene.frames:
+        ss = sightings(f)
+        if 2.0 <= f.t < 22.0:
+            X = scene.camera.to_world(still.corners_px[:4])
+            X[:, 0] += max(0.0, f.t - 18.0) ** 2
+            corners = np.vstack([scene.camera.world_to_image(X), still.corners_px[4:]])
+            ss.append(Sighting(70_006, "car", f.t, still.box, 0.9, corners_px=corners))
+        out += meter.update(f.t, ss).finished
+    out += meter.flush()
+    mine = [m.event for m in out if m.event.id == 70_006]
+    assert len(mine) == 1 and mine[0].speed_kmh is None and mine[0].reason, mine
+    assert not meter.not_counted and 70_006 not in meter.take_not_counted_ids()
+
+
 def test_remeasure_measures_the_early_vehicles_again_with_the_final_calibration(scene, truth):
     """keep_measured (a file): the scale moves by 10 % at 16 s; at the end remeasure() measures every vehicle that
     left under the first scale again with the final one (same ids, the final calibration's id, speeds 10 % up),
