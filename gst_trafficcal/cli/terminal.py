@@ -104,23 +104,23 @@ class _Echo:
     def write(self, text: str) -> int:
         if self._log is not None:
             self._log.stream(text)
-        if not self.gone:
-            try:
-                return self._stream.write(text)
-            except OSError as exc:
-                if exc.errno not in GONE:
-                    raise
-                self.gone = True
-        return len(text)
+        written = self._while_there(self._stream.write, text)
+        return len(text) if written is None else written
 
     def flush(self) -> None:
-        if not self.gone:
-            try:
-                self._stream.flush()
-            except OSError as exc:
-                if exc.errno not in GONE:
-                    raise
-                self.gone = True
+        self._while_there(self._stream.flush)
+
+    def _while_there(self, call: Any, *args: Any) -> Any:
+        """``call(*args)`` while the reader is there; None once it is gone (from the first write that says so)."""
+        if self.gone:
+            return None
+        try:
+            return call(*args)
+        except OSError as exc:
+            if exc.errno not in GONE:
+                raise
+            self.gone = True
+            return None
 
     def __getattr__(self, name: str) -> Any:
         return getattr(self._stream, name)
