@@ -178,15 +178,12 @@ class Speedometer(TrafficcalTransform):
         self._untracked = UntrackedWatch("speedometer")  # a tracker upstream whose data does not arrive
         self._detector = None  # whether a vehicledetect runs upstream (decided at the first frame)
         self._empty_since = None  # stream time since which no vehicle arrived, while no detector is seen upstream
-        self._claimed = []  # our output files, claimed in this process (gst.file_claims) until the stop
 
     # ------------------------------------------------------------------ life cycle
     def do_start(self):
         from gst_trafficcal.calibration import load_calibration
         from gst_trafficcal.measurement import SpeedMeter
         from gst_trafficcal.outputs import VehicleOutputs, new_run_id
-
-        from gst_trafficcal.gst.file_claims import claim, release
 
         self._reset()
         self._run = new_run_id()  # on every event: appended runs reuse track ids
@@ -195,7 +192,7 @@ class Speedometer(TrafficcalTransform):
 
             # one writer per file: two speedometers given one file (a tee's branches, two pipelines) each wrote
             # every vehicle into it, without a word
-            self._claimed = claim(self, {name: self.get_property(name) for name in (
+            self.claim_files({name: self.get_property(name) for name in (
                 "events-file", "csv-file", "frames-file", "results-file", "intervals-file")})
 
             if self.min_track_length < self.tau + 1:  # the library says the same with its own argument names
@@ -232,7 +229,7 @@ class Speedometer(TrafficcalTransform):
             if not self._scale_given():  # built now, so bad scale-* properties are an error at start
                 self._own_stage = self._new_scale_stage()
         except Exception as exc:  # bad properties / unreadable calibration / unwritable file: readable error
-            release(self, self._claimed)
+            self.release_files()
             self.post_error(f"speedometer: {exc}")
             return False
         self._apply_calibration()
@@ -242,9 +239,7 @@ class Speedometer(TrafficcalTransform):
         if not self._flushed and self._meter is not None:  # stopped without EOS: keep what was measured
             self._finish(post=False)
         self._close()
-        from gst_trafficcal.gst.file_claims import release
-
-        release(self, self._claimed)
+        self.release_files()
         self._reset()
         return super().do_stop()
 

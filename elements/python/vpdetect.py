@@ -110,7 +110,6 @@ class VpDetect(TrafficcalTransform):
         self._size = None  # the frame size of the caps so far
         self._zone = None  # gst_trafficcal.zone.Zone: where the traffic to learn from is
         self._said_upstream = False  # the warning that a calibration from upstream is replaced: once
-        self._claimed = []  # calibration-file and views-dir, claimed in this process (gst.file_claims) until the stop
 
     def do_start(self):
         """A calibration file to be written (modes learn and auto) whose folder cannot be written is an error now,
@@ -129,31 +128,23 @@ class VpDetect(TrafficcalTransform):
             self.post_error(f"vpdetect: {exc}")
             return False
         if self.mode in ("learn", "auto"):  # (mode fixed reads them only)
-            from gst_trafficcal.gst.file_claims import claim
-
             try:
                 # one writer each: two vpdetects learning into one calibration file or views folder replaced each
                 # other's calibrations (two cameras' in one file, their views mixed), without a word
-                self._claimed = claim(self, {"calibration-file": self.calibration_file, "views-dir": self.views_dir},
-                                      why=ONE_WRITER)
+                self.claim_files({"calibration-file": self.calibration_file, "views-dir": self.views_dir},
+                                 why=ONE_WRITER)
                 if self.calibration_file:
                     writable_file(self.calibration_file, "calibration file")
             except InputError as exc:
-                self._release()
+                self.release_files()
                 self.post_error(f"vpdetect: {exc}")
                 return False
         return True
 
     def do_stop(self):
-        self._release()
+        self.release_files()
         self._reset()  # the learner's frames and the views go now, not at the next start
         return super().do_stop()
-
-    def _release(self):
-        from gst_trafficcal.gst.file_claims import release
-
-        release(self, self._claimed)
-        self._claimed = []
 
     def on_caps(self, info):
         from gst_trafficcal.calibration import Calibration, load_calibration

@@ -229,6 +229,22 @@ class TrafficcalTransform(GstBase.BaseTransform):
         else:
             self._held_at_caps.append((error, text))
 
+    def claim_files(self, files: Mapping[str, str], why: str | None = None) -> None:
+        """Claim the output files (and folders) of ``files`` (property name -> path; empty: none) for this element
+        until :meth:`release_files`: an InputError naming the other writer (and ``why`` that is wrong) when another
+        running element in this process writes one of them already (:mod:`gst_trafficcal.gst.file_claims`)."""
+        from .file_claims import claim
+
+        self.release_files()
+        self._claimed = claim(self, files, **({} if why is None else {"why": why}))
+
+    def release_files(self) -> None:
+        """Give back what :meth:`claim_files` claimed (at a failed start, and at the stop)."""
+        from .file_claims import release
+
+        release(self, getattr(self, "_claimed", []))
+        self._claimed: list[str] = []
+
     def keep_scale_view(self, cal: Calibration, folder: str) -> None:
         """Keep ``cal`` (a scale found for a view) in the camera's views ``folder`` (``views-dir``, as vpdetect reads
         it), so that after a restart vpdetect announces the view with its scale at once; a folder that cannot be
