@@ -16,21 +16,24 @@ from pathlib import Path
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT / "tests"))
+sys.path.insert(0, str(ROOT))
 
-import test_speedometer_element as T  # noqa: E402  (the clip, helpers and element registration of the tests)
+from tests import test_speedometer_element as T  # noqa: E402  (the helpers and element registration of the tests)
+from tests.conftest import CUBOID_SCENE  # noqa: E402  (the clip the tests render)
 
+from gst_trafficcal.gst.element import register_plugin_file  # noqa: E402
 from gst_trafficcal.synth.generate import generate  # noqa: E402
 from gst_trafficcal.synth.scenario import scenario_from_dict  # noqa: E402
+from gst_trafficcal.synth.traffic import cuboid_models  # noqa: E402
 
 
 def main() -> None:
     for name in ("speedometer.py", "tracker.py", "vehicledetect.py"):
-        T.register_plugin_file(T.ELEMENTS / name)
-    T.register_plugin_file(T.TEST_PLUGINS / "tcgtdetect.py")
+        register_plugin_file(T.ELEMENTS / name)
+    register_plugin_file(T.TEST_PLUGINS / "tcgtdetect.py")
     work = Path(tempfile.mkdtemp(prefix="speedometer-errors-"))
     clip = work / "clip"
-    generate(scenario_from_dict(T.SCENE), clip, box_vehicles=True, model_factory=T._box_model)
+    generate(scenario_from_dict(CUBOID_SCENE), clip, box_vehicles=True, model_factory=cuboid_models())
     for name, chain in (("true boxes", T.detector(clip)), ("vehicledetect", "vehicledetect")):
         _, events, results = T.measure(clip, work / name.replace(" ", "_"), chain,
                                        f"calibration-file={clip / 'calibration.json'}")
