@@ -22,7 +22,9 @@ Example::
 ``conditioning`` (derived, written for readers, ignored when loading): how much the speeds change when the lines
 towards VP2 turn by ``turn_deg`` (:mod:`gst_trafficcal.vanishing.conditioning`); ``poor`` for a view along the road.
 
-``zone`` (optional) is read by :func:`gst_trafficcal.zone.zone_of_file`, not by :func:`load_calibration`.
+``zone`` (optional) is read by :func:`gst_trafficcal.zone.zone_of_file`, not by :func:`load_calibration`; likewise
+``orientation`` (optional: the ``--orientation`` the picture was turned by) by
+:func:`gst_trafficcal.imaging.orientation_of_file`.
 
 ``state`` is one of :data:`STATES`.  Loading validates everything and raises :class:`InputError` with a
 one-line message naming the file for anything that is not our format or is corrupt.
@@ -226,13 +228,18 @@ def load_calibration(path: str | Path) -> Calibration:
     return Calibration.from_dict(read_json(path, "calibration file"), where=str(path))
 
 
-def save_calibration(cal: Calibration, path: str | Path, zone: object | None = None) -> Path:
+def save_calibration(cal: Calibration, path: str | Path, zone: object | None = None,
+                     orientation: str = "auto") -> Path:
     """Write the calibration atomically (a crash never leaves half a file); with the detection ``zone``
     (:class:`gst_trafficcal.zone.Zone`) it was learnt and measured in as field ``zone``, so that a report made again
-    from the file, or a run given it, keeps to the same road (:func:`gst_trafficcal.zone.zone_of_file`)."""
+    from the file, or a run given it, keeps to the same road (:func:`gst_trafficcal.zone.zone_of_file`); with an
+    ``orientation`` other than auto (``--orientation``: how the picture was turned) as field ``orientation``, so
+    that they turn it the same way (:func:`gst_trafficcal.imaging.orientation_of_file`)."""
     d = cal.to_dict()
     if zone is not None:
         d["zone"] = str(zone)
+    if orientation != "auto":
+        d["orientation"] = orientation
     return atomic_write_text(path, json.dumps(d, indent=2) + "\n", "calibration")
 
 

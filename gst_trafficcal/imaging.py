@@ -9,6 +9,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from .errors import InputError
+
 
 def fit(image: np.ndarray, size: tuple[int, int]) -> np.ndarray:
     """Resize to ``size`` (w, h). Large reductions go bilinear to twice the size, then area-averaged:
@@ -58,6 +60,42 @@ DIRECTIONS: dict[str, tuple[tuple[int, int], tuple[int, int]]] = {
     "identity": ((1, 0), (0, 1)), "90r": ((0, -1), (1, 0)), "180": ((-1, 0), (0, -1)), "90l": ((0, 1), (-1, 0)),
     "horiz": ((-1, 0), (0, 1)), "vert": ((1, 0), (0, -1)), "ul-lr": ((0, 1), (1, 0)), "ur-ll": ((0, -1), (-1, 0))}
 _ROTATIONS = {0: "identity", 90: "90r", 180: "180", 270: "90l"}  # degrees clockwise
+AUTO = "auto"  # --orientation's default: as the file's display matrix or the stream's tag says
+ORIENTATIONS = (AUTO, *DIRECTIONS)  # --orientation's values: auto, or a videoflip video-direction that overrides it
+
+
+def check_orientation(text: str | None, option: str = "--orientation") -> str:
+    """``text`` as an orientation: ``auto`` (the file's display matrix or the stream's tag turns the picture), or
+    the videoflip ``video-direction`` the stored frames are turned by whatever they say — a camera mounted on its
+    side or upside down, or one imaging a mirror, sends no tag over RTP (90r: a quarter turn clockwise, 180,
+    90l, horiz/vert: mirrored left-right/top-bottom, ul-lr/ur-ll: mirrored about a diagonal); InputError
+    naming ``option`` otherwise.  Empty or None: auto."""
+    value = (text or AUTO).strip().lower()
+    if value not in ORIENTATIONS:
+        raise InputError(f"{option} must be one of {', '.join(ORIENTATIONS)}, got {text!r}")
+    return value
+
+
+def orientation_of_file(path: str | Path) -> str | None:
+    """The orientation a calibration file keeps (its field ``orientation``, written by ``trafficcal calibrate`` and
+    ``run`` given an ``--orientation``), None when it keeps none; InputError naming the file otherwise."""
+    from .fileio import read_json
+
+    d = read_json(path, "calibration file")
+    text = d.get("orientation") if isinstance(d, dict) else None
+    if text is None:
+        return None
+    if not isinstance(text, str):
+        raise InputError(f"{path}: field 'orientation' must be one of {', '.join(ORIENTATIONS)}")
+    return check_orientation(text, f"{path}: field 'orientation'")
+
+
+def turned_size(size: tuple[int, int], fixup) -> tuple[int, int]:
+    """The size (w, h) of OpenCV's ``size`` frames once ``fixup`` (:func:`opencv_fixup`, or None) turned them."""
+    if fixup is None:
+        return size
+    h, w = fixup(np.zeros((size[1], size[0]), np.uint8)).shape
+    return w, h
 
 
 def video_direction(path: str | Path) -> str | None:
@@ -177,11 +215,15 @@ def apply_direction(frame: np.ndarray, matrix: tuple[tuple[int, int], tuple[int,
     return np.ascontiguousarray(frame[::sy, ::sx])
 
 
-def opencv_fixup(path: str | Path):
+def opencv_fixup(path: str | Path, orientation: str = AUTO):
     """What still turns OpenCV's frames of a video file (turned already by the rotation it reads: :func:`
-    opencv_rotation`) into the picture its display matrix shows (:func:`video_direction`, as trafficcal run and the
-    scripts show it): a flip for a mirrored file, None for all others."""
+    opencv_rotation`) into the picture trafficcal run and the scripts show: with ``orientation`` auto the one its
+    display matrix shows (:func:`video_direction`): a flip for a mirrored file, None for all others; with a
+    :data:`DIRECTIONS` name the stored frames turned that way whatever the file says (a camera mounted on its side
+    or upside down: :func:`check_orientation`)."""
     direction, degrees = mp4_direction(path), opencv_rotation(path)
+    if orientation != AUTO:
+        direction, degrees = orientation, 0 if degrees is None else degrees
     if direction is None or degrees is None or DIRECTIONS[direction] == DIRECTIONS[_ROTATIONS[degrees]]:
         return None
     want, done = np.array(DIRECTIONS[direction]), np.array(DIRECTIONS[_ROTATIONS[degrees]])

@@ -62,6 +62,7 @@ class RunStatus:
     frames: int = 0  # frames that reached the analysis (all parts)
     frames_dropped: int = 0  # of those, dropped to stay in real time
     calibration: dict[str, Any] | None = None
+    orientation: str = "auto"  # --orientation: how the picture was turned (auto: as the video says)
     vehicles: int = 0
     measured: int = 0
     last_vehicle_s: float | None = None

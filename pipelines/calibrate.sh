@@ -20,6 +20,10 @@
 #   VPDETECT_OPTS  extra vpdetect properties, e.g. "min-duration=60 max-duration=600 focal-range=500,4000"
 # STALL_TIMEOUT (seconds, default 30; 0: wait for ever): a live source that sends no frame this long ends the run
 # with an error (GStreamer's watchdog), so a service is restarted instead of hanging on a dead camera.
+# ORIENTATION (auto, identity, 90r, 180, 90l, horiz, vert, ul-lr, ur-ll; default auto: as a file's rotation or
+# mirroring says, or a stream's tag): the picture turned that way whatever the video says, as trafficcal run
+# --orientation turns it — a camera mounted on its side or upside down sends no tag over RTSP (90r: a quarter turn
+# clockwise, 90l: counter-clockwise, horiz/vert: mirrored). Give calibrate.sh and measure.sh the same one.
 set -euo pipefail
 
 here="$(cd "$(dirname "${BASH_SOURCE[0]}")" && pwd)"

@@ -8,9 +8,12 @@ set_analysed_video() {  # INPUT: sets `analysed` to (videoflip video-direction=.
     # A phone's or a body camera's rotated recording is turned as its file says (read before the pipeline starts,
     # as trafficcal run reads it: with video-direction=auto vpdetect first saw the stored size and refused a
     # calibration of the upright picture); a DVR's D1 or a 480x360 stored for a 640x360 picture gets square pixels.
-    local words
-    words="$(python -m gst_trafficcal.gst.chains analysed "$1")" || die "cannot set up the pipeline (is the" \
-        "project set up: scripts/setup.sh?)"
+    # ORIENTATION (auto, identity, 90r, 180, 90l, horiz, vert, ul-lr, ur-ll; as trafficcal run --orientation):
+    # turns the picture that way whatever the video says (a camera mounted on its side: RTP carries no tag).
+    local words rc=0
+    words="$(python -m gst_trafficcal.gst.chains analysed "$1" "${ORIENTATION:-auto}")" || rc=$?
+    [[ $rc == 3 ]] && die "$words"
+    [[ $rc == 0 ]] || die "cannot set up the pipeline (is the project set up: scripts/setup.sh?)"
     mapfile -t analysed <<<"$words"
 }
 

@@ -6,7 +6,7 @@ from pathlib import Path
 
 import click
 
-from .run import check_detector, detector_option
+from .run import check_detector, detector_option, orientation_option
 
 
 def parse_focal_range(text: str | None) -> tuple[float, float] | None:
@@ -65,10 +65,13 @@ def parse_focal_range(text: str | None) -> tuple[float, float] | None:
                    "width and height; several: separated by ';'), e.g. the measured road without a side road or a "
                    "parking lot; as trafficcal run --zone. Kept in the calibration file, so that trafficcal run "
                    "--calibration measures in it too. Default: the whole frame.")
+@orientation_option(" (the same as trafficcal run's, so that the calibration fits its frames; kept in the "
+                    "calibration file, which trafficcal run --calibration then turns the picture by)")
 def command(video: Path, out_path: Path, png_path: Path | None, method: str, min_duration: float,
             max_duration: float, focal_range: str, horizon_max: float, whole: bool, progress: bool,
             with_scale: bool, scale_models: str, iou_threshold: float, min_vehicles: int,
-            regression_file: Path | None, detector: str, constant_speed: bool = True, zone: str = "") -> None:
+            regression_file: Path | None, detector: str, constant_speed: bool = True, zone: str = "",
+            orientation: str | None = None) -> None:
     import cv2
     from rich.console import Console
     from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
@@ -76,11 +79,13 @@ def command(video: Path, out_path: Path, png_path: Path | None, method: str, min
     from ..calibration import save_calibration
     from ..drawing import ZONE_BGR, draw_calibration, draw_segments, zone_segments
     from ..errors import InputError
+    from ..imaging import check_orientation
     from ..vanishing.calibrator import CalibratorConfig, calibrate_video
     from ..zone import parse_zone
 
     if min_duration < 0 or max_duration <= 0:
         raise InputError("durations must be positive")
+    orientation = check_orientation(orientation)  # a bad one: one line, before any work
     where = parse_zone(zone, "--zone")
     if with_scale:  # bad scale inputs are one-line errors now, not after the vanishing points were found
         from ..scale.regression import load_regression
@@ -93,13 +98,15 @@ def command(video: Path, out_path: Path, png_path: Path | None, method: str, min
                            focal_range=parse_focal_range(focal_range), horizon_max_deg=horizon_max,
                            vp1_constant_speed=constant_speed, zone=where)
     from ..fileio import atomic_write_image, open_video, writable_file, writable_image
-    from ..imaging import capture_par, square_size
+    from ..imaging import AUTO, capture_par, opencv_fixup, square_size, turned_size
 
     cap = open_video(video)  # a missing or unreadable video: its one line before anything is created
     # the frames as calibrated: of square pixels (vanishing.frames), as trafficcal run and the scripts analyse them
     size = square_size(int(cap.get(cv2.CAP_PROP_FRAME_WIDTH)), int(cap.get(cv2.CAP_PROP_FRAME_HEIGHT)),
                        capture_par(cap))
     cap.release()
+    if orientation != AUTO:  # turned as --orientation says (a quarter turn swaps the sides)
+        size = turned_size(size, opencv_fixup(video, orientation))
     wrong = where.check(size) if where is not None and min(size) > 0 else None
     if wrong:
         raise InputError(f"{video}: the --{wrong}")
@@ -120,12 +127,14 @@ def command(video: Path, out_path: Path, png_path: Path | None, method: str, min
                 info = f"{status.time:6.1f} s  {status.tracks} tracks  {status.edgelets} edgelets  {status.state}"
                 bar.update(task, completed=i, total=total or None, info=info)
 
-        result = calibrate_video(video, cfg, progress=update, stop_when_done=not whole)
+        result = calibrate_video(video, cfg, progress=update, stop_when_done=not whole, orientation=orientation)
     cal = result.calibration
     out = Console()
     if with_scale and cal.camera is not None:
-        cal = _add_scale(video, cal, align_models, iou_threshold, min_vehicles, regression, out, model, where)
-    save_calibration(cal, out_path, zone=where)  # trafficcal run --calibration keeps to the same road
+        cal = _add_scale(video, cal, align_models, iou_threshold, min_vehicles, regression, out, model, where,
+                         orientation)
+    # trafficcal run --calibration keeps to the same road, turned the same way
+    save_calibration(cal, out_path, zone=where, orientation=orientation)
     fps = result.frames_read / max(result.seconds_processing, 1e-9)
     if cal.camera is None:
         out.print(f"{video}: not calibrated after {result.calibrator.t:.1f} s of video: {cal.reason} -> {out_path}",
@@ -165,14 +174,15 @@ def print_conditioning(console, cal, warned: bool = False) -> None:
 
 
 def _add_scale(video: Path, cal, models, iou_threshold: float, min_vehicles: int, regression, out, model: str = "",
-               zone=None):
+               zone=None, orientation: str = "auto"):
     """The calibration with BBScale's λ from ``video`` (gst_trafficcal.scale.video), or with the reason
     (``models``: loaded align models; ``regression``: a loaded ScaleRegression or None; ``model``: vehicledetect's,
-    "" for the background detector; ``zone``: only the vehicles standing in it)."""
+    "" for the background detector; ``zone``: only the vehicles standing in it; ``orientation``: how its frames are
+    turned, as they were for the vanishing points)."""
     from ..scale.video import scale_from_video
 
     res = scale_from_video(video, cal, models=models, iou_threshold=iou_threshold, min_vehicles=min_vehicles,
-                           regression=regression, detector=model, zone=zone)
+                           regression=regression, detector=model, zone=zone, orientation=orientation)
     r = res.result
     if r.converged:
         out.print(f"scale λ {r.scale:.3f} m (λ* {r.raw_scale:.3f}, confidence {r.confidence:.2f}, "

@@ -7,17 +7,18 @@ from pathlib import Path
 import click
 
 from ..errors import InputError
+from .run import given_orientation, orientation_option
 
 
-def _frame(image: Path | None, video: str | None, at_s: float):
+def _frame(image: Path | None, video: str | None, at_s: float, orientation: str = "auto"):
     """A BGR frame: the image file, or the video's frame at ``at_s`` seconds, or a stream's (a URI) frame now
-    (None when neither is given)."""
+    (None when neither is given); a video's turned by ``orientation`` (trafficcal run's --orientation)."""
     import cv2
 
-    from .run import first_frame, is_stream, local_file, shown_source
+    from .run import first_frame, frame_fixup, is_stream, local_file, shown_source
 
     from ..fileio import cannot_open_video, open_video, video_file
-    from ..imaging import capture_par, opencv_fixup, squared
+    from ..imaging import capture_par, squared
 
     if image is not None:
         if not image.is_file():
@@ -31,13 +32,13 @@ def _frame(image: Path | None, video: str | None, at_s: float):
     if is_stream(video):
         if at_s > 0:
             raise InputError("--frame-time is for a video file: a stream gives the frame it is at")
-        frame = first_frame(video)
+        frame = first_frame(video, orientation)
         if frame is None:
             raise InputError(f"{shown_source(video)}: no frame could be read from the stream")
         return frame
     video = Path(local_file(video) or video)
     if at_s <= 0:  # the first frame, as trafficcal run's report shows it (GStreamer where OpenCV refuses the file)
-        frame = first_frame(video_file(video))
+        frame = first_frame(video_file(video), orientation)
         if frame is None:
             raise cannot_open_video(video)
         return frame
@@ -50,7 +51,7 @@ def _frame(image: Path | None, video: str | None, at_s: float):
         cap.release()
     if not ok or frame is None:
         raise InputError(f"{video}: cannot read a frame (not a video, or shorter than {at_s:g} s)")
-    fixup = opencv_fixup(video)  # a mirrored file shown mirrored, as trafficcal run shows it
+    fixup = frame_fixup(video, orientation)  # a mirrored file shown mirrored, as trafficcal run shows it
     # of square pixels, as the calibration's (trafficcal run's) frames
     return squared(fixup(frame) if fixup else frame, par)
 
@@ -83,10 +84,13 @@ def _frame(image: Path | None, video: str | None, at_s: float):
 @click.option("--zone", default="", metavar="'x,y x,y x,y ...'",
               help="The detection zone the run used (trafficcal run --zone): outlined in the calibration picture. "
                    "Default: the zone the --calibration file keeps (a run's calibration.json does); 'all': none.")
+@orientation_option(" for the picture (the run's --orientation; default: the one the --calibration file keeps, "
+                    "else auto)")
 @click.option("--out", "out_path", required=True, type=click.Path(path_type=Path), help="The report.html to write.")
 def command(events_path: Path, calibration_path: Path | None, frame_path: Path | None, video_path: str | None,
             frame_time: float, gt_path: Path | None, results_path: Path | None, title: str, speed_limit: str,
-            interval_min: float, intervals_path: Path | None, out_path: Path, zone: str = "") -> None:
+            interval_min: float, intervals_path: Path | None, out_path: Path, zone: str = "",
+            orientation: str | None = None) -> None:
     from ..brnocompspeed import load_gt_data, load_results
     from ..calibration import load_calibration
     from ..outputs import on_one_clock, read_events
@@ -96,12 +100,13 @@ def command(events_path: Path, calibration_path: Path | None, frame_path: Path |
 
     limit = parse_speed_limit(speed_limit, "--speed-limit")
     where = given_or_kept(zone, "--zone", calibration_path)  # a run's calibration.json keeps the zone it measured in
+    orientation, _ = given_orientation(orientation, calibration_path)  # and the orientation it turned the video by
     log = read_events(events_path)
     cal = load_calibration(calibration_path) if calibration_path is not None else None
     results = load_results(results_path) if results_path is not None else None
     if cal is None and results is not None and results.calibration is not None:
         cal = load_calibration(results_path)  # its camera_calibration, in pixels of its image_size (ours write it)
-    frame = _frame(frame_path, video_path, frame_time)
+    frame = _frame(frame_path, video_path, frame_time, orientation)
     if cal is not None and frame is not None and tuple(cal.image_size) != tuple(frame.shape[1::-1]):
         (w, h), (fw, fh) = cal.image_size, frame.shape[1::-1]
         other = "" if abs(w / h - fw / fh) < 0.01 * w / h else "; not even the same shape: another camera's?"

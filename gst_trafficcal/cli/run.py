@@ -97,13 +97,55 @@ def source_elements(video: Path | str) -> list[str]:
     return [f"filesrc location={quote(video)}", "decodebin"]
 
 
-def direction_of(video: Path | str) -> str | None:
+def direction_of(video: Path | str, orientation: str = "auto") -> str | None:
     """The videoflip video-direction that shows a video file's frames as its display matrix says (a phone's turned
     picture, a mirrored one: :func:`gst_trafficcal.imaging.video_direction`); None for a stream, or a file whose
-    matrix cannot be read (then the tag GStreamer reads turns it: ``video-direction=auto``)."""
-    from ..imaging import video_direction
+    matrix cannot be read (then the tag GStreamer reads turns it: ``video-direction=auto``).  An ``orientation``
+    other than auto (``--orientation``: a camera mounted on its side, whose RTP stream carries no tag) is that
+    video-direction, whatever the file or stream says."""
+    from ..imaging import AUTO, video_direction
 
+    if orientation != AUTO:
+        return orientation
     return None if is_stream(video) else video_direction(local_file(str(video)) or video)
+
+
+def frame_fixup(video: Path | str, orientation: str = "auto"):
+    """What turns OpenCV's frames of ``video`` into the picture the run analyses (:func:`direction_of`): for a file
+    :func:`gst_trafficcal.imaging.opencv_fixup`; for a stream (no tag OpenCV reads) the ``orientation`` given,
+    None for auto."""
+    from ..imaging import AUTO, DIRECTIONS, apply_direction, opencv_fixup
+
+    if is_stream(video):
+        return None if orientation == AUTO else lambda frame: apply_direction(frame, DIRECTIONS[orientation])
+    return opencv_fixup(local_file(str(video)) or video, orientation)
+
+
+def orientation_option(what: str):
+    """The ``--orientation`` option of the commands that analyse a video (``what``: how they use it); its value is
+    None when not given (auto, or the one a --calibration file keeps: :func:`given_orientation`)."""
+    from ..imaging import ORIENTATIONS
+
+    return click.option("--orientation", default=None, metavar="|".join(ORIENTATIONS),
+                        help="How the camera's picture is turned before it is analysed" + what + ": auto (as a file's "
+                             "rotation or mirroring says, or a stream's tag) or videoflip's video-direction, "
+                             "whatever the video says — for a camera mounted on its side or upside "
+                             "down, or one imaging a mirror, whose RTSP stream carries no tag: 90r (a quarter turn "
+                             "clockwise), 180, 90l (counter-clockwise), horiz / vert (mirrored left-right / "
+                             "top-bottom), ul-lr / ur-ll (mirrored about a diagonal), identity (as stored). Kept in "
+                             "the calibration file (docs/run.md).")
+
+
+def given_orientation(text: str | None, calibration: Path | None) -> tuple[str, bool]:
+    """The orientation ``--orientation`` gives (a one-line InputError for a bad one), or with none given the one
+    the ``calibration`` file keeps (:func:`gst_trafficcal.imaging.orientation_of_file`; auto when it keeps none);
+    and whether it came from the file."""
+    from ..imaging import AUTO, check_orientation, orientation_of_file
+
+    if text is not None:
+        return check_orientation(text), False
+    kept = orientation_of_file(calibration) if calibration is not None else None
+    return (AUTO, False) if kept is None else (kept, True)
 
 
 def shown_source(video: Path | str) -> str:
@@ -179,7 +221,7 @@ def pipeline_description(video: Path | str, paths: RunPaths, calibration: Path |
                          scale_regression: Path | None = None, body_shapes: str = "auto",
                          speed_limit: "SpeedLimit | float" = 0.0, start_time: str = "", events_url: str = "",
                          calibration_mode: str = "fixed", interval_min: float = 15.0,
-                         views_dir: Path | None = None, zone: str = "") -> str:
+                         views_dir: Path | None = None, zone: str = "", orientation: str = "auto") -> str:
     """The gst-launch description ``trafficcal run`` plays (also printed, so it can be re-run by hand).
 
     With ``queues`` two ``queue`` elements split the chain into three streaming threads (decoding; vpdetect and
@@ -194,7 +236,8 @@ def pipeline_description(video: Path | str, paths: RunPaths, calibration: Path |
     with ``calibration`` — fixed (a calibration the user gave) or auto (one carried over from an earlier file:
     learnt anew if the camera moved); ``views_dir``: vpdetect's folder of the camera's views; ``zone``
     (:mod:`gst_trafficcal.zone`) to vpdetect, vehicledetect and trafficoverlay, which draws it.  The elements get
-    the video upright and of square pixels (:func:`~gst_trafficcal.gst.chains.analysed_video`); overlay.mp4 is of an
+    the video upright and of square pixels (:func:`~gst_trafficcal.gst.chains.analysed_video`; ``orientation``: as
+    :func:`direction_of` takes it); overlay.mp4 is of an
     even size (:data:`~gst_trafficcal.gst.chains.EVEN_I420`): a video of an odd one (1281x721, which VP8/VP9 and
     MJPEG allow) is scaled by a pixel there, since x264 cannot encode 4:2:0 of an odd size (it refused, and the
     whole run failed).
@@ -213,7 +256,8 @@ def pipeline_description(video: Path | str, paths: RunPaths, calibration: Path |
     where = f" zone={quote(zone)}" if zone else ""
     vp, det = vp + where, det + where
     # upright and of square pixels, as the camera model needs them (gst.chains)
-    chain = [*source_elements(video), f"videoconvert name={STOP_ELEMENT}", *analysed_video(direction_of(video)),
+    chain = [*source_elements(video), f"videoconvert name={STOP_ELEMENT}",
+             *analysed_video(direction_of(video, orientation)),
              *([f"{QUEUE} name={LIVE_QUEUE}"] if queues else []), vp, det, *([QUEUE] if queues else []),
              "tracker" if body_shapes == "auto" else f"tracker body-shapes={body_shapes}"]
     if bbscale:
@@ -369,12 +413,13 @@ def set_aside_earlier_live_run(out_dir: Path, live: bool, earlier=None,
 
 def measure_video(video: Path | str, out_dir: Path, description: str, console, label: str = "measuring",
                   keep: tuple[Path, ...] = (), stop_after_s: float | None = None, status=None,
-                  zone=None) -> RunSummary:
+                  zone=None, orientation: str = "auto") -> RunSummary:
     """Play ``description`` (see :func:`pipeline_description`) with a progress bar; read back what it wrote.
 
     ``stop_after_s``: end the run there (an end-of-stream, as Ctrl-C does: every output is completed).
     ``status``: a :class:`~gst_trafficcal.run_status.StatusFile` kept up to date with the position, the vehicles and
-    the calibration.  ``zone``: the detection zone of the run (gst_trafficcal.zone.Zone), kept in calibration.json.
+    the calibration.  ``zone``: the detection zone of the run (gst_trafficcal.zone.Zone), kept in calibration.json,
+    as ``orientation`` (--orientation, when not auto: a run given that file turns the picture the same way).
 
     Earlier outputs in ``out_dir`` are removed first, except the files in ``keep`` (inputs of this run, such as a
     calibration file given inside ``out_dir``); an output that is a symlink stays one: the file it leads to is
@@ -425,7 +470,7 @@ def measure_video(video: Path | str, out_dir: Path, description: str, console, l
         scaled[0] &= cal.moved_at is None
         if cal.camera is not None and (cal.camera.scale is not None or not scaled[0]):
             try:
-                save_calibration(cal, paths.calibration, zone=zone)
+                save_calibration(cal, paths.calibration, zone=zone, orientation=orientation)
                 scaled[0] |= cal.camera.scale is not None
             except InputError:
                 pass  # said when it is written at the end
@@ -495,7 +540,7 @@ def measure_video(video: Path | str, out_dir: Path, description: str, console, l
                 status.vehicle(e.last_timestamp_s, e.measured)
     if summary.calibration is not None:
         try:
-            save_calibration(summary.calibration, paths.calibration, zone=zone)
+            save_calibration(summary.calibration, paths.calibration, zone=zone, orientation=orientation)
         except InputError as exc:
             summary.errors.append(str(exc))
     if failure is not None:
@@ -511,13 +556,14 @@ def measure_video(video: Path | str, out_dir: Path, description: str, console, l
     return summary
 
 
-def readable_video(video: Path, out_dir: Path | None, zone=None):
+def readable_video(video: Path, out_dir: Path | None, zone=None, orientation: str = "auto"):
     """The first frame of a video file, checked before anything in ``out_dir`` is replaced: InputError when none can
     be decoded (not a video, empty, damaged) or when the detection ``zone`` covers no pixel of its frames — an
-    earlier run's outputs there stay as they were (None: a new folder, there are none to speak of)."""
+    earlier run's outputs there stay as they were (None: a new folder, there are none to speak of); the frame turned
+    by ``orientation`` (:func:`first_frame`)."""
     import cv2
 
-    frame = first_frame(video)
+    frame = first_frame(video, orientation)
     untouched = f"; the earlier outputs in {out_dir} are left as they were" if out_dir is not None else ""
     if frame is None:
         raise InputError(f"{video}: cannot be processed: no frame could be decoded from it (not a video, empty, or "
@@ -550,15 +596,16 @@ def lane_paths(results_path: Path, events: list) -> list:
         return []
 
 
-def first_frame(video: Path | str):
+def first_frame(video: Path | str, orientation: str = "auto"):
     """A BGR frame from the video or stream (for the calibration picture) as the elements see it (upright, of square
-    pixels: the calibration's image size), or None (a stream that is gone gives up within seconds).  A file
+    pixels: the calibration's image size; turned by ``orientation`` as :func:`direction_of` takes it), or None (a
+    stream that is gone gives up within seconds).  A file
     OpenCV's FFmpeg refuses (a truncated MP4 that GStreamer still plays) is read through GStreamer; FFmpeg's own
     complaints stay off the console (OPENCV_FFMPEG_LOGLEVEL, unless set)."""
     import cv2
 
     from ..fileio import quiet_ffmpeg
-    from ..imaging import capture_par, opencv_fixup, squared
+    from ..imaging import capture_par, squared
 
     with quiet_ffmpeg():  # a refusal is handled here
         if is_uri(video):
@@ -572,13 +619,13 @@ def first_frame(video: Path | str):
         finally:
             cap.release()
     if ok:  # upright already (OpenCV applies a rotated file's display matrix; a mirrored one's flip: the fix-up)
-        fixup = None if is_stream(video) else opencv_fixup(local_file(str(video)) or video)
+        fixup = frame_fixup(video, orientation)
         return squared(fixup(frame) if fixup else frame, par)
     if is_uri(video) or not Path(video).is_file():
         return None
     from ..gst.snapshot import first_frame_bgr
 
-    return first_frame_bgr(video)
+    return first_frame_bgr(video, orientation)
 
 
 def evaluate_run(gt_path: Path, summary: RunSummary, paths: RunPaths):
@@ -743,6 +790,7 @@ def print_vehicles(console, events: list, speed_limit: "SpeedLimit | float | Non
                    "leave out a side road, a parking lot or a footpath. Drawn on overlay.mp4, kept in "
                    "calibration.json. Default: the zone the --calibration file keeps (trafficcal calibrate --zone), "
                    "else the whole frame; 'all': the whole frame.")
+@orientation_option(" (default: the one the --calibration file keeps, else auto)")
 @click.option("--no-overlay", is_flag=True, help="Do not encode overlay.mp4 (faster).")
 @click.option("--status-interval", "status_s", type=click.FloatRange(min=0.1), default=5.0, show_default=True,
               metavar="SECONDS",
@@ -753,7 +801,8 @@ def print_vehicles(console, events: list, speed_limit: "SpeedLimit | float | Non
 def command(videos: tuple[str, ...], out_dir: Path, calibration_path: Path | None, gt_path: Path | None,
             detector: str | None, regression_path: Path | None, body_shapes: str, speed_limit: str,
             start_time: str, interval_min: float, duration_s: float | None, events_url: str,
-            reconnect: bool, no_overlay: bool, status_s: float = 5.0, split_every: str = "", zone: str = "") -> None:
+            reconnect: bool, no_overlay: bool, status_s: float = 5.0, split_every: str = "", zone: str = "",
+            orientation: str | None = None) -> None:
     """Calibrate and measure every vehicle of VIDEO (a file, or the URI of a stream: rtsp://, http://, file://)
     in one pass through the GStreamer elements. Ctrl-C (or --duration, or SIGTERM: a service stopped, or SIGHUP: the
     SSH session that started it closed) ends the run as the end of the stream would, with every output complete; a
@@ -826,6 +875,10 @@ def command(videos: tuple[str, ...], out_dir: Path, calibration_path: Path | Non
         console.print(f"[bold]Zone[/] kept in {calibration_path}: {where} (--zone all: the whole frame)",
                       highlight=False)
     zone = "" if where is None else str(where)
+    orientation, kept_orientation = given_orientation(orientation, calibration_path)  # bad: one line, before work
+    if kept_orientation:
+        console.print(f"[bold]Orientation[/] kept in {calibration_path}: {orientation} (--orientation auto: as the "
+                      "video says)", highlight=False)
     if reconnect and not is_uri(inputs[0]):
         raise InputError("--reconnect is for a live stream (a URI): a file is read to its end once")
     split_s = None
@@ -845,7 +898,7 @@ def command(videos: tuple[str, ...], out_dir: Path, calibration_path: Path | Non
         refuse_a_busy_out(out_dir, earlier)
         first = None  # one file: checked before anything in --out changes, status.json included (an operator
         if len(inputs) == 1 and not is_uri(inputs[0]):  # watching it keeps the earlier run's; the refusal is the
-            first = readable_video(inputs[0], None if new else out_dir, where)  # exit code's)
+            first = readable_video(inputs[0], None if new else out_dir, where, orientation)  # exit code's)
     kept = set_aside_earlier_live_run(out_dir, is_uri(inputs[0]), earlier, (calibration_path, gt_path, regression_path))
     if kept is not None:
         console.print(f"[bold]Kept[/] the earlier run's outputs ({kept[1]} vehicles of a live stream, which cannot be "
@@ -853,8 +906,10 @@ def command(videos: tuple[str, ...], out_dir: Path, calibration_path: Path | Non
     status = StatusFile(out_dir / "status.json", shown_source(inputs[0]) if len(inputs) == 1 else
                         f"{len(inputs)} files: {', '.join(shown_source(v) for v in inputs)}", every_s=status_s,
                         warn=lambda text: say(console, text))
+    status.update(orientation=orientation, force=True)  # how the picture was turned: a later run's must match
     options = RunOptions(detector, regression_path, body_shapes, limit, interval_min, duration_s, events_url,
-                         no_overlay, gt_path, live_clock, start, status=status, split_every_s=split_s, zone=zone)
+                         no_overlay, gt_path, live_clock, start, status=status, split_every_s=split_s, zone=zone,
+                         orientation=orientation)
     from .terminal import RunLog, quiet_when_the_terminal_is_gone, say
 
     log = RunLog(out_dir / "run.log")  # what the screen said that must outlive it: warnings, errors, the end
@@ -1013,6 +1068,7 @@ class RunOptions:
     status: Any = None  # run_status.StatusFile of --out/status.json, or None
     split_every_s: float | None = None  # --split-every: a live stream's connections end on this grid of the clock
     zone: str = ""  # --zone: where vehicles are looked for (gst_trafficcal.zone)
+    orientation: str = "auto"  # --orientation: how the picture is turned (imaging.check_orientation)
 
 
 def run_one(console, video: Path | str, out_dir: Path, calibration_path: Path | None, options: RunOptions,
@@ -1036,7 +1092,8 @@ def run_one(console, video: Path | str, out_dir: Path, calibration_path: Path | 
                                        speed_limit=speed_limit,
                                        start_time=NOW if live_clock else start.isoformat() if start else "",
                                        events_url=events_url, calibration_mode=calibration_mode,
-                                       interval_min=interval_min, views_dir=options.views_dir, zone=options.zone)
+                                       interval_min=interval_min, views_dir=options.views_dir, zone=options.zone,
+                                       orientation=options.orientation)
     shown = description.replace(str(video), shown_source(video))  # no password on the screen
     if events_url:
         from ..publish import redacted
@@ -1046,10 +1103,10 @@ def run_one(console, video: Path | str, out_dir: Path, calibration_path: Path | 
     zone = parse_zone(options.zone)
     # (a part's folder of several files not made yet: there are no earlier outputs to speak of)
     frame = first if first is not None or is_uri(video) else readable_video(video, out_dir if out_dir.is_dir() else
-                                                                            None, zone)
+                                                                            None, zone, options.orientation)
     summary = measure_video(video, out_dir, description, console,
                             keep=(calibration_path,) if calibration_path is not None else (), stop_after_s=duration_s,
-                            status=options.status, zone=zone)
+                            status=options.status, zone=zone, orientation=options.orientation)
     if live_clock:  # the speedometer took the clock at the first frame: the events say when that was
         start = stream_start(summary.events)
     if summary.stopped:
@@ -1103,7 +1160,8 @@ def run_one(console, video: Path | str, out_dir: Path, calibration_path: Path | 
             console.print(f"[yellow]no evaluation against {gt_path.name}: the calibration has no scale[/]")
     try:
         write_report(paths.report, ReportInputs(
-            events=summary.events, calibration=cal, frame=first_frame(video) if frame is None else frame, evaluation=ev,
+            events=summary.events, calibration=cal, evaluation=ev,
+            frame=first_frame(video, options.orientation) if frame is None else frame,
             ground_truth_name=str(gt_path or ""),
             title=f"gst-trafficcal run: {getattr(video, 'name', None) or shown_source(video)}",
             source=shown_source(video),

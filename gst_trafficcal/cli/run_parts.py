@@ -86,7 +86,7 @@ def run_parts(console, parts, total: int | None, out_dir: Path, calibration_path
             cal, origin = carried
             # not bbscale's own any more: a scale from a file, which bbscale passes on as it is
             save_calibration(dc_replace(cal, source=f"{cal.source}, carried over from {origin}"), given,
-                             zone=parse_zone(options.zone))
+                             zone=parse_zone(options.zone), orientation=options.orientation)
         opts = options if starts is None else dc_replace(options, start=starts[k - 1])
         if options.duration_s is not None:  # seconds of video in all, over the files or connections
             opts = dc_replace(opts, duration_s=max(options.duration_s - used_s, 1e-3))

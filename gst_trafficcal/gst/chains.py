@@ -39,17 +39,26 @@ def analysed_video(direction: str | None) -> list[str]:
 
 
 def main(argv: list[str]) -> int:
-    """``analysed VIDEO``: :func:`analysed_video`'s elements for ``VIDEO`` (a file or a URI, its rotation read as
-    trafficcal run reads it) joined by ``!``, one word per line (for bash's mapfile); ``even-i420``:
-    :data:`EVEN_I420`."""
-    if len(argv) == 2 and argv[0] == "analysed":
+    """``analysed VIDEO [ORIENTATION]``: :func:`analysed_video`'s elements for ``VIDEO`` (a file or a URI, its
+    rotation read as trafficcal run reads it, or turned by ``ORIENTATION`` as its ``--orientation``) joined by
+    ``!``, one word per line (for bash's mapfile); a bad ORIENTATION: the error on one line and exit code 3;
+    ``even-i420``: :data:`EVEN_I420`."""
+    if len(argv) in (2, 3) and argv[0] == "analysed":
         from ..cli.run import direction_of
+        from ..errors import InputError
+        from ..imaging import check_orientation
 
-        words = " ! ".join(analysed_video(direction_of(argv[1]))).split(" ")
+        try:
+            orientation = check_orientation(argv[2] if len(argv) == 3 else None, "ORIENTATION")
+        except InputError as exc:
+            print(exc)
+            return 3
+        words = " ! ".join(analysed_video(direction_of(argv[1], orientation))).split(" ")
     elif argv == ["even-i420"]:
         words = [EVEN_I420]
     else:
-        print("usage: python -m gst_trafficcal.gst.chains analysed VIDEO|URI | even-i420", file=sys.stderr)
+        print("usage: python -m gst_trafficcal.gst.chains analysed VIDEO|URI [ORIENTATION] | even-i420",
+              file=sys.stderr)
         return 2
     print("\n".join(words))
     return 0

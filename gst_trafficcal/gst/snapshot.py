@@ -16,15 +16,17 @@ from .chains import analysed_video
 from .buffers import frame_bgr, video_info_from_caps
 
 
-def first_frame_bgr(path: str | Path, timeout_s: float = 10.0) -> np.ndarray | None:
+def first_frame_bgr(path: str | Path, timeout_s: float = 10.0, orientation: str = "auto") -> np.ndarray | None:
     """The first decodable frame of a local video file as an HxWx3 BGR copy, upright and of square pixels as the
-    elements see it, or None (not a video, no frame within ``timeout_s``)."""
+    elements see it (turned by ``orientation`` when it is not auto: imaging.check_orientation), or None (not a
+    video, no frame within ``timeout_s``)."""
     # upright (by the file's display matrix when its header can be read, else by the tag GStreamer reads: OpenCV
     # could not open it) and of square pixels
     from ..imaging import mp4_direction
 
     pipeline = Gst.parse_launch(" ! ".join(["filesrc name=src", "decodebin", "videoconvert",
-                                            *analysed_video(mp4_direction(path)),
+                                            *analysed_video(orientation if orientation != "auto" else
+                                                            mp4_direction(path)),
                                             "videoconvert", "video/x-raw,format=BGR",
                                             "appsink name=sink max-buffers=1 sync=false"]))
     pipeline.get_by_name("src").set_property("location", str(path))

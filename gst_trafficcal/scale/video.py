@@ -65,7 +65,7 @@ def scale_from_video(video: str | Path, calibration: Calibration, *, models=None
                      min_vehicles: int = 5, regression=None, detector: str = "", max_duration: float | None = None,
                      progress: Callable[[float], None] | None = None, box: str = "detector",
                      on_frame: Callable | None = None, colour: bool = False, background: str = "mog2",
-                     zone: Zone | None = None) -> VideoScale:
+                     zone: Zone | None = None, orientation: str = "auto") -> VideoScale:
     """Run detection, tracking and the scale stage over ``video`` with ``calibration``'s vanishing points
     (``box``: which 2D box is aligned, see :data:`BOX_SOURCES`; ``colour``: the background model also uses the
     frame's U/V, as the ``tracker`` element does by default — off here: measured on six synth presets, the
@@ -74,7 +74,7 @@ def scale_from_video(video: str | Path, calibration: Calibration, *, models=None
     ``on_frame(index, t, result, detections)`` is called after each frame is tracked, e.g. for a benchmark's
     side estimators; ``background``: the background detector's method when ``detector`` is empty, "mog2" or
     "average", see :func:`~gst_trafficcal.detection.factory.create_detector`); ``zone``: only the vehicles standing
-    in it, as vehicledetect's ``zone``)."""
+    in it, as vehicledetect's ``zone``; ``orientation``: how the frames are turned, as the calibration's were)."""
     import cv2
 
     from ..detection.factory import create_detector, detect
@@ -91,7 +91,7 @@ def scale_from_video(video: str | Path, calibration: Calibration, *, models=None
     path = Path(video)
     cap = open_video(path)
     par = capture_par(cap)  # frames of non-square pixels scaled to square ones, as the calibration's (frames.py)
-    fixup = opencv_fixup(path)  # a mirrored file's frames mirrored as they are shown (frames.py)
+    fixup = opencv_fixup(path, orientation)  # a mirrored file's frames mirrored as they are shown (frames.py)
     camera = calibration.camera.with_scale(None)
     est = ScaleEstimator(models if isinstance(models, dict) else load_align_models(models),
                          iou_threshold=iou_threshold, min_vehicles=min_vehicles, regression=regression)

@@ -484,13 +484,14 @@ class VideoCalibration:
 
 
 def calibrate_video(path, config: CalibratorConfig | None = None, progress=None,
-                    stop_when_done: bool = True) -> VideoCalibration:
+                    stop_when_done: bool = True, orientation: str = "auto") -> VideoCalibration:
     """Calibrate a video file (OpenCV decoding, times from the container's timestamps).
 
     Frames are analysed as their luma plane (:mod:`.frames`), exactly what the element sees on YUV caps.
     ``progress(frame_index, frame_count, status)`` is called for every frame.  Raises InputError for a missing
     or undecodable file; an empty or static video gives state ``failed`` with the reason.  A calibration with
-    vanishing points carries the view it was learnt on (:mod:`.view`), as ``vpdetect``'s does.
+    vanishing points carries the view it was learnt on (:mod:`.view`), as ``vpdetect``'s does.  ``orientation``:
+    how the frames are turned (``--orientation``, :func:`.frames.luma_frames`).
     """
     import time
     from dataclasses import replace
@@ -498,7 +499,7 @@ def calibrate_video(path, config: CalibratorConfig | None = None, progress=None,
     from .frames import luma_frames
     from .view import ViewAccumulator, encode_view
 
-    frames = luma_frames(path)
+    frames = luma_frames(path, orientation)
     cal = VPCalibrator(frames.size, config)
     views = ViewAccumulator(keep=60)
     n = 0

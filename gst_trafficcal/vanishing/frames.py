@@ -20,7 +20,7 @@ import cv2
 import numpy as np
 
 from ..errors import InputError
-from ..imaging import capture_par, opencv_fixup, square_size, squared
+from ..imaging import capture_par, opencv_fixup, square_size, squared, turned_size
 
 # Y' = 16 + 219/255 (0.299 R + 0.587 G + 0.114 B), ITU-R BT.601 limited range (what decoders output)
 _K = 219.0 / 255.0
@@ -82,13 +82,14 @@ class LumaFrames:
             cap.release()
 
 
-def luma_frames(path: str | Path) -> LumaFrames:
+def luma_frames(path: str | Path, orientation: str = "auto") -> LumaFrames:
     """Open a video for calibration (InputError for a missing or undecodable file).
 
     The Y plane is used when the FFmpeg backend returns it (a HxW frame when the colour conversion is off) and
     it matches the colour decode of the first frame (mean |Y - luma(BGR)| < 3 grey levels; measured 0.7-1.0 on the clips of
     ../shared, a misread packed format gives tens); otherwise BGR frames
-    are converted with :func:`luma`."""
+    are converted with :func:`luma`.  ``orientation``: how the frames are turned (imaging.opencv_fixup: auto, as the
+    file says; else trafficcal's --orientation, whatever it says), as trafficcal run's videoflip turns them."""
     from ..fileio import open_video
 
     path = Path(path)
@@ -115,10 +116,10 @@ def luma_frames(path: str | Path) -> LumaFrames:
                 ycap.release()
         planar = bool(yok and y.ndim == 2 and y.shape == (h, w)
                       and float(np.mean(np.abs(y.astype(np.int16) - luma(first).astype(np.int16)))) < 3.0)
-    fixup = opencv_fixup(path)
+    fixup = opencv_fixup(path, orientation)
     if first_bgr is not None and fixup:
         first_bgr = fixup(first_bgr)
-    return LumaFrames(path, fps, count, square_size(w, h, par), planar,
+    return LumaFrames(path, fps, count, turned_size(square_size(w, h, par), fixup), planar,
                       None if first_bgr is None else squared(first_bgr, par), par, fixup)
 
 
