@@ -533,3 +533,22 @@ def test_measure_analyses_a_rotated_video_upright(tmp_path):
     proc = script("measure.sh", video, tmp_path / "out", cal)
     assert proc.returncode == 0, proc.stderr[-2000:]
     assert "videoflip video-direction=90r ! videoscale" in proc.stderr
+
+
+def test_measure_turns_an_untagged_video_as_orientation_says(tmp_path):
+    """ORIENTATION=90r (trafficcal run --orientation's values): a camera on its side, whose video has no tag, is
+    measured upright and a calibration of the upright picture is taken; a bad value is one line before any work."""
+    from .conftest import encoded
+    from .test_run import PORTRAIT
+
+    video = encoded(tmp_path / "stored.mp4", "width=640,height=360", frames=25)
+    cal = tmp_path / "portrait.json"
+    cal.write_text(json.dumps(PORTRAIT))
+    proc = script("measure.sh", video, tmp_path / "out", cal, ORIENTATION="90r")
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    assert "videoflip video-direction=90r ! videoscale" in proc.stderr
+    bad = script("measure.sh", video, tmp_path / "bad", cal, ORIENTATION="sideways")
+    assert bad.returncode == 2 and bad.stderr.strip() == (
+        "measure: error: ORIENTATION must be one of auto, identity, 90r, 180, 90l, horiz, vert, ul-lr, ur-ll, got "
+        "'sideways'")
+    assert "ORIENTATION" in script("measure.sh", "--help").stdout
