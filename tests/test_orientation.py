@@ -124,3 +124,20 @@ def test_a_bad_orientation_is_one_line(stored, tmp_path):
         assert line == ("trafficcal: error: --orientation must be one of auto, identity, 90r, 180, 90l, horiz, "
                         "vert, ul-lr, ur-ll, got 'sideways'")
     assert not (tmp_path / "out").exists() and not (tmp_path / "c.json").exists()
+
+
+def test_a_file_opencv_refuses_is_turned_too(tmp_path):
+    """A truncated MP4 OpenCV refuses gives its first frame through GStreamer (run's and report's picture), turned
+    by the orientation as well (the orientation was passed as the snapshot's timeout: a traceback)."""
+    from gst_trafficcal.cli.run import first_frame
+
+    from .conftest import VIDEOS, require_shared
+
+    path = require_shared(VIDEOS / "kraten_cars.mp4")
+    data = path.read_bytes()
+    cut = tmp_path / "cut.mp4"
+    cut.write_bytes(data[:int(len(data) * 0.65)])
+    upright, turned = first_frame(cut), first_frame(cut, "90r")
+    assert turned.shape == (upright.shape[1], upright.shape[0], 3)
+    rotated = np.rot90(upright, -1).astype(int)  # a quarter clockwise (turned in I420: chroma sited anew)
+    assert float(np.mean(np.abs(turned.astype(int) - rotated))) < 4.0

@@ -625,7 +625,7 @@ def first_frame(video: Path | str, orientation: str = "auto"):
         return None
     from ..gst.snapshot import first_frame_bgr
 
-    return first_frame_bgr(video, orientation)
+    return first_frame_bgr(video, orientation=orientation)
 
 
 def evaluate_run(gt_path: Path, summary: RunSummary, paths: RunPaths):
