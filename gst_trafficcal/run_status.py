@@ -13,7 +13,7 @@ stream), ``speed_x`` (stream seconds measured per wall-clock second since the la
 the whole run), ``frames`` /
 ``frames_dropped`` (the frames that reached the analysis, and those a live stream dropped because the
 machine could not keep up: a live camera does not wait), ``calibration`` (``state``, ``id``, ``source``,
-``scale_m`` of the calibration in force),
+``scale_m`` of the calibration in force), ``orientation`` (how the picture is turned: ``--orientation``),
 ``vehicles`` / ``measured`` (finished vehicles and those with a speed, the whole run), ``last_vehicle_s`` (the
 stream time the last one left), ``last_vehicle_at``, ``camera_moves``, ``warnings`` (the last five),
 ``error`` (the last failure), ``next_attempt_at`` (when reconnecting), ``stream_lost_at`` (since when a live stream
