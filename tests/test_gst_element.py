@@ -255,3 +255,45 @@ def test_a_frame_has_one_time_in_every_element_after_a_flushing_seek(target):
         assert up[first][1] == pytest.approx(up[first - 1][1] + 0.04)  # goes on after the last frame before it
     else:
         assert up[first][1] == pytest.approx(target)
+
+
+def _checked_times(run, name: str) -> list[tuple[float, float]]:
+    """(stream time, time) of each frame tccheck ``name`` saw."""
+    return [(m.fields["stream"], m.fields["t"]) for m in run.messages if m.source == name and m.name == "tccheck"]
+
+
+def _slow(pad, info):  # an element after a queue is slower: the queue holds frames when a seek comes
+    time.sleep(0.004)
+    return Gst.PadProbeReturn.OK
+
+
+def test_a_frame_has_one_time_across_an_element_that_makes_its_own_segment() -> None:
+    """An element between two of ours that pushes the segment again with a seqnum of its own (here an identity whose
+    probe does it; an element building its own segment does the same): after a flushing seek back, the element after
+    it has the same time for each frame as the one before it.  Before, it ignored the upstream clock event (of
+    another segment) and went on from its own last frame: seconds behind with a queue between."""
+    pipeline = Gst.parse_launch("videotestsrc num-buffers=300 ! video/x-raw,width=64,height=48,framerate=25/1 "
+                                "! tccheck name=up ! queue max-size-buffers=200 max-size-time=0 max-size-bytes=0 "
+                                "name=q ! identity name=id ! tccheck name=down ! appsink name=sink")
+    pushing = []
+
+    def own_segment(pad, info):
+        event = info.get_event()
+        if event.type != Gst.EventType.SEGMENT or pushing:
+            return Gst.PadProbeReturn.OK
+        again = Gst.Event.new_segment(event.parse_segment())
+        again.set_seqnum(Gst.util_seqnum_next())
+        pushing.append(True)
+        pad.push_event(again)
+        pushing.clear()
+        return Gst.PadProbeReturn.DROP
+
+    pipeline.get_by_name("id").get_static_pad("src").add_probe(Gst.PadProbeType.EVENT_DOWNSTREAM, own_segment)
+    seek_once(pipeline, pipeline.get_by_name("up").get_static_pad("src"), 4.0)
+    pipeline.get_by_name("q").get_static_pad("src").add_probe(Gst.PadProbeType.BUFFER, _slow)
+    run = run_pipeline(pipeline)
+    up, down = _checked_times(run, "up"), _checked_times(run, "down")
+    first = next(i for i in range(1, len(up)) if up[i][0] < up[i - 1][0])  # the seek back
+    assert up[first][1] > up[first - 1][1] >= 6.0
+    assert down[-(len(up) - first):] == up[first:]
+    assert all(b[1] > a[1] for a, b in zip(down, down[1:]))

@@ -65,7 +65,7 @@ from ._gi import GLib, GObject, Gst, GstBase, GstVideo
 from .buffers import (SUPPORTED_FORMATS, StreamClock, format_name, frame_bgr, frame_gray, frame_planes,
                       stream_seconds, video_caps_string, video_info_from_caps)
 from .calibration_event import calibration_event, calibration_message, parse_calibration_event
-from .clock_event import clock_event, parse_clock_event
+from .clock_event import GivenClock, clock_event, parse_clock_event
 from .meta import make_structure
 
 
@@ -116,7 +116,7 @@ class TrafficcalTransform(GstBase.BaseTransform):
         self._segment: Gst.Segment | None = None  # the last SEGMENT event's: buffer_t is stream time
         self._segment_seqnum: int | None = None  # its seqnum (a seek's after a flushing seek)
         self._flushed_mid_run = False  # a FLUSH_STOP (a flushing seek) after frames: on_jump at the next timed one
-        self._given_offset: float | None = None  # the clock's offset an element upstream gave the next frame
+        self._given_offset: GivenClock | None = None  # the clock an element upstream gave the next frame
         self._said_untimed = False  # warn_untimed: said once per run
         self._said_non_square = False  # warn_non_square: said once per run
         self._views_warned = False  # keep_scale_view: said once per run
@@ -357,8 +357,7 @@ class TrafficcalTransform(GstBase.BaseTransform):
             if not self.on_calibration(cal):
                 return True  # consumed: not forwarded
         elif event.type == Gst.EventType.CUSTOM_DOWNSTREAM and (given := parse_clock_event(event)) is not None:
-            if self._segment_seqnum in (None, given[1]):  # of the segment we have: the frames after it follow it
-                self._given_offset = given[0]
+            self._given_offset = given  # the frames after it follow it (transform: by offset or by time)
         elif event.type == Gst.EventType.CUSTOM_DOWNSTREAM:
             try:
                 if not self.on_custom_event(event):
@@ -395,13 +394,13 @@ class TrafficcalTransform(GstBase.BaseTransform):
         clock = self.stream_clock
         jumps, offset, pts_s = len(clock.jumps), clock.offset, stream_seconds(buffer, self._segment)
         given, self._given_offset = self._given_offset, (self._given_offset if pts_s is None else None)
-        if given is not None:  # an element upstream timed this frame after a jump: the same time here
-            self.buffer_t = clock.follow(pts_s, given)
+        if given is not None and pts_s is not None:  # an element upstream timed this frame after a jump: same time
+            self.buffer_t = clock.follow(pts_s, _followed_offset(given, pts_s, self._segment_seqnum))
         else:
             self.buffer_t = clock(pts_s, flushed=self._flushed_mid_run)
             if self.buffer_t is not None and (self._flushed_mid_run or clock.offset != offset):
                 # the elements downstream go on from another last frame (frames were flushed between): tell them
-                self.srcpad.push_event(clock_event(clock.offset, self._segment_seqnum or 0))
+                self.srcpad.push_event(clock_event(clock.offset, self._segment_seqnum or 0, self.buffer_t))
         try:
             if self.buffer_t is not None and (self._flushed_mid_run or len(clock.jumps) > jumps):
                 self._flushed_mid_run = False
@@ -444,6 +443,15 @@ def upstream_element(element: Gst.Element, factory_name: str) -> Gst.Element | N
             return owner
         pads.extend(owner.sinkpads)
     return None
+
+
+def _followed_offset(given: GivenClock, pts_s: float, seqnum: int | None) -> float:
+    """The offset to time the frame at stream time ``pts_s`` (in the segment ``seqnum``) by what an element upstream
+    ``given``: its offset in its own segment; in another (an element between made its own segment: its stream
+    times may differ), the offset that gives this frame the time it gave it."""
+    if given.time is None or seqnum in (None, given.seqnum):
+        return given.offset
+    return given.time - pts_s
 
 
 def _attr(prop_name: str) -> str:
