@@ -297,3 +297,38 @@ def test_a_frame_has_one_time_across_an_element_that_makes_its_own_segment() -> 
     assert up[first][1] > up[first - 1][1] >= 6.0
     assert down[-(len(up) - first):] == up[first:]
     assert all(b[1] > a[1] for a, b in zip(down, down[1:]))
+
+
+def test_a_frame_has_one_time_on_both_branches_of_a_tee_after_a_flushing_seek() -> None:
+    """A ``tee`` before our elements, one on each branch, the slower branch's queue holding frames: after a flushing
+    seek back (at 6 s to 4 s) both give each frame the same time, after the latest frame either had seen.  Before,
+    each went on from its own last frame: the branch whose queue was flushed had seen frames seconds fewer, and gave
+    every frame after the seek a time seconds before the other's (it took the seek back for one forward)."""
+    pipeline = Gst.parse_launch("videotestsrc num-buffers=400 ! video/x-raw,width=64,height=48,framerate=25/1 ! "
+                                "tee name=t t. ! queue max-size-buffers=3 max-size-time=0 max-size-bytes=0 ! "
+                                "tccheck name=a ! fakesink sync=false t. ! queue max-size-buffers=200 max-size-time=0 "
+                                "max-size-bytes=0 name=qb ! tccheck name=b ! appsink name=sink")
+    seek_once(pipeline, pipeline.get_by_name("a").get_static_pad("src"), 4.0)
+    pipeline.get_by_name("qb").get_static_pad("src").add_probe(Gst.PadProbeType.BUFFER, _slow)
+    flushed_at: dict[str, list[int]] = {"a": [], "b": []}  # the frames each had seen at each flush (the pipeline
+    seen = {"a": 0, "b": 0}  # sends the seek to both sinks: the source may do it twice)
+
+    def count(pad, info, name):
+        if info.type & Gst.PadProbeType.BUFFER:
+            seen[name] += 1
+        elif info.get_event().type == Gst.EventType.FLUSH_STOP:
+            flushed_at[name].append(seen[name])
+        return Gst.PadProbeReturn.OK
+
+    for name in seen:
+        pipeline.get_by_name(name).get_static_pad("sink").add_probe(
+            Gst.PadProbeType.BUFFER | Gst.PadProbeType.EVENT_FLUSH, count, name)
+    run = run_pipeline(pipeline)
+    a, b = _checked_times(run, "a"), _checked_times(run, "b")
+    first = next(i for i in range(1, len(a)) if a[i][0] < a[i - 1][0])  # the seek back
+    assert a[first][1] == pytest.approx(a[first - 1][1] + 0.04) and a[first - 1][1] >= 6.0
+    assert flushed_at["b"][0] < flushed_at["a"][0]  # b had seen fewer frames: the others were flushed in its queue
+    after_a, after_b = a[flushed_at["a"][-1]:], b[flushed_at["b"][-1]:]
+    assert after_b and dict(after_b) == dict(after_a)  # each frame after the seek: the same time on both branches
+    assert after_b[0][1] > a[first - 1][1]  # b, too, went on after the latest frame of either
+    assert all(y[1] > x[1] for seen in (a, b) for x, y in zip(seen, seen[1:]))  # never back, never twice

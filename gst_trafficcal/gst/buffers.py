@@ -432,6 +432,11 @@ class StreamClock:
         self.last = t = round(t, 9)  # nanoseconds, as the timestamps (no float residue from the offset)
         return t
 
+    def catch_up(self, t: float | None) -> None:
+        """Another element timing the same stream gave a frame the time ``t``: the next jump goes on after it too."""
+        if t is not None and (self.last is None or t > self.last):
+            self.last = t
+
     def follow(self, pts_s: float | None, offset: float) -> float | None:
         """The time of a frame at stream time ``pts_s`` by the ``offset`` an element upstream gave it
         (:mod:`.clock_event`): after a flushing seek the elements' clocks had seen different frames (those flushed

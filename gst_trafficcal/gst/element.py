@@ -67,6 +67,7 @@ from .buffers import (SUPPORTED_FORMATS, StreamClock, format_name, frame_bgr, fr
 from .calibration_event import calibration_event, calibration_message, parse_calibration_event
 from .clock_event import GivenClock, clock_event, parse_clock_event
 from .meta import make_structure
+from .segment_clocks import SEGMENTS
 
 
 READY_ONLY = GObject.ParamFlags(int(GObject.ParamFlags.READWRITE) | Gst.PARAM_MUTABLE_READY)
@@ -115,6 +116,7 @@ class TrafficcalTransform(GstBase.BaseTransform):
         self.buffer_t: float | None = None
         self._segment: Gst.Segment | None = None  # the last SEGMENT event's: buffer_t is stream time
         self._segment_seqnum: int | None = None  # its seqnum (a seek's after a flushing seek)
+        self._timed_seqnum: int | None = None  # the segment seqnum of the last frame timed
         self._flushed_mid_run = False  # a FLUSH_STOP (a flushing seek) after frames: on_jump at the next timed one
         self._given_offset: GivenClock | None = None  # the clock an element upstream gave the next frame
         self._said_untimed = False  # warn_untimed: said once per run
@@ -394,13 +396,26 @@ class TrafficcalTransform(GstBase.BaseTransform):
         clock = self.stream_clock
         jumps, offset, pts_s = len(clock.jumps), clock.offset, stream_seconds(buffer, self._segment)
         given, self._given_offset = self._given_offset, (self._given_offset if pts_s is None else None)
-        if given is not None and pts_s is not None:  # an element upstream timed this frame after a jump: same time
-            self.buffer_t = clock.follow(pts_s, _followed_offset(given, pts_s, self._segment_seqnum))
-        else:
-            self.buffer_t = clock(pts_s, flushed=self._flushed_mid_run)
-            if self.buffer_t is not None and (self._flushed_mid_run or clock.offset != offset):
+        seqnum, tell = self._segment_seqnum, False
+        with SEGMENTS.lock:  # one decision per flushing seek for the elements of every branch (segment_clocks)
+            if given is not None and pts_s is not None:  # an element upstream timed this frame after a jump
+                self.buffer_t = clock.follow(pts_s, _followed_offset(given, pts_s, seqnum))
+            elif self._flushed_mid_run and _goes_on(clock, pts_s, decided := SEGMENTS.decided(seqnum)):
+                self.buffer_t = clock.follow(pts_s, decided)  # an element on another branch of a tee timed it first
+                tell = True
+            else:  # (a second flush into the same segment: the pipeline sent the seek to a tee's two sinks)
+                if self._flushed_mid_run:  # go on after the latest frame of any branch, not only after ours
+                    clock.catch_up(SEGMENTS.reached(self._timed_seqnum))
+                self.buffer_t = clock(pts_s, flushed=self._flushed_mid_run)
+                if self.buffer_t is not None and self._flushed_mid_run:
+                    SEGMENTS.decide(seqnum, clock.offset)
                 # the elements downstream go on from another last frame (frames were flushed between): tell them
-                self.srcpad.push_event(clock_event(clock.offset, self._segment_seqnum or 0, self.buffer_t))
+                tell = self.buffer_t is not None and (self._flushed_mid_run or clock.offset != offset)
+            if self.buffer_t is not None:
+                SEGMENTS.reach(seqnum, self.buffer_t)
+                self._timed_seqnum = seqnum
+        if tell:
+            self.srcpad.push_event(clock_event(clock.offset, seqnum or 0, self.buffer_t))
         try:
             if self.buffer_t is not None and (self._flushed_mid_run or len(clock.jumps) > jumps):
                 self._flushed_mid_run = False
@@ -452,6 +467,12 @@ def _followed_offset(given: GivenClock, pts_s: float, seqnum: int | None) -> flo
     if given.time is None or seqnum in (None, given.seqnum):
         return given.offset
     return given.time - pts_s
+
+
+def _goes_on(clock: StreamClock, pts_s: float | None, offset: float | None) -> bool:
+    """Whether ``offset`` gives the frame at stream time ``pts_s`` a time after the last one of ``clock``."""
+    return (pts_s is not None and offset is not None
+            and (clock.last is None or round(pts_s + offset, 9) > clock.last))
 
 
 def _attr(prop_name: str) -> str:
