@@ -332,3 +332,31 @@ def test_a_frame_has_one_time_on_both_branches_of_a_tee_after_a_flushing_seek() 
     assert after_b and dict(after_b) == dict(after_a)  # each frame after the seek: the same time on both branches
     assert after_b[0][1] > a[first - 1][1]  # b, too, went on after the latest frame of either
     assert all(y[1] > x[1] for seen in (a, b) for x, y in zip(seen, seen[1:]))  # never back, never twice
+
+
+def test_an_input_selector_switch_to_a_source_whose_times_do_not_go_on_is_a_jump() -> None:
+    """``input-selector`` switched (a camera switch) to a source whose times are not the continuation of the old's
+    (here the same moment again: two files from 0): the switch is a jump (on_jump: tracks end there), the time goes
+    on after the last frame, and no frame is taken for one out of order.  Before, the new source's first frame was
+    held at the time before it as a frame out of order (speedometer warned so, blaming the timestamps) and nothing
+    ended at the switch."""
+    caps = "video/x-raw,width=64,height=48,framerate=25/1"
+    pipeline = Gst.parse_launch(f"input-selector name=sel ! tccheck name=c ! appsink name=sink "
+                                f"videotestsrc num-buffers=100 ! {caps} ! sel.sink_0 "
+                                f"videotestsrc num-buffers=100 pattern=ball ! {caps} ! sel.sink_1")
+    sel, passed = pipeline.get_by_name("sel"), []
+
+    def switch(pad, info):
+        passed.append(True)
+        if len(passed) == 50:  # asked from the application's side, as a user's switch is
+            pipeline.call_async(lambda p: sel.set_property("active-pad", sel.get_static_pad("sink_1")))
+        return Gst.PadProbeReturn.OK
+
+    sel.get_static_pad("src").add_probe(Gst.PadProbeType.BUFFER, switch)
+    run = run_pipeline(pipeline)
+    seen = [m.fields for m in run.messages if m.name == "tccheck"]
+    back = next(i for i in range(1, len(seen)) if seen[i]["stream"] <= seen[i - 1]["stream"])  # the new source
+    assert seen[back - 1]["jumps"] == 0 and seen[back]["jumps"] >= 1
+    assert seen[back]["t"] == pytest.approx(seen[back - 1]["t"] + 0.04)
+    assert seen[-1]["out-of-order"] == 0
+    assert all(b["t"] >= a["t"] for a, b in zip(seen, seen[1:]))

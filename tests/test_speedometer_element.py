@@ -1391,3 +1391,34 @@ def test_non_square_pixels_are_said_once_with_the_fix():
     square = run_pipeline("videotestsrc num-buffers=3 ! video/x-raw,format=I420,width=64,height=48,"
                           "pixel-aspect-ratio=1/1,framerate=25/1 ! speedometer ! appsink name=sink")
     assert not [w for w in square.warnings if "not square" in w]
+
+
+def test_an_input_selector_switch_is_a_jump_not_a_frame_out_of_order(clip, tmp_path):
+    """``input-selector`` switched (a camera switch) to another source whose first frame is not the continuation of
+    the old one's (here the same clip, a frame behind): the switch is a jump — the vehicles in view end there and no
+    vehicle is measured across it — and speedometer says another stream began.  Before, the new source's first frame
+    was held as a frame out of order ("a frame came out of order ... a camera's B-frames with wrong timestamps", the
+    timestamps blamed) and the tracks went on across the switch with the other source's boxes."""
+    from gst_trafficcal.gst._gi import Gst
+
+    part = f"{source(clip)} ! {detector(clip)}"
+    events_file = tmp_path / "events.jsonl"
+    pipeline = Gst.parse_launch(f"input-selector name=sel ! speedometer calibration-file={clip / 'calibration.json'} "
+                                f"events-file={events_file} ! appsink name=sink {part} ! sel.sink_0 "
+                                f"{part} ! sel.sink_1")
+    sel, passed = pipeline.get_by_name("sel"), []
+
+    def switch(pad, info):
+        passed.append(True)
+        if len(passed) == 100:  # 4 s in: asked from the application's side, as a user's switch is
+            pipeline.call_async(lambda p: sel.set_property("active-pad", sel.get_static_pad("sink_1")))
+        return Gst.PadProbeReturn.OK
+
+    sel.get_static_pad("src").add_probe(Gst.PadProbeType.BUFFER, switch)
+    run = run_pipeline(pipeline)
+    assert not [w for w in run.warnings if "out of order" in w], run.warnings
+    said = [w for w in run.warnings if "another stream began" in w]
+    assert len(said) == 1, run.warnings
+    at = float(re.search(r"go on from ([0-9.]+) s", said[0]).group(1))
+    events = read_events(events_file).events
+    assert events and not [e for e in events if e.first_timestamp_s < at - 0.02 and e.last_timestamp_s > at - 0.02]

@@ -347,6 +347,10 @@ class Speedometer(TrafficcalTransform):
                     self.post_warning("speedometer: the timestamps keep going back (reverse playback, or frames out "
                                       "of order): the vehicles' times go on forwards and their speeds are not "
                                       "those of the road; said once")
+            elif any(abs(given - t) < 1e-6 for t in self.stream_clock.switches[-4:]):  # at another stream's start
+                self.post_warning(f"speedometer: another stream began (parts joined, a source switched: "
+                                  f"input-selector) and its timestamps went back to {back:.3f} s; the vehicles in "
+                                  f"view end there and the times go on from {given:.3f} s")
             else:
                 self.post_warning(f"speedometer: the timestamps went back to {back:.3f} s (parts joined, a seek "
                                   f"back); the vehicles' times go on from {given:.3f} s")

@@ -405,6 +405,7 @@ class StreamClock:
         self.out_of_order = 0  # frames a little back between two going on, given the time before them
         self._steps: list[float] = []
         self._held: float | None = None  # the timestamp of the frame just held at the time before it
+        self.switches: list[float] = []  # times given to the first frame of another stream that did not go on
 
     def __call__(self, pts_s: float | None, flushed: bool = False) -> float | None:
         """The time of a frame at stream time ``pts_s``; ``flushed``: the first timed frame after a flushing seek,
@@ -431,6 +432,14 @@ class StreamClock:
                     self._steps = (self._steps + [t - self.last])[-25:]
         self.last = t = round(t, 9)  # nanoseconds, as the timestamps (no float residue from the offset)
         return t
+
+    def continues(self, pts_s: float) -> bool:
+        """Whether a frame at stream time ``pts_s`` goes on from the last one: after it, by up to two frame intervals
+        (a frame lost).  Asked of another stream's first frame (``input-selector`` switched to another source)."""
+        if self.last is None:
+            return True
+        step = float(np.median(self._steps)) if self._steps else 0.04
+        return self.last < pts_s + self.offset <= self.last + 2 * step + 1e-9
 
     def catch_up(self, t: float | None) -> None:
         """Another element timing the same stream gave a frame the time ``t``: the next jump goes on after it too."""

@@ -33,7 +33,8 @@ What the base does:
   element (after a jump the first element's clock offset goes downstream before the frame, :mod:`.clock_event`:
   frames flushed between two elements do not put them apart); None when the buffer has no timestamp;
 - hook :meth:`on_jump` at the first timed buffer after the stream jumped (a flushing seek, either way; timestamps
-  gone back: parts joined by ``concat``): nothing seen before it continues after it (tracks end there);
+  gone back: parts joined by ``concat``; another stream whose times do not go on: ``input-selector`` switched):
+  nothing seen before it continues after it (tracks end there);
 - keeps the latest calibration received from upstream in ``self.calibration`` (hook
   :meth:`on_calibration`) and forwards the sticky event downstream; other custom downstream events (speedometer's
   finished vehicles) go to hook :meth:`on_custom_event`;
@@ -77,6 +78,11 @@ LIVE = GObject.ParamFlags(int(GObject.ParamFlags.READWRITE) | Gst.PARAM_MUTABLE_
 """Flags of a property read for every frame: changing it while the stream runs takes effect at once."""
 
 
+NEW_STREAM_FRAMES = 2
+"""Frames looked at after another stream starts (input-selector switched) for one that does not go on from the last:
+the old source's frame on its way when the switch came may still pass after the new one's STREAM_START."""
+
+
 def video_pad_templates(formats: tuple[str, ...] = SUPPORTED_FORMATS) -> tuple[Gst.PadTemplate, Gst.PadTemplate]:
     """(src, sink) always-pad templates for raw video in ``formats``."""
     caps = Gst.Caps.from_string(video_caps_string(formats))
@@ -117,6 +123,8 @@ class TrafficcalTransform(GstBase.BaseTransform):
         self._segment: Gst.Segment | None = None  # the last SEGMENT event's: buffer_t is stream time
         self._segment_seqnum: int | None = None  # its seqnum (a seek's after a flushing seek)
         self._timed_seqnum: int | None = None  # the segment seqnum of the last frame timed
+        self._stream_id: tuple[str, int | None] | None = None  # the last STREAM_START's stream-id and group-id
+        self._new_stream = 0  # frames left to look at after another stream started (NEW_STREAM_FRAMES)
         self._flushed_mid_run = False  # a FLUSH_STOP (a flushing seek) after frames: on_jump at the next timed one
         self._given_offset: GivenClock | None = None  # the clock an element upstream gave the next frame
         self._said_untimed = False  # warn_untimed: said once per run
@@ -366,6 +374,12 @@ class TrafficcalTransform(GstBase.BaseTransform):
                     return True
             except Exception as exc:  # a bad event from upstream: say so, forward it, go on
                 self.post_warning(f"ignoring invalid {event.get_structure().get_name()} event: {exc}")
+        elif event.type == Gst.EventType.STREAM_START:  # another stream after frames: input-selector switched
+            has_group, group = event.parse_group_id()  # the same file twice has one stream-id, not one group
+            stream_id = (event.parse_stream_start(), group if has_group else None)
+            if self._stream_id not in (None, stream_id) and self.stream_clock.last is not None:
+                self._new_stream = NEW_STREAM_FRAMES
+            self._stream_id = stream_id
         elif event.type == Gst.EventType.SEGMENT:
             self._segment = event.parse_segment().copy()
             self._segment_seqnum = event.get_seqnum()
@@ -396,7 +410,12 @@ class TrafficcalTransform(GstBase.BaseTransform):
         clock = self.stream_clock
         jumps, offset, pts_s = len(clock.jumps), clock.offset, stream_seconds(buffer, self._segment)
         given, self._given_offset = self._given_offset, (self._given_offset if pts_s is None else None)
-        seqnum, tell = self._segment_seqnum, False
+        seqnum, tell, switched = self._segment_seqnum, False, False
+        if self._new_stream and pts_s is not None:  # another stream's first frames: a jump unless its times go on
+            self._new_stream -= 1
+            switched = given is not None or (not self._flushed_mid_run and not clock.continues(pts_s))
+            self._flushed_mid_run = self._flushed_mid_run or switched
+            self._new_stream *= not switched
         with SEGMENTS.lock:  # one decision per flushing seek for the elements of every branch (segment_clocks)
             if given is not None and pts_s is not None:  # an element upstream timed this frame after a jump
                 self.buffer_t = clock.follow(pts_s, _followed_offset(given, pts_s, seqnum))
@@ -412,6 +431,8 @@ class TrafficcalTransform(GstBase.BaseTransform):
                 # the elements downstream go on from another last frame (frames were flushed between): tell them
                 tell = self.buffer_t is not None and (self._flushed_mid_run or clock.offset != offset)
             if self.buffer_t is not None:
+                if switched:
+                    clock.switches.append(self.buffer_t)
                 SEGMENTS.reach(seqnum, self.buffer_t)
                 self._timed_seqnum = seqnum
         if tell:
