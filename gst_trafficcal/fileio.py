@@ -38,6 +38,16 @@ def read_json(path: str | Path, what: str) -> Any:
         raise InputError(f"{path}: not valid JSON, so not a {what} ({exc.msg} at line {exc.lineno})") from None
 
 
+def json_text_field(path: str | Path, field: str, what: str, must: str) -> str | None:
+    """The text field ``field`` of the JSON object in ``path`` (a ``what``), None when it has none; InputError
+    "PATH: field 'FIELD' must be MUST" when it is there but no text."""
+    d = read_json(path, what)
+    text = d.get(field) if isinstance(d, dict) else None
+    if text is not None and not isinstance(text, str):
+        raise InputError(f"{path}: field '{field}' must be {must}")
+    return text
+
+
 def is_json_number(x: Any, whole: bool = False) -> bool:
     """Whether a value read from JSON is a number (a whole one with ``whole``); true and false are not, though Python
     counts them as ints: ``[true, 0]`` is no image point, ``true`` no scale."""

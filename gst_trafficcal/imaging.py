@@ -79,15 +79,10 @@ def check_orientation(text: str | None, option: str = "--orientation") -> str:
 def orientation_of_file(path: str | Path) -> str | None:
     """The orientation a calibration file keeps (its field ``orientation``, written by ``trafficcal calibrate`` and
     ``run`` given an ``--orientation``), None when it keeps none; InputError naming the file otherwise."""
-    from .fileio import read_json
+    from .fileio import json_text_field
 
-    d = read_json(path, "calibration file")
-    text = d.get("orientation") if isinstance(d, dict) else None
-    if text is None:
-        return None
-    if not isinstance(text, str):
-        raise InputError(f"{path}: field 'orientation' must be one of {', '.join(ORIENTATIONS)}")
-    return check_orientation(text, f"{path}: field 'orientation'")
+    text = json_text_field(path, "orientation", "calibration file", f"one of {', '.join(ORIENTATIONS)}")
+    return None if text is None else check_orientation(text, f"{path}: field 'orientation'")
 
 
 def turned_size(size: tuple[int, int], fixup) -> tuple[int, int]:

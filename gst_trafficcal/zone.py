@@ -24,7 +24,7 @@ import numpy as np
 
 from .detection.records import Detections
 from .errors import InputError
-from .fileio import read_json
+from .fileio import json_text_field
 
 WHOLE_FRAME = "all"
 """The zone text for the whole frame: as no zone, but said explicitly (over the zone a calibration file keeps)."""
@@ -171,13 +171,8 @@ def _crosses_itself(pts: np.ndarray) -> bool:
 def zone_of_file(path: str | Path) -> Zone | None:
     """The detection zone a calibration file was learnt or measured in (its field ``zone``), None when it has none;
     InputError naming the file when it cannot be read or the zone is not one."""
-    d = read_json(path, "calibration file")
-    text = d.get("zone") if isinstance(d, dict) else None
-    if text is None:
-        return None
-    if not isinstance(text, str):
-        raise InputError(f"{path}: field 'zone' must be a text {SYNTAX}")
-    return parse_zone(text, f"{path}: field 'zone'")
+    text = json_text_field(path, "zone", "calibration file", f"a text {SYNTAX}")
+    return None if text is None else parse_zone(text, f"{path}: field 'zone'")
 
 
 def given_or_kept(text: str, option: str, calibration: str | Path | None) -> Zone | None:

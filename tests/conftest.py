@@ -212,6 +212,22 @@ class Receiver:
         self.server.server_close()
 
 
+def switch_after(pipeline, selector_name: str, buffers: int, to_pad: str = "sink_1") -> None:
+    """Switch the ``input-selector`` ``selector_name`` of ``pipeline`` to its pad ``to_pad`` once ``buffers`` buffers
+    have left it (asked from the application's side, as a user's camera switch is)."""
+    from gst_trafficcal.gst._gi import Gst
+
+    sel, passed = pipeline.get_by_name(selector_name), []
+
+    def switch(_pad, _info):
+        passed.append(True)
+        if len(passed) == buffers:
+            pipeline.call_async(lambda p: sel.set_property("active-pad", sel.get_static_pad(to_pad)))
+        return Gst.PadProbeReturn.OK
+
+    sel.get_static_pad("src").add_probe(Gst.PadProbeType.BUFFER, switch)
+
+
 def seek_once(pipeline, pad, target_s: float, at_s: float = 6.0) -> list[bool]:
     """A flushing, accurate seek of ``pipeline`` to ``target_s`` when the first buffer at or after ``at_s`` passes
     ``pad`` (asked from the pipeline's thread, as a player does); the list returned holds True once it was asked."""

@@ -19,7 +19,7 @@ from gst_trafficcal.gst._gi import Gst  # noqa: E402
 from gst_trafficcal.gst.element import TrafficcalTransform, register_plugin_file  # noqa: E402
 from gst_trafficcal.gst.env import gst_environment  # noqa: E402
 from gst_trafficcal.gst.pipeline import PipelineError, run_pipeline  # noqa: E402
-from .conftest import seek_once  # noqa: E402
+from .conftest import seek_once, switch_after  # noqa: E402
 
 PLUGINS = Path(__file__).resolve().parent / "gst_plugins"
 
@@ -344,15 +344,7 @@ def test_an_input_selector_switch_to_a_source_whose_times_do_not_go_on_is_a_jump
     pipeline = Gst.parse_launch(f"input-selector name=sel ! tccheck name=c ! appsink name=sink "
                                 f"videotestsrc num-buffers=100 ! {caps} ! sel.sink_0 "
                                 f"videotestsrc num-buffers=100 pattern=ball ! {caps} ! sel.sink_1")
-    sel, passed = pipeline.get_by_name("sel"), []
-
-    def switch(pad, info):
-        passed.append(True)
-        if len(passed) == 50:  # asked from the application's side, as a user's switch is
-            pipeline.call_async(lambda p: sel.set_property("active-pad", sel.get_static_pad("sink_1")))
-        return Gst.PadProbeReturn.OK
-
-    sel.get_static_pad("src").add_probe(Gst.PadProbeType.BUFFER, switch)
+    switch_after(pipeline, "sel", 50)
     run = run_pipeline(pipeline)
     seen = [m.fields for m in run.messages if m.name == "tccheck"]
     back = next(i for i in range(1, len(seen)) if seen[i]["stream"] <= seen[i - 1]["stream"])  # the new source

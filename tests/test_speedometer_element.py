@@ -23,7 +23,7 @@ from gst_trafficcal.gst.pipeline import PipelineError, run_pipeline  # noqa: E40
 from gst_trafficcal.outputs import read_events, read_events_csv  # noqa: E402
 from gst_trafficcal.synth.groundtruth import read_jsonl  # noqa: E402
 
-from .conftest import VIDEOS, require_shared, seek_once, track_spans  # noqa: E402
+from .conftest import VIDEOS, require_shared, seek_once, switch_after, track_spans  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 ELEMENTS = ROOT / "elements" / "python"
@@ -1406,15 +1406,7 @@ def test_an_input_selector_switch_is_a_jump_not_a_frame_out_of_order(clip, tmp_p
     pipeline = Gst.parse_launch(f"input-selector name=sel ! speedometer calibration-file={clip / 'calibration.json'} "
                                 f"events-file={events_file} ! appsink name=sink {part} ! sel.sink_0 "
                                 f"{part} ! sel.sink_1")
-    sel, passed = pipeline.get_by_name("sel"), []
-
-    def switch(pad, info):
-        passed.append(True)
-        if len(passed) == 100:  # 4 s in: asked from the application's side, as a user's switch is
-            pipeline.call_async(lambda p: sel.set_property("active-pad", sel.get_static_pad("sink_1")))
-        return Gst.PadProbeReturn.OK
-
-    sel.get_static_pad("src").add_probe(Gst.PadProbeType.BUFFER, switch)
+    switch_after(pipeline, "sel", 100)  # 4 s in
     run = run_pipeline(pipeline)
     assert not [w for w in run.warnings if "out of order" in w], run.warnings
     said = [w for w in run.warnings if "another stream began" in w]
