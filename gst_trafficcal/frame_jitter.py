@@ -52,7 +52,7 @@ class FrameJitter:
         self.said = True
         return (f"the frame times jitter: intervals of {median * 1000:.0f} ms vary by {spread * 1000:.0f} ms (median "
                 f"deviation over {len(dts)} frames, from {dts.min() * 1000:.0f} to {dts.max() * 1000:.0f} ms), as "
-                "times of arrival do (a source with do-timestamp=true, frames decoded in bursts), not times of capture; "
-                "a speed is distance over time, so the speeds scatter and fewer vehicles are measured: time the "
-                "frames by the camera's own timestamps (drop do-timestamp=true; an RTSP camera's rtspsrc gives "
-                "them); said once")
+                "times of arrival do (a source with do-timestamp=true, frames decoded in bursts), not times of "
+                "capture; a speed is distance over time, so the speeds scatter and fewer vehicles are measured: "
+                "time the frames by the camera's own timestamps (drop do-timestamp=true; an RTSP camera's rtspsrc "
+                "gives them); said once")
