@@ -3,8 +3,10 @@ scaled to the square ones the elements see (:func:`squared`)."""
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from fractions import Fraction
 from pathlib import Path
+from typing import Callable
 
 import cv2
 import numpy as np
@@ -216,11 +218,49 @@ def opencv_fixup(path: str | Path, orientation: str = AUTO):
     display matrix shows (:func:`video_direction`): a flip for a mirrored file, None for all others; with a
     :data:`DIRECTIONS` name the stored frames turned that way whatever the file says (a camera mounted on its side
     or upside down: :func:`check_orientation`)."""
+    return opencv_picture(path, orientation).fixup
+
+
+@dataclass(frozen=True)
+class OpenCVPicture:
+    """How OpenCV's frames of a video become the picture trafficcal run's ``videoflip ! videoscale`` analyses:
+    ``fixup`` still turns them (:func:`opencv_fixup`, None: nothing to do), ``quarter`` tells that the picture is
+    the stored one turned a quarter (or mirrored about a diagonal).  Its pixels' aspect ratio is then the stored
+    one's inverse, as videoflip swaps the caps' pixel-aspect-ratio: 480x360 stored at 4/3 turned 90r is 360x480 at
+    3/4, which videoscale makes 270x480 (its height kept), not 480x480."""
+
+    fixup: Callable[[np.ndarray], np.ndarray] | None = None
+    quarter: bool = False
+
+    def par(self, par: Fraction) -> Fraction:
+        """The aspect ratio of the turned picture's pixels, of stored pixels of ``par`` (OpenCV's capture_par)."""
+        return 1 / par if self.quarter and par > 0 else par
+
+    def size(self, size: tuple[int, int], par: Fraction) -> tuple[int, int]:
+        """The analysed size (w, h) of OpenCV's frames of ``size`` (CAP_PROP_FRAME_WIDTH/HEIGHT) and ``par``: the
+        one size trafficcal run, the scripts and trafficcal calibrate work at."""
+        return square_size(*turned_size(size, self.fixup), self.par(par))
+
+    def frame(self, frame: np.ndarray, par: Fraction) -> np.ndarray:
+        """OpenCV's ``frame`` (of stored pixels of ``par``) as the analysed picture: turned, then squared."""
+        return squared(self.fixup(frame) if self.fixup else frame, self.par(par))
+
+
+def swaps_axes(direction: str) -> bool:
+    """Whether the :data:`DIRECTIONS` ``direction`` swaps a picture's width and height (a quarter turn)."""
+    return DIRECTIONS[direction][0][0] == 0
+
+
+def opencv_picture(path: str | Path, orientation: str = AUTO) -> OpenCVPicture:
+    """:class:`OpenCVPicture` of a video file: its frames turned as :func:`opencv_fixup` says, and whether the picture
+    is the stored one turned a quarter (by its display matrix with ``orientation`` auto, else by ``orientation``)."""
     direction, degrees = mp4_direction(path), opencv_rotation(path)
     if orientation != AUTO:
         direction, degrees = orientation, 0 if degrees is None else degrees
+    shown = direction if direction is not None else None if degrees is None else _ROTATIONS[degrees]
+    quarter = shown is not None and swaps_axes(shown)
     if direction is None or degrees is None or DIRECTIONS[direction] == DIRECTIONS[_ROTATIONS[degrees]]:
-        return None
+        return OpenCVPicture(None, quarter)
     want, done = np.array(DIRECTIONS[direction]), np.array(DIRECTIONS[_ROTATIONS[degrees]])
     rest = tuple(tuple(int(v) for v in row) for row in want @ done.T)  # want = rest @ done (done's inverse: .T)
-    return lambda frame: apply_direction(frame, rest)
+    return OpenCVPicture(lambda frame: apply_direction(frame, rest), quarter)

@@ -141,3 +141,42 @@ def test_a_file_opencv_refuses_is_turned_too(tmp_path):
     assert turned.shape == (upright.shape[1], upright.shape[0], 3)
     rotated = np.rot90(upright, -1).astype(int)  # a quarter clockwise (turned in I420: chroma sited anew)
     assert float(np.mean(np.abs(turned.astype(int) - rotated))) < 4.0
+
+
+@pytest.fixture(scope="module")
+def squeezed(tmp_path_factory) -> Path:
+    """An untagged clip of 480x360 pixels of aspect ratio 4/3 (a 640x360 picture stored squeezed, as a DVR's D1)."""
+    return encoded(tmp_path_factory.mktemp("squeezed") / "squeezed.mp4",
+                   "width=480,height=360,pixel-aspect-ratio=4/3", frames=25)
+
+
+@pytest.mark.parametrize("tag,orientation", [(None, "90r"), (90, "auto"), (270, "90r"), (None, "ul-lr")])
+def test_non_square_pixels_turned_a_quarter(squeezed, tmp_path, tag, orientation):
+    """Pixels of 4/3 turned a quarter: videoflip swaps the caps' pixel-aspect-ratio (360x480 of 3/4), videoscale
+    makes 270x480 of it; OpenCV's frames (calibrate, the report's picture) were squared by the stored 4/3: 480x480."""
+    from gst_trafficcal.cli.run import first_frame
+    from gst_trafficcal.gst.snapshot import first_frame_bgr
+    from gst_trafficcal.vanishing.frames import luma_frames
+
+    video = squeezed if tag is None else rotation_tagged(squeezed, tmp_path / "tagged.mp4", tag)
+    gst = first_frame_bgr(video, orientation=orientation)
+    assert gst.shape[1::-1] == (270, 480)
+    frames = luma_frames(video, orientation)
+    assert frames.size == (270, 480) and next(iter(frames))[1].shape == (480, 270)
+    for frame in (first_frame(video, orientation), frames.first_bgr):
+        assert frame.shape == gst.shape
+        assert float(np.mean(np.abs(frame.astype(int) - gst.astype(int)))) < 6.0  # the same picture, decoded twice
+
+
+def test_calibrate_and_run_agree_on_non_square_pixels_turned(squeezed, tmp_path):
+    """trafficcal calibrate --orientation 90r of 4/3 pixels writes the size trafficcal run analyses (270x480): a
+    run given that calibration accepts it."""
+    cal = tmp_path / "cal.json"
+    proc = trafficcal("calibrate", squeezed, "-o", cal, "--orientation", "90r", "--no-progress")
+    assert proc.returncode in (0, 1), proc.stdout[-2000:] + proc.stderr[-2000:]  # 1 s of colour bars: no VPs
+    assert json.loads(cal.read_text())["image_size"] == [270, 480]
+    data = dict(PORTRAIT, image_size=[270, 480], pp=[135.0, 240.0], vp1=[135.0, -400.0], orientation="90r")
+    cal.write_text(json.dumps(data))
+    run = trafficcal("run", squeezed, "--out", tmp_path / "out", "--calibration", cal, "--no-overlay")
+    assert run.returncode == 0, run.stdout[-2000:] + run.stderr[-2000:]
+    assert load_calibration(tmp_path / "out" / "calibration.json").image_size == (270, 480)

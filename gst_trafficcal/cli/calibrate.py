@@ -98,15 +98,14 @@ def command(video: Path, out_path: Path, png_path: Path | None, method: str, min
                            focal_range=parse_focal_range(focal_range), horizon_max_deg=horizon_max,
                            vp1_constant_speed=constant_speed, zone=where)
     from ..fileio import atomic_write_image, open_video, writable_file, writable_image
-    from ..imaging import AUTO, capture_par, opencv_fixup, square_size, turned_size
+    from ..imaging import capture_par, opencv_picture
 
     cap = open_video(video)  # a missing or unreadable video: its one line before anything is created
     # the frames as calibrated: of square pixels (vanishing.frames), as trafficcal run and the scripts analyse them
-    size = square_size(int(cap.get(cv2.CAP_PROP_FRAME_WIDTH)), int(cap.get(cv2.CAP_PROP_FRAME_HEIGHT)),
-                       capture_par(cap))
+    # turned as the file or --orientation says (a quarter turn swaps the sides, and a non-square pixel's aspect)
+    size = opencv_picture(video, orientation).size(
+        (int(cap.get(cv2.CAP_PROP_FRAME_WIDTH)), int(cap.get(cv2.CAP_PROP_FRAME_HEIGHT))), capture_par(cap))
     cap.release()
-    if orientation != AUTO:  # turned as --orientation says (a quarter turn swaps the sides)
-        size = turned_size(size, opencv_fixup(video, orientation))
     wrong = where.check(size) if where is not None and min(size) > 0 else None
     if wrong:
         raise InputError(f"{video}: the --{wrong}")

@@ -15,10 +15,10 @@ def _frame(image: Path | None, video: str | None, at_s: float, orientation: str 
     (None when neither is given); a video's turned by ``orientation`` (trafficcal run's --orientation)."""
     import cv2
 
-    from .run import first_frame, frame_fixup, is_stream, local_file, shown_source
+    from .run import first_frame, frame_picture, is_stream, local_file, shown_source
 
     from ..fileio import cannot_open_video, open_video, video_file
-    from ..imaging import capture_par, squared
+    from ..imaging import capture_par
 
     if image is not None:
         if not image.is_file():
@@ -51,9 +51,8 @@ def _frame(image: Path | None, video: str | None, at_s: float, orientation: str 
         cap.release()
     if not ok or frame is None:
         raise InputError(f"{video}: cannot read a frame (not a video, or shorter than {at_s:g} s)")
-    fixup = frame_fixup(video, orientation)  # a mirrored file shown mirrored, as trafficcal run shows it
-    # of square pixels, as the calibration's (trafficcal run's) frames
-    return squared(fixup(frame) if fixup else frame, par)
+    # turned (a mirrored file shown mirrored) and of square pixels, as trafficcal run's frames
+    return frame_picture(video, orientation).frame(frame, par)
 
 
 @click.command(help="Write a self-contained report.html (calibration picture, speed histogram and statistics with "

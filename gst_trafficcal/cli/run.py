@@ -114,11 +114,19 @@ def frame_fixup(video: Path | str, orientation: str = "auto"):
     """What turns OpenCV's frames of ``video`` into the picture the run analyses (:func:`direction_of`): for a file
     :func:`gst_trafficcal.imaging.opencv_fixup`; for a stream (no tag OpenCV reads) the ``orientation`` given,
     None for auto."""
-    from ..imaging import AUTO, DIRECTIONS, apply_direction, opencv_fixup
+    return frame_picture(video, orientation).fixup
+
+
+def frame_picture(video: Path | str, orientation: str = "auto"):
+    """:func:`frame_fixup`, and whether the picture is the stored one turned a quarter (its pixels' aspect ratio
+    inverted, as videoflip inverts it): :class:`gst_trafficcal.imaging.OpenCVPicture`."""
+    from ..imaging import AUTO, DIRECTIONS, OpenCVPicture, apply_direction, opencv_picture, swaps_axes
 
     if is_stream(video):
-        return None if orientation == AUTO else lambda frame: apply_direction(frame, DIRECTIONS[orientation])
-    return opencv_fixup(local_file(str(video)) or video, orientation)
+        if orientation == AUTO:
+            return OpenCVPicture()
+        return OpenCVPicture(lambda frame: apply_direction(frame, DIRECTIONS[orientation]), swaps_axes(orientation))
+    return opencv_picture(local_file(str(video)) or video, orientation)
 
 
 def orientation_option(what: str):
@@ -605,7 +613,7 @@ def first_frame(video: Path | str, orientation: str = "auto"):
     import cv2
 
     from ..fileio import quiet_ffmpeg
-    from ..imaging import capture_par, squared
+    from ..imaging import capture_par
 
     with quiet_ffmpeg():  # a refusal is handled here
         if is_uri(video):
@@ -619,8 +627,7 @@ def first_frame(video: Path | str, orientation: str = "auto"):
         finally:
             cap.release()
     if ok:  # upright already (OpenCV applies a rotated file's display matrix; a mirrored one's flip: the fix-up)
-        fixup = frame_fixup(video, orientation)
-        return squared(fixup(frame) if fixup else frame, par)
+        return frame_picture(video, orientation).frame(frame, par)
     if is_uri(video) or not Path(video).is_file():
         return None
     from ..gst.snapshot import first_frame_bgr

@@ -86,12 +86,12 @@ def scale_from_video(video: str | Path, calibration: Calibration, *, models=None
         raise InputError("the scale needs the vanishing points: the calibration has none (state "
                          f"{calibration.state!r})")
     from ..fileio import open_video
-    from ..imaging import capture_par, opencv_fixup, squared
+    from ..imaging import capture_par, opencv_picture
 
     path = Path(video)
     cap = open_video(path)
     par = capture_par(cap)  # frames of non-square pixels scaled to square ones, as the calibration's (frames.py)
-    fixup = opencv_fixup(path, orientation)  # a mirrored file's frames mirrored as they are shown (frames.py)
+    picture = opencv_picture(path, orientation)  # turned (a mirrored file's flip) as they are shown (frames.py)
     camera = calibration.camera.with_scale(None)
     est = ScaleEstimator(models if isinstance(models, dict) else load_align_models(models),
                          iou_threshold=iou_threshold, min_vehicles=min_vehicles, regression=regression)
@@ -106,7 +106,7 @@ def scale_from_video(video: str | Path, calibration: Calibration, *, models=None
             ok, bgr = cap.read()
             if not ok:
                 break
-            bgr = squared(fixup(bgr) if fixup else bgr, par)
+            bgr = picture.frame(bgr, par)
             t = float(cap.get(cv2.CAP_PROP_POS_MSEC)) / 1000.0
             if max_duration is not None and t > max_duration:
                 break

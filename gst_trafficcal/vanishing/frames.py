@@ -20,7 +20,7 @@ import cv2
 import numpy as np
 
 from ..errors import InputError
-from ..imaging import capture_par, opencv_fixup, square_size, squared, turned_size
+from ..imaging import OpenCVPicture, capture_par, opencv_picture
 
 # Y' = 16 + 219/255 (0.299 R + 0.587 G + 0.114 B), ITU-R BT.601 limited range (what decoders output)
 _K = 219.0 / 255.0
@@ -59,6 +59,8 @@ class LumaFrames:
     first_bgr: np.ndarray | None
     par: Fraction = Fraction(1)
     fixup: Callable[[np.ndarray], np.ndarray] | None = None  # imaging.opencv_fixup: a mirrored file's flip
+    # the stored pixels' ``par`` inverted for a picture turned a quarter (imaging.OpenCVPicture), as videoflip does
+    picture: OpenCVPicture | None = None
 
     def __iter__(self) -> Iterator[tuple[float, np.ndarray]]:
         with _quiet():
@@ -76,7 +78,7 @@ class LumaFrames:
                 msec = cap.get(cv2.CAP_PROP_POS_MSEC)
                 t = msec / 1000.0 if n and msec > 0 else n / self.fps
                 img = img if self.planar else luma(img)
-                yield t, squared(self.fixup(img) if self.fixup else img, self.par)
+                yield t, (self.picture or OpenCVPicture(self.fixup)).frame(img, self.par)
                 n += 1
         finally:
             cap.release()
@@ -116,11 +118,9 @@ def luma_frames(path: str | Path, orientation: str = "auto") -> LumaFrames:
                 ycap.release()
         planar = bool(yok and y.ndim == 2 and y.shape == (h, w)
                       and float(np.mean(np.abs(y.astype(np.int16) - luma(first).astype(np.int16)))) < 3.0)
-    fixup = opencv_fixup(path, orientation)
-    if first_bgr is not None and fixup:
-        first_bgr = fixup(first_bgr)
-    return LumaFrames(path, fps, count, turned_size(square_size(w, h, par), fixup), planar,
-                      None if first_bgr is None else squared(first_bgr, par), par, fixup)
+    picture = opencv_picture(path, orientation)
+    return LumaFrames(path, fps, count, picture.size((w, h), par), planar,
+                      None if first_bgr is None else picture.frame(first_bgr, par), par, picture.fixup, picture)
 
 
 def _open(path: Path, planar: bool) -> cv2.VideoCapture:
