@@ -23,7 +23,8 @@
 # ORIENTATION (auto, identity, 90r, 180, 90l, horiz, vert, ul-lr, ur-ll; default auto: as a file's rotation or
 # mirroring says, or a stream's tag): the picture turned that way whatever the video says, as trafficcal run
 # --orientation turns it — a camera mounted on its side or upside down sends no tag over RTSP (90r: a quarter turn
-# clockwise, 90l: counter-clockwise, horiz/vert: mirrored). Give calibrate.sh and measure.sh the same one.
+# clockwise, 90l: counter-clockwise, horiz/vert: mirrored). It is kept in the calibration (field orientation):
+# measure.sh, nvr-overlay.sh and trafficcal run given the file turn the picture the same way without being told.
 set -euo pipefail
 
 here="$(cd "$(dirname "${BASH_SOURCE[0]}")" && pwd)"
@@ -88,8 +89,9 @@ trap cleanup EXIT
 set_stall_watchdog "$uri"  # a live source that stops sending ends the run (lib.sh)
 # shellcheck disable=SC2206  # word splitting of the user's property list is intended
 set_analysed_video "$uri"  # upright and of square pixels, as the camera model and trafficcal run take them (lib.sh)
+set_orientation_prop  # an ORIENTATION is kept in the calibration (its field orientation), for measure.sh and run
 pipeline=(uridecodebin "uri=$uri" ! "${stall[@]}" videoconvert ! "${analysed[@]}"
-          ! vpdetect mode=learn "calibration-file=$tmp" ${VPDETECT_OPTS:-} ! fakesink)
+          ! vpdetect mode=learn "calibration-file=$tmp" "${orientation_prop[@]}" ${VPDETECT_OPTS:-} ! fakesink)
 echo "calibrate: gst-launch-1.0 -e ${pipeline[*]}" >&2
 
 rc=0

@@ -17,6 +17,27 @@ set_analysed_video() {  # INPUT: sets `analysed` to (videoflip video-direction=.
     mapfile -t analysed <<<"$words"
 }
 
+take_kept_orientation() {  # NAME CALIBRATION: with ORIENTATION unset, the one the calibration file keeps (saying so)
+    # As trafficcal run --calibration takes it: calibrate.sh (vpdetect orientation=...) and trafficcal calibrate keep
+    # the ORIENTATION / --orientation the picture was turned by in the file's field orientation. A bad field: die.
+    local kept rc=0
+    [[ -z "${ORIENTATION:-}" && -n "$2" ]] || return 0
+    kept="$(python -m gst_trafficcal.gst.chains kept-orientation "$2")" || rc=$?
+    [[ $rc == 3 ]] && die "$kept"
+    [[ $rc == 0 ]] || die "cannot set up the pipeline (is the project set up: scripts/setup.sh?)"
+    [[ -n "$kept" ]] || return 0
+    ORIENTATION="$kept"
+    echo "$1: orientation kept in $2: $kept (ORIENTATION=auto: as the video says)" >&2
+}
+
+set_orientation_prop() {  # sets `orientation_prop` to vpdetect's orientation=... (none for auto): kept in the file
+    orientation_prop=()
+    case "${ORIENTATION:-auto}" in
+        auto|AUTO|"") ;;
+        *) orientation_prop=("orientation=$ORIENTATION") ;;
+    esac
+}
+
 set_even_i420() {  # sets `even_i420` to the caps of I420 of an even size (x264 refuses an odd one, 1281x721)
     even_i420="$(python -m gst_trafficcal.gst.chains even-i420)" || die "cannot set up the pipeline (is the" \
         "project set up: scripts/setup.sh?)"

@@ -44,7 +44,8 @@
 # ORIENTATION (auto, identity, 90r, 180, 90l, horiz, vert, ul-lr, ur-ll; default auto: as a file's rotation or
 # mirroring says, or a stream's tag): the picture turned that way whatever the video says, as trafficcal run
 # --orientation turns it — a camera mounted on its side or upside down sends no tag over RTSP (90r: a quarter turn
-# clockwise, 90l: counter-clockwise, horiz/vert: mirrored). Give calibrate.sh and measure.sh the same one.
+# clockwise, 90l: counter-clockwise, horiz/vert: mirrored). Unset, the one the CALIBRATION keeps (calibrate.sh's
+# ORIENTATION, trafficcal calibrate's --orientation: its field orientation) is taken, and said.
 set -euo pipefail
 
 here="$(cd "$(dirname "${BASH_SOURCE[0]}")" && pwd)"
@@ -104,6 +105,7 @@ kept="$(keep_earlier_live "$uri" "$out_dir")" || die "$out_dir: cannot keep the 
 mapfile -t queue < <(analysis_queue "$uri")  # leaky for a live source (lib.sh)
 set_stall_watchdog "$uri"  # a live source that stops sending ends the run (lib.sh)
 # shellcheck disable=SC2206  # word splitting of the user's property lists is intended
+take_kept_orientation measure "$calibration"  # ORIENTATION unset: the calibration's (lib.sh)
 set_analysed_video "$uri"  # upright and of square pixels, as the camera model and trafficcal run take them (lib.sh)
 pipeline=(uridecodebin "uri=$uri" ! "${stall[@]}" videoconvert ! "${analysed[@]}" ! "${queue[@]}"
           ! "${vp[@]}" ${VPDETECT_OPTS:-} ! vehicledetect ${VEHICLEDETECT_OPTS:-}

@@ -34,7 +34,9 @@
 # ORIENTATION (auto, identity, 90r, 180, 90l, horiz, vert, ul-lr, ur-ll; default auto: as a file's rotation or
 # mirroring says, or a stream's tag): the picture turned that way whatever the video says, as trafficcal run
 # --orientation turns it — a camera mounted on its side or upside down sends no tag over RTSP (90r: a quarter turn
-# clockwise, 90l: counter-clockwise, horiz/vert: mirrored). Give calibrate.sh and measure.sh the same one.
+# clockwise, 90l: counter-clockwise, horiz/vert: mirrored). Unset, the one an existing CALIBRATION keeps
+# (calibrate.sh's ORIENTATION, trafficcal calibrate's --orientation: its field orientation) is taken, and said;
+# a calibration vpdetect learns here keeps the ORIENTATION given.
 set -euo pipefail
 
 here="$(cd "$(dirname "${BASH_SOURCE[0]}")" && pwd)"
@@ -119,11 +121,13 @@ if [[ -n "$calibration" ]]; then
         [[ -r "$calibration" ]] || die "$calibration: cannot read the calibration file"
     fi
     cal_prop=("calibration-file=$calibration")
+    [[ ! -e "$calibration" ]] || take_kept_orientation nvr-overlay "$calibration"  # ORIENTATION unset (lib.sh)
 fi
+set_orientation_prop  # vpdetect keeps it in a calibration it learns (lib.sh)
 
 if [[ $default_analysis == 1 ]]; then
     # an array, not a string split again: a calibration path with a space stays one property
-    chain=(vpdetect "${cal_prop[@]}" ! vehicledetect ! tracker)
+    chain=(vpdetect "${cal_prop[@]}" "${orientation_prop[@]}" ! vehicledetect ! tracker)
     if gst-inspect-1.0 --exists speedometer 2>/dev/null; then
         chain+=(! speedometer)
     else

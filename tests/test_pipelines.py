@@ -535,6 +535,29 @@ def test_measure_analyses_a_rotated_video_upright(tmp_path):
     assert "videoflip video-direction=90r ! videoscale" in proc.stderr
 
 
+def test_the_calibration_keeps_orientation_for_measure_and_overlay(cuboid_video, tmp_path):
+    """calibrate.sh with ORIENTATION keeps it in the calibration (field orientation, as trafficcal calibrate does);
+    measure.sh and nvr-overlay.sh given that file without ORIENTATION turn the picture by it and say so (they
+    analysed the stored picture before, which the calibration does not fit); ORIENTATION=auto overrides it."""
+    from .conftest import encoded
+    from .test_vanishing import H, W
+
+    cal = tmp_path / "cal.json"
+    proc = script("calibrate.sh", cuboid_video, cal, VPDETECT_OPTS="min-duration=8", ORIENTATION="horiz")
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    assert "videoflip video-direction=horiz ! videoscale" in proc.stderr
+    assert json.loads(cal.read_text())["orientation"] == "horiz"
+    short = encoded(tmp_path / "short.mp4", f"width={W},height={H}", frames=10, src=cuboid_video)
+    for name, out in (("measure", tmp_path / "out"), ("nvr-overlay", tmp_path / "overlay.mp4")):
+        run = script(f"{name}.sh", short, out, cal, ORIENTATION="")
+        assert run.returncode == 0, run.stderr[-2000:]
+        assert f"{name}: orientation kept in {cal}: horiz (ORIENTATION=auto" in run.stderr
+        assert "videoflip video-direction=horiz ! videoscale" in run.stderr
+    auto = script("measure.sh", short, tmp_path / "auto", cal, ORIENTATION="auto")
+    assert auto.returncode == 0 and "kept in" not in auto.stderr, auto.stderr[-2000:]
+    assert "videoflip video-direction=identity ! videoscale" in auto.stderr
+
+
 def test_measure_turns_an_untagged_video_as_orientation_says(tmp_path):
     """ORIENTATION=90r (trafficcal run --orientation's values): a camera on its side, whose video has no tag, is
     measured upright and a calibration of the upright picture is taken; a bad value is one line before any work."""

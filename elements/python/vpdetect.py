@@ -80,6 +80,10 @@ class VpDetect(TrafficcalTransform):
         "zone": (str, "Zone", "Learn only from the traffic inside: polygons 'x,y x,y x,y ...' separated by ';', in "
                  "pixels or fractions 0..1 of the frame — the measured road, without a side road or a parking lot "
                  "(empty: the whole frame); kept in calibration-file", "", _RW),
+        "orientation": (str, "Orientation", "How the picture was turned before vpdetect (the videoflip "
+                        "video-direction given, as trafficcal run --orientation: 90r, 180, 90l, horiz, ...): kept in "
+                        "calibration-file's field orientation, so a run given the file turns the picture the same "
+                        "way (empty or auto: none kept)", "", _RW),
     }
     PASSTHROUGH = True
 
@@ -109,6 +113,7 @@ class VpDetect(TrafficcalTransform):
         self._views_loaded = False  # views-dir read
         self._size = None  # the frame size of the caps so far
         self._zone = None  # gst_trafficcal.zone.Zone: where the traffic to learn from is
+        self._orientation = "auto"  # how the picture was turned upstream: kept in the calibration file
         self._said_upstream = False  # the warning that a calibration from upstream is replaced: once
 
     def do_start(self):
@@ -116,12 +121,14 @@ class VpDetect(TrafficcalTransform):
         not after the minutes of video the calibration takes to learn."""
         from gst_trafficcal.errors import InputError
         from gst_trafficcal.fileio import writable_file
+        from gst_trafficcal.imaging import check_orientation
         from gst_trafficcal.vanishing.calibrator import CalibratorConfig
         from gst_trafficcal.zone import parse_zone
 
         self._reset()
         try:
             self._zone = parse_zone(self.zone)
+            self._orientation = check_orientation(self.orientation, "orientation")
             # durations that can only fail: now, not when learning starts (with a loaded file: after a camera move)
             CalibratorConfig(min_duration=self.min_duration, max_duration=self.max_duration)
         except InputError as exc:
@@ -496,7 +503,7 @@ class VpDetect(TrafficcalTransform):
         from gst_trafficcal.errors import InputError
 
         try:
-            save_calibration(cal, self.calibration_file, zone=self._zone)
+            save_calibration(cal, self.calibration_file, zone=self._zone, orientation=self._orientation)
         except InputError as exc:
             self.post_warning(f"vpdetect: the calibration is in force but not saved: {exc}")
 

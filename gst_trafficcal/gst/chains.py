@@ -42,6 +42,8 @@ def main(argv: list[str]) -> int:
     """``analysed VIDEO [ORIENTATION]``: :func:`analysed_video`'s elements for ``VIDEO`` (a file or a URI, its
     rotation read as trafficcal run reads it, or turned by ``ORIENTATION`` as its ``--orientation``) joined by
     ``!``, one word per line (for bash's mapfile); a bad ORIENTATION: the error on one line and exit code 3;
+    ``kept-orientation CALIBRATION``: the orientation the calibration file keeps (its field ``orientation``, as
+    ``trafficcal run --calibration`` takes it), nothing when it keeps none, a bad one: one line and exit code 3;
     ``even-i420``: :data:`EVEN_I420`."""
     if len(argv) in (2, 3) and argv[0] == "analysed":
         from ..cli.run import direction_of
@@ -54,11 +56,21 @@ def main(argv: list[str]) -> int:
             print(exc)
             return 3
         words = " ! ".join(analysed_video(direction_of(argv[1], orientation))).split(" ")
+    elif len(argv) == 2 and argv[0] == "kept-orientation":
+        from ..errors import InputError
+        from ..imaging import orientation_of_file
+
+        try:
+            kept = orientation_of_file(argv[1])
+        except InputError as exc:
+            print(exc)
+            return 3
+        words = [] if kept is None else [kept]
     elif argv == ["even-i420"]:
         words = [EVEN_I420]
     else:
-        print("usage: python -m gst_trafficcal.gst.chains analysed VIDEO|URI [ORIENTATION] | even-i420",
-              file=sys.stderr)
+        print("usage: python -m gst_trafficcal.gst.chains analysed VIDEO|URI [ORIENTATION] | kept-orientation "
+              "CALIBRATION | even-i420", file=sys.stderr)
         return 2
     print("\n".join(words))
     return 0
