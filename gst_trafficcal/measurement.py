@@ -69,7 +69,9 @@ from .vehicles.classify import MAX_Z, classify_dimensions, refined_label
 DEFAULT_MIN_TRACK_LENGTH = 10
 MIN_SEEN_S = 0.5  # an unmeasured track seen for less is no vehicle of its own (a fragment, a detector's flicker)
 MIN_PASSING_M = 3.0  # an unmeasured track that moved less along the road did not pass (parked, fixed)
-DRIVE_OFF_POINTS = 64  # a track's latest reference points drove_along_road judges (2.6 s at 25 fps)
+DRIVE_OFF_POINTS = 64  # a track's latest reference points drove_along_road judges (2.6 s at 25 fps; below 12.5 fps
+# the points that cover that time, at least DRIVE_OFF_FLOOR: frame_rate.frames_needed)
+DRIVE_OFF_FLOOR = 8  # the fewest points drove_along_road judges
 BRIEF = "brief"  # SpeedMeter.not_counted's reasons
 STATIONARY = "stationary"
 END_AFTER_MARGIN = 0.4  # seconds beyond the tracker's coasting time (max_lost) before a vehicle counts as gone
@@ -83,7 +85,7 @@ LIVE_WINDOW = 250  # observations behind the per-frame estimate of a vehicle sti
 LIVE_LABEL_EVERY = 25  # observations between two classifications of a vehicle in view (its final one: when it leaves)
 LIVE_EVERY = 5  # observations between two estimates of a vehicle in view (5 a second at 25 fps; the ROI structure
 # repeats the last one in between: a median over up to LIVE_WINDOW points barely moves in a frame, and computing
-# it every frame was a tenth of the chain's time in dense traffic)
+# it every frame was a tenth of the chain's time in dense traffic); below 12.5 fps as often in time (frames_needed)
 
 
 @dataclass(frozen=True)
@@ -332,9 +334,10 @@ class SpeedMeter:
         finished = self._end([r for r in self._live.values() if t - r.last_t > self.end_after])
         speeds = {}
         if self.can_measure:
+            every = frames_needed(LIVE_EVERY, self.spacing.seconds, 1)  # 0.2 s: at 5 fps every frame, not 1 s
             for rec in seen:
                 n = len(rec.observations)
-                if rec.live_at < 0 or n - rec.live_at >= LIVE_EVERY or rec.unboxed:
+                if rec.live_at < 0 or n - rec.live_at >= every or rec.unboxed:
                     rec.live, rec.live_at = self._live_speed(rec), n
                 if rec.live is not None:
                     speeds[rec.id] = rec.live
@@ -626,7 +629,8 @@ class SpeedMeter:
             # only for a track seen long enough to tell (a vehicle the end of the stream cut after a moment has not
             # gone far yet)
             # or drove off after standing for most of its stay (a queue at lights), as trafficoverlay counts it
-            moved = max(moved_along_road(cam, px), drove_along_road(cam, px[-DRIVE_OFF_POINTS:]))
+            steady = frames_needed(DRIVE_OFF_POINTS, self.spacing.seconds, DRIVE_OFF_FLOOR)
+            moved = max(moved_along_road(cam, px), drove_along_road(cam, px[-steady:]))
         why = not_a_vehicle(np.inf if rec.cut else seen_s, moved, self.min_seen_s, self.min_passing_m)
         if why:
             self.not_counted[why] += 1

@@ -23,7 +23,9 @@ from .drawing import (GRID_ACROSS_BGR, GRID_ALONG_BGR, HORIZON_BGR, ZONE_BGR, Ro
                       grid_min_cell_px, horizon_segment, road_grid_segments, world_camera, zone_segments)
 from .geometry import Camera
 from .lanes import DEFAULT_LANE_WIDTH_M, lane_centres
-from .measurement import DRIVE_OFF_POINTS, drove_along_road, metres_between, moved_along_road, not_a_vehicle
+from .frame_rate import FrameSpacing, frames_needed
+from .measurement import (DRIVE_OFF_FLOOR, DRIVE_OFF_POINTS, drove_along_road, metres_between, moved_along_road,
+                          not_a_vehicle)
 from .outputs import AWAY_FROM_VP1, TOWARDS_VP1, direction_name
 from .traffic_stats import SpeedLimit, as_limit, is_over_limit
 
@@ -330,6 +332,7 @@ class VehicleCounter:
     # yet counted: (first t, last t, last update, last mark)
     _trails: dict[int, _Trail] = field(default_factory=dict, repr=False)  # their reference points
     _camera: Camera | None = field(default=None, repr=False)  # the latest update's
+    _spacing: FrameSpacing = field(default_factory=FrameSpacing, repr=False)  # the trails' windows as durations
 
     MAX_OFFSETS = 64  # per vehicle (its median is all that is used)
     LANE_REFRESH = 25  # per-lane counts are recounted at most every this many updates (or on a new vehicle)
@@ -342,6 +345,8 @@ class VehicleCounter:
         metric = camera is not None and camera.scale is not None
         self._updates += 1
         self._camera = camera
+        if t is not None:
+            self._spacing.add(t)
         for m in marks:
             if m.track_id is None or not self._counts_now(m, t):
                 continue
@@ -383,13 +388,16 @@ class VehicleCounter:
         if (self.min_passing_m > 0 and seen_s >= self.min_seen_s and trail is not None and len(trail.points) >= 2
                 and self._camera is not None):
             cam = world_camera(self._camera)
-            pts, recent = np.array(trail.points), np.array(trail.recent)
+            # the windows cover their 25 fps time at lower rates (at 5 fps 26 and 13 points, not 128 and 64)
+            n_recent = frames_needed(_Trail.RECENT, self._spacing.seconds, 2 * DRIVE_OFF_FLOOR)
+            n_steady = frames_needed(_Trail.STEADY, self._spacing.seconds, DRIVE_OFF_FLOOR)
+            pts, recent = np.array(trail.points), np.array(trail.recent)[-n_recent:]
             moved = moved_along_road(cam, pts)
-            if len(recent) == _Trail.RECENT:  # a track older than its latest points: the move held all along them,
+            if len(recent) == n_recent:  # a track older than its latest points: the move held all along them,
                 # not a parked car's point jumping by its length for a second or two (the younger ones move early)
                 first = pts[:max(1, len(pts) // 4)]
                 moved = min([moved] + [metres_between(cam, first, q) for q in np.array_split(recent, 4)])
-            moved = max(moved, drove_along_road(cam, recent[-_Trail.STEADY:]))
+            moved = max(moved, drove_along_road(cam, recent[-n_steady:]))
         return not_a_vehicle(np.inf if cut else seen_s, moved, self.min_seen_s, self.min_passing_m)
 
     def end(self, t: float | None, still_in_view_s: float) -> None:
@@ -567,8 +575,8 @@ class _Trail:
     recent: deque[tuple[float, float]] = field(default_factory=lambda: deque(maxlen=_Trail.RECENT))
 
     MAX = 128
-    RECENT = 128  # 5.1 s at 25 fps
-    STEADY = DRIVE_OFF_POINTS  # the latest of them drove_along_road judges, as speedometer does
+    RECENT = 128  # 5.1 s at 25 fps (below 12.5 fps the latest points that cover that time: frames_needed)
+    STEADY = DRIVE_OFF_POINTS  # the latest of them drove_along_road judges, as speedometer does (2.6 s likewise)
 
     def add(self, point: tuple[float, float]) -> None:
         self.recent.append(point)

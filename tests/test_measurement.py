@@ -26,6 +26,12 @@ def scene():
 
 
 @pytest.fixture(scope="module")
+def scene5():
+    """The same traffic at 5 fps (an NVR substream)."""
+    return simulate(default_camera(SIZE), SIZE, duration=24.0, fps=5.0, lanes=LANES, rate=0.35, seed=4)
+
+
+@pytest.fixture(scope="module")
 def truth(scene):
     """Per vehicle id: (speed km/h from the world reference points, direction, lane offset y, n frames)."""
     world: dict[int, list] = {}
@@ -136,6 +142,21 @@ def test_live_speed_uses_a_bounded_window(scene, truth, monkeypatch):
             assert live.n_samples <= 30 - 5 and live.speed_kmh == pytest.approx(truth[vid][0], abs=0.05)
             n += 1
     assert n > 100
+
+
+def test_live_speed_is_made_as_often_in_time_at_5_fps(scene5):
+    """At 5 fps the ROI's estimate is made again at every observation (0.2 s apart: LIVE_EVERY's 5 frames at 25 fps),
+    not every 5 (1 s, the same estimate repeated)."""
+    meter = SpeedMeter(calibration=cal_of(scene5.camera))
+    last: dict[int, object] = {}
+    made = repeated = 0
+    for f in scene5.frames:
+        for vid, live in meter.update(f.t, sightings(f)).speeds.items():
+            if vid in last:
+                made += live is not last[vid]
+                repeated += live is last[vid]
+            last[vid] = live
+    assert made > 100 and repeated == 0, (made, repeated)
 
 
 def test_live_speed_is_made_every_few_frames_and_at_once_with_a_new_scale(scene, truth):
@@ -615,13 +636,16 @@ def test_tracks_that_are_no_vehicle_passing_are_not_reported(scene, truth):
     assert not_a_vehicle(0.5, None) == not_a_vehicle(2.0, 3.0) == ""
 
 
-def test_a_vehicle_that_stands_then_drives_off_unmeasured_is_still_reported(scene, truth):
+@pytest.mark.parametrize("fps", [25, 5])
+def test_a_vehicle_that_stands_then_drives_off_unmeasured_is_still_reported(scene, scene5, truth, fps):
     """A box standing for 16 s (a queue at lights) that then drives 16 m off in 4 s, from a standstill: left without
     a speed, it is still a vehicle passing, as trafficoverlay's counter has it (its latest points drove steadily
     along the road).  The quarter medians of its whole stay alone took it for a parked one (its last quarter mostly
-    stands) and it was not reported."""
+    stands) and it was not reported.  At 5 fps the latest points are those of 2.6 s, as at 25 fps (13, not 64:
+    12.8 s there, mostly standing, and it was not reported)."""
+    scene = scene if fps == 25 else scene5
     meter = SpeedMeter(calibration=cal_of(scene.camera))
-    still = next(s for f in scene.frames[200:] for s in sightings(f))
+    still = next(s for f in scene.frames[8 * fps:] for s in sightings(f))
     out = []
     for f in scene.frames:
         ss = sightings(f)

@@ -463,38 +463,42 @@ def _drive(c: VehicleCounter, cam: Camera, xs: np.ndarray, fps: float = 25.0, y:
     return counted
 
 
-def test_vehicle_counter_counts_a_vehicle_that_stands_then_drives() -> None:
+@pytest.mark.parametrize("fps", [25, 5])
+def test_vehicle_counter_counts_a_vehicle_that_stands_then_drives(fps: int) -> None:
     """A vehicle that stands for a minute (a queue at lights, a car leaving its parking place) and then drives off
     counts once it has driven min_passing_m: a steady movement along the road over its latest points at full rate.
-    The quarter medians of its whole stay alone never counted it (its even sample's last quarter mostly stands)."""
+    The quarter medians of its whole stay alone never counted it (its even sample's last quarter mostly stands).
+    At 5 fps too within 3 s: the latest points are those of 2.6 s (13), where 64 (12.8 s there) never counted it in
+    its 4 s of driving."""
     cam = _camera()
     rng = np.random.default_rng(7)
-    stand = 12.0 + rng.normal(0, 0.1, 25 * 60)
-    t = np.arange(1, 25 * 4 + 1) / 25  # then 4 s from a standstill at 2 m/s² up to 8 m/s
+    stand = 12.0 + rng.normal(0, 0.1, fps * 60)
+    t = np.arange(1, fps * 4 + 1) / fps  # then 4 s from a standstill at 2 m/s² up to 8 m/s
     drive = 12.0 + np.where(t < 4, t ** 2, 16 + 8 * (t - 4)) + rng.normal(0, 0.1, len(t))
     c = VehicleCounter(min_seen_s=0.5, min_passing_m=3.0)
-    counted = _drive(c, cam, np.concatenate([stand, drive]))
-    assert counted and len(stand) < counted[0] <= len(stand) + 25 * 3, counted[:1]  # within 3 s of driving off
+    counted = _drive(c, cam, np.concatenate([stand, drive]), fps)
+    assert counted and len(stand) < counted[0] <= len(stand) + fps * 3, counted[:1]  # within 3 s of driving off
     assert c.total == 1
-    c.end(len(stand) / 25 + 4, 1.0)
+    c.end(len(stand) / fps + 4, 1.0)
     assert c.total == 1
 
 
+@pytest.mark.parametrize("fps", [25, 5])
 @pytest.mark.parametrize("jump_m, first_s", [(0.0, 0), (4.5, 43), (-4.5, 43), (4.5, 6), (-4.5, 6)])
-def test_vehicle_counter_never_counts_a_parked_vehicle_whose_point_jumps_for_seconds(jump_m: float,
-                                                                                      first_s: int) -> None:
+def test_vehicle_counter_never_counts_a_parked_vehicle_whose_point_jumps_for_seconds(jump_m: float, first_s: int,
+                                                                                      fps: int) -> None:
     """A parked vehicle is never counted though its point jitters, or jumps by its length (its front hidden by a
     passing vehicle) for 2 s every 15 s from ``first_s`` on, and back: one big step among still ones is no steady
     movement.  Early in its stay (6 s) the even sample's last quarter is short enough for the jump to hold it: the
-    move must also hold all along the latest points."""
+    move must also hold all along the latest points (at 5 fps those of the same 5.1 s)."""
     cam = _camera()
     rng = np.random.default_rng(11)
-    k = np.arange(25 * 120)
-    jumped = (k >= 25 * first_s) & ((k - 25 * first_s) % (25 * 15) < 25 * 2)
+    k = np.arange(fps * 120)
+    jumped = (k >= fps * first_s) & ((k - fps * first_s) % (fps * 15) < fps * 2)
     xs = 12.0 + jump_m * jumped + rng.normal(0, 0.15, len(k))
     c = VehicleCounter(min_seen_s=0.5, min_passing_m=3.0)
-    assert not _drive(c, cam, xs)
-    c.end(len(k) / 25, 1.0)
+    assert not _drive(c, cam, xs, fps)
+    c.end(len(k) / fps, 1.0)
     assert c.total == 0
 
 
