@@ -595,9 +595,10 @@ class SpeedMeter:
         direction = lane = None
         if cam is not None and len(px) < 2 and len(rec.observations) >= 2:
             # not measured (no reference points): the direction its boxes moved in, for the counts per direction
-            direction = _direction(cam, _box_centres(rec.observations), np.array([o.t for o in rec.observations]))
+            seen_t = np.array([o.t for o in rec.observations])
+            direction = direction_along_road(cam, _box_centres(rec.observations), seen_t)
         elif cam is not None:
-            direction = _direction(cam, px, times)
+            direction = direction_along_road(cam, px, times)
             if cam.scale is not None:
                 offset = lateral_offset(cam.to_world(px)[:, 1])
                 lane = self.lanes.assign(offset) if speed is not None else self.lanes.lane_of(offset)
@@ -731,8 +732,9 @@ def _expected_centre(observations: list[Observation], t: float) -> np.ndarray:
     return centres[1] + pace * (t - observations[-1].t)
 
 
-def _direction(camera: Camera, px: np.ndarray, times: np.ndarray) -> str | None:
-    """Towards/away from VP1 from the reference points' motion along the road (None when it barely moves)."""
+def direction_along_road(camera: Camera, px: np.ndarray, times: np.ndarray) -> str | None:
+    """Towards/away from VP1 from the reference points' motion along the road (None when it barely moves); also
+    trafficoverlay's, from its own trail of a track, without speedometer."""
     x = pixels_to_road(camera, px)[:, 0]
     ok = np.isfinite(x)
     if ok.sum() < 2:

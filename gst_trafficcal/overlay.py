@@ -24,8 +24,8 @@ from .drawing import (GRID_ACROSS_BGR, GRID_ALONG_BGR, HORIZON_BGR, ZONE_BGR, Ro
 from .geometry import Camera
 from .lanes import DEFAULT_LANE_WIDTH_M, lane_centres
 from .frame_rate import FrameSpacing, frames_needed
-from .measurement import (DRIVE_OFF_FLOOR, DRIVE_OFF_POINTS, drove_along_road, metres_between, moved_along_road,
-                          not_a_vehicle)
+from .measurement import (DRIVE_OFF_FLOOR, DRIVE_OFF_POINTS, direction_along_road, drove_along_road, metres_between,
+                          moved_along_road, not_a_vehicle)
 from .outputs import AWAY_FROM_VP1, TOWARDS_VP1, direction_name
 from .traffic_stats import SpeedLimit, as_limit, is_over_limit
 
@@ -333,6 +333,9 @@ class VehicleCounter:
     _trails: dict[int, _Trail] = field(default_factory=dict, repr=False)  # their reference points
     _camera: Camera | None = field(default=None, repr=False)  # the latest update's
     _spacing: FrameSpacing = field(default_factory=FrameSpacing, repr=False)  # the trails' windows as durations
+    own_directions: bool = False  # no speedometer: a vehicle's direction from its own points, as speedometer's
+    _paths: dict[int, tuple[_Trail, _Trail]] = field(default_factory=dict, repr=False)  # counted ones' reference
+    # points and box centres, with their times
 
     MAX_OFFSETS = 64  # per vehicle (its median is all that is used)
     LANE_REFRESH = 25  # per-lane counts are recounted at most every this many updates (or on a new vehicle)
@@ -351,7 +354,8 @@ class VehicleCounter:
             if m.track_id is None or not self._counts_now(m, t):
                 continue
             old_dir, old_lane = self.seen.get(m.track_id, (None, None))
-            self.seen[m.track_id] = (m.direction or old_dir, m.lane if m.lane is not None else old_lane)
+            own = self._own_direction(m, camera, t) if m.direction is None else None
+            self.seen[m.track_id] = (m.direction or own or old_dir, m.lane if m.lane is not None else old_lane)
             self._last_seen[m.track_id] = self._updates
             if m.speed_kmh is not None:
                 self._speed[m.track_id] = (m.speed_kmh, m.label)
@@ -363,6 +367,24 @@ class VehicleCounter:
                     del ys[:-self.MAX_OFFSETS]
         if self._updates % 50 == 0:
             self._forget(self._updates - self.FORGET_AFTER)
+
+    def _own_direction(self, m: VehicleMark, camera: Camera | None, t: float | None) -> str | None:
+        """With ``own_directions`` (no speedometer upstream), the direction of ``m``'s track along the road from
+        what the counter saw of it since it counted (:func:`~gst_trafficcal.measurement.direction_along_road`, as
+        speedometer decides it: its reference points, or its box centres while it has none); None when not
+        known or not due: it is decided again at the 2nd, 4th, 8th... and then every 32nd sighting."""
+        if not self.own_directions or camera is None or t is None:
+            return None
+        refs, centres = self._paths.setdefault(m.track_id, (_Trail(), _Trail()))
+        if m.ref_point is not None:
+            refs.add(m.ref_point, t)
+        x0, y0, x1, y1 = m.box
+        centres.add(((x0 + x1) / 2.0, (y0 + y1) / 2.0), t)
+        path = refs if len(refs.points) >= 2 else centres
+        n = path.seen
+        if n < 2 or (n & (n - 1) and n % 32):
+            return None
+        return direction_along_road(camera, np.array(path.points), np.array(path.times))
 
     def _counts_now(self, m: VehicleMark, t: float | None) -> bool:
         """Whether the track of ``m`` is counted now: it is already, or what was seen of it by ``t`` makes it a
@@ -434,6 +456,7 @@ class VehicleCounter:
             if ys:
                 self._done_offsets.append(float(np.median(ys)))
             del self.seen[i], self._last_seen[i]
+            self._paths.pop(i, None)
         del self._done_offsets[:-self.MAX_LANE_SAMPLES]
         while len(self._done_ids) > self.MAX_DONE_IDS:
             self._done_ids.popitem(last=False)
@@ -479,6 +502,7 @@ class VehicleCounter:
         """Take a track out of the counts (it was part of another vehicle, or none)."""
         if track_id in self.seen:
             del self.seen[track_id], self._last_seen[track_id]
+            self._paths.pop(track_id, None)
             self._speed.pop(track_id, None)
             self.offsets.pop(track_id, None)
             return
@@ -570,6 +594,7 @@ class _Trail:
     :func:`~gst_trafficcal.measurement.drove_along_road` (a vehicle that stood, then drove off)."""
 
     points: list[tuple[float, float]] = field(default_factory=list)
+    times: list[float] = field(default_factory=list)  # the points' stream times (seconds), where given
     stride: int = 1
     seen: int = 0
     recent: deque[tuple[float, float]] = field(default_factory=lambda: deque(maxlen=_Trail.RECENT))
@@ -578,12 +603,15 @@ class _Trail:
     RECENT = 128  # 5.1 s at 25 fps (below 12.5 fps the latest points that cover that time: frames_needed)
     STEADY = DRIVE_OFF_POINTS  # the latest of them drove_along_road judges, as speedometer does (2.6 s likewise)
 
-    def add(self, point: tuple[float, float]) -> None:
+    def add(self, point: tuple[float, float], t: float | None = None) -> None:
         self.recent.append(point)
         if self.seen % self.stride == 0:
             self.points.append(point)
+            if t is not None:
+                self.times.append(t)
             if len(self.points) > self.MAX:
                 del self.points[1::2]
+                del self.times[1::2]
                 self.stride *= 2
         self.seen += 1
 

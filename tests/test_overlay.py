@@ -483,6 +483,34 @@ def test_vehicle_counter_counts_a_vehicle_that_stands_then_drives(fps: int) -> N
     assert c.total == 1
 
 
+def test_vehicle_counter_without_speedometer_counts_directions_from_its_own_points() -> None:
+    """own_directions (trafficoverlay with no speedometer upstream): each counted vehicle's direction along the road
+    is decided from what the counter saw of it, as speedometer decides it (measurement.direction_along_road): by its
+    reference points, or its box centres while it has none; a direction the marks give wins.  Before, all of them
+    counted as unknown_direction."""
+    cam = _camera()
+
+    def at(x: float, y: float) -> tuple[float, float]:
+        return tuple(float(v) for v in cam.world_to_image(np.array([x, y, 0.0])))
+
+    c = VehicleCounter(min_seen_s=0.5, min_passing_m=3.0, own_directions=True)
+    for k in range(50):  # 2 s at 25 fps, 10 m/s
+        x = 0.4 * k
+        marks = [VehicleMark((0, 0, 1, 1), 1, ref_point=at(5.0 + x, -1.75)),  # towards VP1 (along +x)
+                 VehicleMark((0, 0, 1, 1), 2, ref_point=at(30.0 - x, 1.75)),  # away from it
+                 VehicleMark((0, 0, 1, 1), 3, ref_point=at(5.0 + x, -5.25), direction="away_from_vp1")]
+        bx, by = at(30.0 - x, 5.25)  # no reference point: its box moves away from VP1
+        marks.append(VehicleMark((bx - 20, by - 10, bx + 20, by + 10), 4))
+        c.update(marks, cam, k / 25)
+    counts = c.summary()
+    assert [counts[k] for k in ("total", "towards_vp1", "away_from_vp1", "unknown_direction")] == [4, 1, 3, 0]
+    assert c.seen[1][0] == "towards_vp1" and c.seen[2][0] == c.seen[3][0] == c.seen[4][0] == "away_from_vp1"
+    plain = VehicleCounter(min_seen_s=0.5, min_passing_m=3.0)  # the default (speedometer upstream says it)
+    for k in range(50):
+        plain.update([VehicleMark((0, 0, 1, 1), 1, ref_point=at(5.0 + 0.4 * k, -1.75))], cam, k / 25)
+    assert plain.summary()["unknown_direction"] == 1
+
+
 @pytest.mark.parametrize("fps", [25, 5])
 @pytest.mark.parametrize("jump_m, first_s", [(0.0, 0), (4.5, 43), (-4.5, 43), (4.5, 6), (-4.5, 6)])
 def test_vehicle_counter_never_counts_a_parked_vehicle_whose_point_jumps_for_seconds(jump_m: float, first_s: int,

@@ -328,6 +328,26 @@ def test_parked_vehicles_are_not_counted_without_speedometer(tmp_path: Path) -> 
     assert len(counts) == 1 and counts[0]["total"] == 0, counts
 
 
+@pytest.mark.shared
+def test_without_speedometer_the_counts_have_directions(tmp_path: Path) -> None:
+    """``vehicledetect ! tracker ! trafficoverlay calibration-file=...``, no speedometer: 12 s of kraten_cars.mp4.
+    The overlay counts each vehicle towards or away from VP1 by its own track's motion along the road (as speedometer
+    decides it: here from the boxes' centres, the tracker having no calibration for reference points); before, every
+    one of them was `unknown_direction`.  (``vpdetect calibration-file=... ! ... ! tracker ! speedometer !
+    trafficoverlay`` counts 9 in these 12 s, all towards VP1, as the overlay alone does with vpdetect before it.)"""
+    register_plugin_file(ROOT / "elements" / "python" / "vehicledetect.py")
+    register_plugin_file(ROOT / "elements" / "python" / "tracker.py")
+    _, cal = _kraten_still(tmp_path)
+    video, model = require_shared(VIDEOS / "kraten_cars.mp4"), require_shared(DETECTORS / "nanodet_hpc203.onnx")
+    run = run_pipeline(f"filesrc location={video} ! decodebin ! videoconvert ! video/x-raw,format=I420 ! "
+                       f"identity eos-after=300 ! vehicledetect model={model} ! tracker ! "
+                       f"trafficoverlay calibration-file={cal} ! fakesink")
+    counts = [m.fields for m in run.messages if m.name == "trafficcal-overlay-counts"]
+    assert len(counts) == 1, counts
+    c = counts[0]
+    assert c["total"] >= 7 and c["towards_vp1"] >= c["total"] - 1 and c["away_from_vp1"] == 0, c
+
+
 @pytest.mark.parametrize("fmt", ["GRAY8", "I420"])
 def test_grey_frames_are_said_to_get_a_grey_overlay(fmt: str) -> None:
     """A monochrome camera's GRAY8 is drawn on as it comes (in grey); the element says so once, with the way to

@@ -189,6 +189,7 @@ class TrafficOverlay(TrafficcalTransform):
                 from gst_trafficcal.measurement import MIN_PASSING_M, MIN_SEEN_S  # count by speedometer's rule
 
                 self._counter.min_seen_s, self._counter.min_passing_m = MIN_SEEN_S, MIN_PASSING_M
+                self._counter.own_directions = True  # and which way they went: each track's own points
         t = self.buffer_t
         if self._tracked_upstream and t is not None:
             warning = self._untracked.check(t, len(marks), sum(m.track_id is not None for m in marks), True)
