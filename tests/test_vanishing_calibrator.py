@@ -147,23 +147,6 @@ def test_static_video_fails_with_no_traffic(tmp_path):
     assert cal.state == "failed" and cal.reason.startswith("no traffic"), cal.reason
 
 
-def test_background_forgets_in_the_same_time_at_25_12_5_and_5_fps():
-    """The background model follows a change of light in the same seconds at any input rate: 1 % per frame analysed
-    0.08 s apart (25 and 12.5 fps input), 8 s to come 63 % of the way.  Before, at 5 fps it moved 1 % per frame,
-    0.2 s apart: 20 s for the same (after 8 s 33 % of the way, not 63 %)."""
-    def after(fps: float) -> float:
-        c = VPCalibrator((320, 180), CalibratorConfig(max_duration=1e9, min_duration=1e9))
-        frames = [(i / fps, 100 if i / fps < 3.0 else 160) for i in range(int(11.0 * fps) + 1)]
-        for t, level in frames:
-            c.add(np.full((180, 320), level, np.uint8), t)
-        return (float(c.fg_model.bg.mean()) - 100) / 60  # the share of the change followed in 8 s
-
-    expected = 1 - 0.99 ** 100  # 100 frames analysed 0.08 s apart
-    assert after(25) == pytest.approx(expected, abs=0.01)
-    assert after(12.5) == pytest.approx(after(25), abs=1e-6)
-    assert after(5) == pytest.approx(expected, abs=0.02)
-
-
 def test_single_frame_and_empty_stream_fail_with_a_reason(tmp_path):
     path = _write_video(tmp_path / "one.avi", [_scene()])
     cal = calibrate_video(path).calibration

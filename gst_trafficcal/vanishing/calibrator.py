@@ -201,9 +201,7 @@ class VPCalibrator:
     def _track(self, gray: np.ndarray) -> None:
         small = _resize(gray, self.track_scale)
         tiny = _resize(small, self.fg_scale / self.track_scale)
-        # the background forgets in the same time at any rate (8 s: 1 % per frame 0.08 s apart)
-        steps = self._spacing_ratio() if math.isfinite(self._track_dt) else 1.0
-        self._fg = self.fg_model.apply(tiny, steps)
+        self._fg = self.fg_model.apply(tiny)
         if self.cfg.zone is not None:  # tracks and edgelets are searched on the foreground: the zone's only
             if self._zone_fg is None or self._zone_fg.shape != self._fg.shape:
                 zone = cv2.resize(self.cfg.zone.mask(self.image_size), self._fg.shape[::-1],

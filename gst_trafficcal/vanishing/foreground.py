@@ -27,20 +27,14 @@ class RunningForeground:
     def ready(self) -> bool:
         return self.frames > self.warmup
 
-    def apply(self, small: np.ndarray, steps: float = 1.0) -> np.ndarray:
-        """Update the model with a small grey frame and return its foreground mask (same size).
-
-        ``steps``: the frame's distance from the one before in reference frames (the calibrator's
-        ``frame_spacing``): ``alpha`` is the weight of one reference step, so a frame that many steps on weighs
-        ``1 - (1 - alpha) ** steps`` and the background forgets in the same time at any frame rate (at 5 fps,
-        2.5 steps a frame: 2.5 % where a 1 % per frame model took 20 s instead of 8 s to follow a change)."""
+    def apply(self, small: np.ndarray) -> np.ndarray:
+        """Update the model with a small grey frame and return its foreground mask (same size)."""
         f = small.astype(np.float32)
         if self.bg is None or self.bg.shape != f.shape:
             self.bg = f.copy()
             self.frames = 0
         # faster adaptation while warming up so the first frames' vehicles fade quickly
-        step_alpha = self.alpha if steps <= 1.0 else 1.0 - (1.0 - self.alpha) ** steps
-        alpha = max(step_alpha, 1.0 / (self.frames + 2)) if self.frames < self.warmup else step_alpha
+        alpha = max(self.alpha, 1.0 / (self.frames + 2)) if self.frames < self.warmup else self.alpha
         diff = cv2.absdiff(f, self.bg)
         cv2.accumulateWeighted(f, self.bg, alpha)
         self.frames += 1
