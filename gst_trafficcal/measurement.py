@@ -70,7 +70,7 @@ DEFAULT_MIN_TRACK_LENGTH = 10
 MIN_SEEN_S = 0.5  # an unmeasured track seen for less is no vehicle of its own (a fragment, a detector's flicker)
 MIN_PASSING_M = 3.0  # an unmeasured track that moved less along the road did not pass (parked, fixed)
 DRIVE_OFF_POINTS = 64  # a track's latest reference points drove_along_road judges (2.6 s at 25 fps; below 12.5 fps
-# the points that cover that time, at least DRIVE_OFF_FLOOR: frame_rate.frames_needed)
+# the points that cover that time, at least DRIVE_OFF_FLOOR: drive_off_points)
 DRIVE_OFF_FLOOR = 8  # the fewest points drove_along_road judges
 BRIEF = "brief"  # SpeedMeter.not_counted's reasons
 STATIONARY = "stationary"
@@ -630,8 +630,8 @@ class SpeedMeter:
             # only for a track seen long enough to tell (a vehicle the end of the stream cut after a moment has not
             # gone far yet)
             # or drove off after standing for most of its stay (a queue at lights), as trafficoverlay counts it
-            steady = frames_needed(DRIVE_OFF_POINTS, self.spacing.seconds, DRIVE_OFF_FLOOR)
-            moved = max(moved_along_road(cam, px), drove_along_road(cam, px[-steady:]))
+            latest = px[-drive_off_points(self.spacing.seconds):]
+            moved = max(moved_along_road(cam, px), drove_along_road(cam, latest))
         why = not_a_vehicle(np.inf if rec.cut else seen_s, moved, self.min_seen_s, self.min_passing_m)
         if why:
             self.not_counted[why] += 1
@@ -661,15 +661,22 @@ def metres_between(camera: Camera, a: np.ndarray, b: np.ndarray) -> float:
     return float(abs(along[1] - along[0]))
 
 
+def drive_off_points(spacing_s: float | None) -> int:
+    """How many of a track's latest reference points :func:`drove_along_road` judges, for frames ``spacing_s`` apart:
+    :data:`DRIVE_OFF_POINTS`, or below 12.5 fps those covering its time (:func:`~gst_trafficcal.frame_rate.
+    frames_needed`, at least :data:`DRIVE_OFF_FLOOR`)."""
+    return frames_needed(DRIVE_OFF_POINTS, spacing_s, DRIVE_OFF_FLOOR)
+
+
 def drove_along_road(camera: Camera, px: np.ndarray) -> float:
     """Metres a track drove steadily along the road (world x; ``camera`` has a scale) over its latest reference points
     ``px`` (N x 2 pixels at full rate, in time order): from the median of their first quarter to that of their last
     when each quarter's median is further in one direction than the one before by at least a sixth of that; 0
-    otherwise, or with under 8 points.  A vehicle that stood for most of its stay and then drove off shows it here
+    otherwise, or with under :data:`DRIVE_OFF_FLOOR` points.  A vehicle that stood for most of its stay and then drove off shows it here
     while :func:`moved_along_road` over an even sample of its whole stay does not yet; a parked car's point jumping by
     the car's length (and back) is one step among still ones, which at most two of the three advances show."""
     along = camera.to_world(np.asarray(px, np.float64).reshape(-1, 2))[:, 0]
-    if len(along) < 8 or not np.all(np.isfinite(along)):
+    if len(along) < DRIVE_OFF_FLOOR or not np.all(np.isfinite(along)):
         return 0.0
     m = np.array([np.median(q) for q in np.array_split(along, 4)])
     total = float(m[-1] - m[0])

@@ -24,7 +24,7 @@ from .drawing import (GRID_ACROSS_BGR, GRID_ALONG_BGR, HORIZON_BGR, ZONE_BGR, Ro
 from .geometry import Camera
 from .lanes import DEFAULT_LANE_WIDTH_M, lane_centres
 from .frame_rate import FrameSpacing, frames_needed
-from .measurement import (DRIVE_OFF_FLOOR, DRIVE_OFF_POINTS, direction_along_road, drove_along_road, metres_between,
+from .measurement import (DRIVE_OFF_FLOOR, direction_along_road, drive_off_points, drove_along_road, metres_between,
                           moved_along_road, not_a_vehicle)
 from .outputs import AWAY_FROM_VP1, TOWARDS_VP1, direction_name
 from .traffic_stats import SpeedLimit, as_limit, is_over_limit
@@ -412,7 +412,7 @@ class VehicleCounter:
             cam = world_camera(self._camera)
             # the windows cover their 25 fps time at lower rates (at 5 fps 26 and 13 points, not 128 and 64)
             n_recent = frames_needed(_Trail.RECENT, self._spacing.seconds, 2 * DRIVE_OFF_FLOOR)
-            n_steady = frames_needed(_Trail.STEADY, self._spacing.seconds, DRIVE_OFF_FLOOR)
+            n_steady = drive_off_points(self._spacing.seconds)
             pts, recent = np.array(trail.points), np.array(trail.recent)[-n_recent:]
             moved = moved_along_road(cam, pts)
             if len(recent) == n_recent:  # a track older than its latest points: the move held all along them,
@@ -601,7 +601,6 @@ class _Trail:
 
     MAX = 128
     RECENT = 128  # 5.1 s at 25 fps (below 12.5 fps the latest points that cover that time: frames_needed)
-    STEADY = DRIVE_OFF_POINTS  # the latest of them drove_along_road judges, as speedometer does (2.6 s likewise)
 
     def add(self, point: tuple[float, float], t: float | None = None) -> None:
         self.recent.append(point)
