@@ -88,7 +88,8 @@ def orientation_of_file(path: str | Path) -> str | None:
 
 
 def turned_size(size: tuple[int, int], fixup) -> tuple[int, int]:
-    """The size (w, h) of OpenCV's ``size`` frames once ``fixup`` (:func:`opencv_fixup`, or None) turned them."""
+    """The size (w, h) of OpenCV's ``size`` frames once ``fixup`` (:attr:`OpenCVPicture.fixup`, or None) turned
+    them."""
     if fixup is None:
         return size
     h, w = fixup(np.zeros((size[1], size[0]), np.uint8)).shape
@@ -212,19 +213,10 @@ def apply_direction(frame: np.ndarray, matrix: tuple[tuple[int, int], tuple[int,
     return np.ascontiguousarray(frame[::sy, ::sx])
 
 
-def opencv_fixup(path: str | Path, orientation: str = AUTO):
-    """What still turns OpenCV's frames of a video file (turned already by the rotation it reads: :func:`
-    opencv_rotation`) into the picture trafficcal run and the scripts show: with ``orientation`` auto the one its
-    display matrix shows (:func:`video_direction`): a flip for a mirrored file, None for all others; with a
-    :data:`DIRECTIONS` name the stored frames turned that way whatever the file says (a camera mounted on its side
-    or upside down: :func:`check_orientation`)."""
-    return opencv_picture(path, orientation).fixup
-
-
 @dataclass(frozen=True)
 class OpenCVPicture:
     """How OpenCV's frames of a video become the picture trafficcal run's ``videoflip ! videoscale`` analyses:
-    ``fixup`` still turns them (:func:`opencv_fixup`, None: nothing to do), ``quarter`` tells that the picture is
+    ``fixup`` still turns them (None: nothing to do; :func:`opencv_picture`), ``quarter`` tells that the picture is
     the stored one turned a quarter (or mirrored about a diagonal).  Its pixels' aspect ratio is then the stored
     one's inverse, as videoflip swaps the caps' pixel-aspect-ratio: 480x360 stored at 4/3 turned 90r is 360x480 at
     3/4, which videoscale makes 270x480 (its height kept), not 480x480."""
@@ -252,8 +244,11 @@ def swaps_axes(direction: str) -> bool:
 
 
 def opencv_picture(path: str | Path, orientation: str = AUTO) -> OpenCVPicture:
-    """:class:`OpenCVPicture` of a video file: its frames turned as :func:`opencv_fixup` says, and whether the picture
-    is the stored one turned a quarter (by its display matrix with ``orientation`` auto, else by ``orientation``)."""
+    """:class:`OpenCVPicture` of a video file (OpenCV turns its frames by the rotation it reads: :func:`
+    opencv_rotation`): with ``orientation`` auto what still turns them into the picture its display matrix shows
+    (:func:`video_direction`: a flip for a mirrored file, nothing for all others); with a :data:`DIRECTIONS` name the
+    stored frames turned that way whatever the file says (a camera mounted on its side or upside down:
+    :func:`check_orientation`); and whether the picture is the stored one turned a quarter."""
     direction, degrees = mp4_direction(path), opencv_rotation(path)
     if orientation != AUTO:
         direction, degrees = orientation, 0 if degrees is None else degrees

@@ -110,16 +110,11 @@ def direction_of(video: Path | str, orientation: str = "auto") -> str | None:
     return None if is_stream(video) else video_direction(local_file(str(video)) or video)
 
 
-def frame_fixup(video: Path | str, orientation: str = "auto"):
-    """What turns OpenCV's frames of ``video`` into the picture the run analyses (:func:`direction_of`): for a file
-    :func:`gst_trafficcal.imaging.opencv_fixup`; for a stream (no tag OpenCV reads) the ``orientation`` given,
-    None for auto."""
-    return frame_picture(video, orientation).fixup
-
-
 def frame_picture(video: Path | str, orientation: str = "auto"):
-    """:func:`frame_fixup`, and whether the picture is the stored one turned a quarter (its pixels' aspect ratio
-    inverted, as videoflip inverts it): :class:`gst_trafficcal.imaging.OpenCVPicture`."""
+    """How OpenCV's frames of ``video`` become the picture the run analyses (:func:`direction_of`), and whether it
+    is the stored one turned a quarter (its pixels' aspect ratio inverted, as videoflip inverts it): for a file
+    :func:`gst_trafficcal.imaging.opencv_picture`; for a stream (no tag OpenCV reads) the ``orientation`` given,
+    nothing for auto (:class:`gst_trafficcal.imaging.OpenCVPicture`)."""
     from ..imaging import AUTO, DIRECTIONS, OpenCVPicture, apply_direction, opencv_picture, swaps_axes
 
     if is_stream(video):

@@ -58,7 +58,7 @@ class LumaFrames:
     planar: bool
     first_bgr: np.ndarray | None
     par: Fraction = Fraction(1)
-    fixup: Callable[[np.ndarray], np.ndarray] | None = None  # imaging.opencv_fixup: a mirrored file's flip
+    fixup: Callable[[np.ndarray], np.ndarray] | None = None  # imaging.OpenCVPicture.fixup: a mirrored file's flip
     # the stored pixels' ``par`` inverted for a picture turned a quarter (imaging.OpenCVPicture), as videoflip does
     picture: OpenCVPicture | None = None
 
@@ -90,7 +90,7 @@ def luma_frames(path: str | Path, orientation: str = "auto") -> LumaFrames:
     The Y plane is used when the FFmpeg backend returns it (a HxW frame when the colour conversion is off) and
     it matches the colour decode of the first frame (mean |Y - luma(BGR)| < 3 grey levels; measured 0.7-1.0 on the clips of
     ../shared, a misread packed format gives tens); otherwise BGR frames
-    are converted with :func:`luma`.  ``orientation``: how the frames are turned (imaging.opencv_fixup: auto, as the
+    are converted with :func:`luma`.  ``orientation``: how the frames are turned (imaging.opencv_picture: auto, as the
     file says; else trafficcal's --orientation, whatever it says), as trafficcal run's videoflip turns them."""
     from ..fileio import open_video
 
