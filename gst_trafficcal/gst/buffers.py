@@ -418,7 +418,7 @@ class StreamClock:
             held = None
         if self.last is not None:
             if t < self.last or (flushed and t <= self.last):
-                step = float(np.median(self._steps)) if self._steps else 0.04
+                step = self.step
                 if not flushed and held is None and self.last - t <= 2 * step + 1e-9:
                     self._held = pts_s
                     return self.last
@@ -438,8 +438,12 @@ class StreamClock:
         (a frame lost).  Asked of another stream's first frame (``input-selector`` switched to another source)."""
         if self.last is None:
             return True
-        step = float(np.median(self._steps)) if self._steps else 0.04
-        return self.last < pts_s + self.offset <= self.last + 2 * step + 1e-9
+        return self.last < pts_s + self.offset <= self.last + 2 * self.step + 1e-9
+
+    @property
+    def step(self) -> float:
+        """The frame interval: the median of the last steps forward (0.04 s before any)."""
+        return float(np.median(self._steps)) if self._steps else 0.04
 
     def catch_up(self, t: float | None) -> None:
         """Another element timing the same stream gave a frame the time ``t``: the next jump goes on after it too."""

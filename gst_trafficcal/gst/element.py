@@ -414,8 +414,8 @@ class TrafficcalTransform(GstBase.BaseTransform):
         if self._new_stream and pts_s is not None:  # another stream's first frames: a jump unless its times go on
             self._new_stream -= 1
             switched = given is not None or (not self._flushed_mid_run and not clock.continues(pts_s))
-            self._flushed_mid_run = self._flushed_mid_run or switched
-            self._new_stream *= not switched
+            if switched:  # decided: the frames after it are this stream's
+                self._flushed_mid_run, self._new_stream = True, 0
         with SEGMENTS.lock:  # one decision per flushing seek for the elements of every branch (segment_clocks)
             if given is not None and pts_s is not None:  # an element upstream timed this frame after a jump
                 self.buffer_t = clock.follow(pts_s, _followed_offset(given, pts_s, seqnum))
