@@ -232,6 +232,12 @@ def age_s(iso: str | None, now: datetime) -> float | None:
         return None
 
 
+def dated_ahead(age: float | None) -> bool:
+    """Whether a status of age ``age`` (:func:`age_s`) lies more than :data:`CLOCK_SKEW_S` in the future: the clock
+    that wrote it is ahead, so its age says nothing."""
+    return age is not None and age < -CLOCK_SKEW_S
+
+
 def _process_alive(pid: int) -> bool:
     try:
         os.kill(pid, 0)
@@ -295,7 +301,8 @@ def health(status: RunStatus, max_age_s: float = 60.0, now: datetime | None = No
     if status.state == "failed":
         why.append(f"the run failed: {status.error or 'no reason recorded'}")
     age = age_s(status.updated_at, now)
-    if age is not None and age < -CLOCK_SKEW_S:
+    ahead = dated_ahead(age)
+    if ahead:
         clocks = ("this machine's clock was set back since" if status.host == socket.gethostname() else
                   f"the clocks of the writer{f' ({status.host})' if status.host else ''} and this machine differ")
         doubt = ("its times cannot be trusted" if status.state in FINAL_STATES else
@@ -303,9 +310,7 @@ def health(status: RunStatus, max_age_s: float = 60.0, now: datetime | None = No
         why.append(f"updated_at lies {-age:.0f} s in the future: {clocks}; {doubt}")
     if status.state in FINAL_STATES:
         return why
-    if age is not None and age < -CLOCK_SKEW_S:
-        pass
-    elif age is None or age > max_age_s:
+    if not ahead and (age is None or age > max_age_s):
         why.append("status not updated for " + ("an unknown time" if age is None else f"{age:.0f} s") +
                    f" (more than {max_age_s:g} s): the run hangs or is gone")
     if status.host == socket.gethostname() and status.pid and not _run_alive(status):

@@ -355,11 +355,11 @@ def refuse_a_busy_out(out_dir: Path, earlier) -> None:
     its process alive): two runs would overwrite each other's files."""
     from datetime import datetime
 
-    from ..run_status import CLOCK_SKEW_S, age_s, still_running
+    from ..run_status import age_s, dated_ahead, still_running
 
     if earlier is not None and still_running(earlier):
         age = age_s(earlier.updated_at, datetime.now().astimezone())
-        if age is not None and age < -CLOCK_SKEW_S:  # another machine's, taken at its word: it cannot be told
+        if dated_ahead(age):  # another machine's, taken at its word: it cannot be told
             raise InputError(f"{out_dir}: another run may be writing there (process {earlier.pid} on {earlier.host}"
                              f", reading {earlier.source}): its status.json is dated {-age:.0f} s in the future, "
                              f"the clocks of {earlier.host or 'its machine'} and this one differ, so whether it "
