@@ -672,9 +672,10 @@ def drove_along_road(camera: Camera, px: np.ndarray) -> float:
     """Metres a track drove steadily along the road (world x; ``camera`` has a scale) over its latest reference points
     ``px`` (N x 2 pixels at full rate, in time order): from the median of their first quarter to that of their last
     when each quarter's median is further in one direction than the one before by at least a sixth of that; 0
-    otherwise, or with under :data:`DRIVE_OFF_FLOOR` points.  A vehicle that stood for most of its stay and then drove off shows it here
-    while :func:`moved_along_road` over an even sample of its whole stay does not yet; a parked car's point jumping by
-    the car's length (and back) is one step among still ones, which at most two of the three advances show."""
+    otherwise, or with under :data:`DRIVE_OFF_FLOOR` points.  A vehicle that stood for most of its stay and then
+    drove off shows it here while :func:`moved_along_road` over an even sample of its whole stay does not yet; a
+    parked car's point jumping by the car's length (and back) is one step among still ones, which at most two of
+    the three advances show."""
     along = camera.to_world(np.asarray(px, np.float64).reshape(-1, 2))[:, 0]
     if len(along) < DRIVE_OFF_FLOOR or not np.all(np.isfinite(along)):
         return 0.0
