@@ -143,3 +143,20 @@ def test_vpdetect_says_nothing_about_an_oblique_view():
                        fps=FPS)
     assert run.frames[-1].calibration.state == "vps"
     assert not [w for w in run.warnings if "image widths away" in w]
+
+
+def test_the_cli_warns_of_a_view_along_the_road_on_stderr(capsys):
+    """trafficcal run/calibrate/demo: the warning about a poorly conditioned view is a diagnostic, on stderr with the
+    other warnings (it was printed on stdout with the results); an oblique view's plain "View:" line is a result."""
+    from rich.console import Console
+
+    from gst_trafficcal.cli.calibrate import print_conditioning
+
+    print_conditioning(Console(), Calibration(along_road_camera(), (W, H)))
+    said = capsys.readouterr()
+    assert said.out == "" and " ".join(said.err.split()).startswith("warning: ") and ADVICE in " ".join(
+        said.err.split()), said
+    cam, size = preset_camera("highway_day")
+    print_conditioning(Console(), Calibration(cam, size))
+    said = capsys.readouterr()
+    assert said.err == "" and " ".join(said.out.split()).startswith("View: "), said

@@ -168,8 +168,12 @@ def print_conditioning(console, cal, warned: bool = False) -> None:
     """One line on how firmly ``cal``'s view pins the speeds down: a warning with what to do for a poorly
     conditioned view, unless ``warned`` (vpdetect's own warning says it), then a plain line without the advice."""
     cond = cal.conditioning()
-    console.print(("[yellow]warning[/]: " if cond.poor and not warned else "View: ") + cond.describe(not warned),
-                  highlight=False)
+    if cond.poor and not warned:
+        from .terminal import say
+
+        say(console, cond.describe(True))  # (on stderr, as every warning)
+    else:
+        console.print("View: " + cond.describe(not warned), highlight=False)
 
 
 def _add_scale(video: Path, cal, models, iou_threshold: float, min_vehicles: int, regression, out, model: str = "",

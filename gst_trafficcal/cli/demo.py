@@ -62,6 +62,7 @@ def command(out_dir: Path, preset: str, duration: float, seed: int, calibration_
     from ..vanishing.calibrator import CalibratorConfig, calibrate_video
     from .run import (RunPaths, first_frame, lane_paths, measure_video, pipeline_description, print_not_counted,
                       print_remeasured)
+    from .terminal import stderr_console
 
     console = Console()
     check_detector(detector)  # before the render
@@ -74,7 +75,7 @@ def command(out_dir: Path, preset: str, duration: float, seed: int, calibration_
     scen.validate(preset)
     t0 = time.monotonic()
     with Progress("[progress.description]{task.description}", BarColumn(), MofNCompleteColumn(),
-                  TimeRemainingColumn(), console=console) as bar:
+                  TimeRemainingColumn(), console=stderr_console()) as bar:  # progress: stderr
         task = bar.add_task(f"rendering {preset}", total=None)
         scene = generate(scen, scene_dir, progress=lambda i, n: bar.update(task, completed=i, total=n))
     truth = scene.calibration
@@ -90,7 +91,7 @@ def command(out_dir: Path, preset: str, duration: float, seed: int, calibration_
     video = scene_dir / "video.mp4"
     bbscale = (elements_dir() / "python" / "bbscale.py").exists()
     if calibration_mode == "manual":
-        with console.status("automatic calibration (vpdetect: VP1 from vehicle tracks, VP2 from edgelets)"):
+        with stderr_console().status("automatic calibration (vpdetect: VP1 from vehicle tracks, VP2 from edgelets)"):
             auto = calibrate_video(video, CalibratorConfig(), stop_when_done=True).calibration
         save_calibration(auto, out_dir / "calibration_auto.json")
         print_automatic_vps(console, auto, gt, true_cam, "-> calibration_auto.json")
@@ -203,6 +204,8 @@ def print_automatic_vps(console, auto, gt, true_cam, where: str) -> None:
 def print_automatic(console, calibration, gt, true_cam) -> None:
     """The fully automatic calibration the run ended with, against the truth: vpdetect's vanishing points and
     bbscale's scale (or why there is none, and so no speeds)."""
+    from .terminal import say
+
     print_automatic_vps(console, calibration, gt, true_cam, "-> calibration.json")
     cam = calibration.camera if calibration is not None else None
     if cam is not None and cam.scale is not None:
@@ -210,6 +213,6 @@ def print_automatic(console, calibration, gt, true_cam) -> None:
                       f"{100 * (cam.scale / true_cam.scale - 1):+.1f} %)", highlight=False)
     else:
         why = calibration.reason if calibration is not None and calibration.reason else "not converged"
-        console.print(f"[yellow]No speeds[/]: the automatic calibration has no scale after this video ({why}); a "
-                      "longer --duration gives it more vehicles, or --calibration manual measures with the scene's "
-                      "road markings", highlight=False)
+        say(console, f"no speeds: the automatic calibration has no scale after this video ({why}); a longer "
+                     "--duration gives it more vehicles, or --calibration manual measures with the scene's road "
+                     "markings")

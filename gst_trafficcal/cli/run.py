@@ -435,6 +435,7 @@ def measure_video(video: Path | str, out_dir: Path, description: str, console, l
     from ..calibration import save_calibration
     from ..fileio import remove_earlier
     from ..gst.runner import PipelineError, RunFailed, run_pipeline_file
+    from .terminal import stderr_console
 
     paths = RunPaths(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -488,7 +489,7 @@ def measure_video(video: Path | str, out_dir: Path, description: str, console, l
     failure: str | None = None
     with Progress(TextColumn("[progress.description]{task.description}"), BarColumn(),
                   TextColumn("{task.fields[time]}"), TextColumn("{task.fields[cars]}"),
-                  TimeRemainingColumn(), console=console, transient=False) as bar:
+                  TimeRemainingColumn(), console=stderr_console(), transient=False) as bar:  # progress: stderr
         task = bar.add_task(label, total=None, time="", cars="")
 
         def progress(pos: float, dur: float | None) -> None:
@@ -1115,9 +1116,9 @@ def run_one(console, video: Path | str, out_dir: Path, calibration_path: Path | 
         at = f"{summary.position_s:.1f} s" if summary.position_s is not None else "the start"
         why = "--duration reached" if summary.stopped != "interrupted" else \
             f"stopped ({summary.stopped_by})" if summary.stopped_by in ("SIGTERM", "SIGHUP") else "interrupted (Ctrl-C)"
-        from .terminal import log_line
+        from .terminal import log_line, stderr_console
 
-        console.print(f"[yellow]{why}[/] at {at}: the outputs cover the video up to there", highlight=False)
+        stderr_console().print(f"[yellow]{why}[/] at {at}: the outputs cover the video up to there", highlight=False)
         log_line(f"{why} at {at}: the outputs cover the video up to there")
 
     cal = summary.calibration
@@ -1159,7 +1160,7 @@ def run_one(console, video: Path | str, out_dir: Path, calibration_path: Path | 
                           f"/ {s.p95:.2f} p95 km/h, recall {ev.speed.recall:.3f}, false positives "
                           f"{ev.speed.false_positives}", highlight=False)
         elif ev is None:
-            console.print(f"[yellow]no evaluation against {gt_path.name}: the calibration has no scale[/]")
+            say(console, f"no evaluation against {gt_path.name}: the calibration has no scale")
     try:
         write_report(paths.report, ReportInputs(
             events=summary.events, calibration=cal, evaluation=ev,

@@ -15,7 +15,7 @@ from pathlib import Path
 from ..clock import next_boundary
 from ..errors import InputError
 from .run import RunOptions, run_one
-from .terminal import log_line, say
+from .terminal import log_line, say, stderr_console
 
 
 def run_files(console, videos: list[Path], out_dir: Path, calibration_path: Path | None,
@@ -159,7 +159,7 @@ def run_parts(console, parts, total: int | None, out_dir: Path, calibration_path
                 wait = 1.0
         if not live:
             continue
-        console.print(f"[yellow]{why}[/]: connecting again in {wait:g} s (Ctrl-C stops)", highlight=False,
+        stderr_console().print(f"[yellow]{why}[/]: connecting again in {wait:g} s (Ctrl-C stops)", highlight=False,
                       soft_wrap=True)
         log_line(f"{name}: {why}: connecting again in {wait:g} s")
         if options.status is not None:

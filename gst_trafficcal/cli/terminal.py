@@ -79,9 +79,33 @@ class RunLog:
 _log: RunLog | None = None  # the log of the command running (quiet_when_the_terminal_is_gone's)
 
 
+class _StderrUnlogged:
+    """``sys.stderr`` as it is at each write (quiet once the terminal is gone), but kept out of the run's log: what
+    :func:`say` prints is logged as one plain line, a progress bar's redrawing not at all."""
+
+    def write(self, text: str) -> int:
+        err = sys.stderr
+        return err.write_unlogged(text) if isinstance(err, _Echo) else err.write(text)
+
+    def flush(self) -> None:
+        sys.stderr.flush()
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(sys.stderr, name)
+
+
+def stderr_console() -> Any:
+    """A rich Console on stderr, for diagnostics (warnings, progress): stdout holds the results only, so a run's
+    ``> file`` gets those and the terminal still shows what goes wrong (docs/run.md)."""
+    from rich.console import Console
+
+    return Console(file=_StderrUnlogged())  # type: ignore[arg-type]
+
+
 def say(console: Any, text: str, style: str = "yellow", label: str = "warning") -> None:
-    """Print "label: text" (the label in ``style``) and put it in the run's log, if there is one."""
-    console.print(f"[{style}]{label}[/]: {text}", highlight=False)
+    """Print "label: text" (the label in ``style``) on stderr, whichever ``console`` prints the command's results,
+    and put it in the run's log, if there is one."""
+    stderr_console().print(f"[{style}]{label}[/]: {text}", highlight=False)
     if _log is not None:
         _log.line(f"{label}: {text}")
 
@@ -104,6 +128,11 @@ class _Echo:
     def write(self, text: str) -> int:
         if self._log is not None:
             self._log.stream(text)
+        written = self._while_there(self._stream.write, text)
+        return len(text) if written is None else written
+
+    def write_unlogged(self, text: str) -> int:
+        """``write`` without the log (:class:`_StderrUnlogged`)."""
         written = self._while_there(self._stream.write, text)
         return len(text) if written is None else written
 
