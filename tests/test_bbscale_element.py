@@ -299,3 +299,37 @@ def test_speedometer_takes_the_scale_of_a_scaled_calibration_from_upstream(clip,
         {"tracking": "internal", "scale": "upstream"}]
     assert not [m for m in res.messages if m.name == "trafficcal-scale"]
     assert any(json.loads(line)["speed_kmh"] is not None for line in (tmp_path / "e.jsonl").read_text().splitlines())
+
+
+def test_fit_scale_turns_the_videos_of_a_camera_mounted_turned(clip, tmp_path):
+    """A camera mounted on its side records its frames sideways, with no rotation tag: fit-scale --orientation 90r
+    turns them upright, as trafficcal run --orientation does, and measures the scene's λ* (before, it had no
+    --orientation: the sideways frames never matched the upright calibration, and the scene gave no scale); without
+    the option, a calibration.json that keeps the orientation says it."""
+    from gst_trafficcal.scale.regression import load_regression
+
+    turned = tmp_path / "turned"
+    turned.mkdir()
+    subprocess.run(["gst-launch-1.0", "-q", "filesrc", f"location={clip / 'video.mp4'}", "!", "decodebin", "!",
+                    "videoconvert", "!", "videoflip", "video-direction=90l", "!", "x264enc", "speed-preset=ultrafast",
+                    "qp-max=20", "!", "mp4mux", "!", "filesink", f"location={turned / 'video.mp4'}"],
+                   check=True, capture_output=True, timeout=300)
+    cal = load_calibration(clip / "calibration.json")
+    save_calibration(cal, turned / "calibration.json")  # of the upright picture, keeping no orientation
+
+    def fit(*args) -> subprocess.CompletedProcess:
+        return subprocess.run([str(ROOT / ".venv/bin/trafficcal"), "fit-scale", "--train", str(turned), "-o",
+                               str(tmp_path / "reg.json"), "--min-vehicles", "3", "--detector", "background", *args],
+                              capture_output=True, text=True, timeout=300, env=dict(os.environ, COLUMNS="200"))
+
+    out = fit("--orientation", "90r")
+    assert out.returncode == 0, out.stderr
+    (scene,) = load_regression(tmp_path / "reg.json").scenes
+    assert abs(scene["raw"] / cal.camera.scale - 1) < TOLERANCE, scene
+    save_calibration(cal, turned / "calibration.json", orientation="90r")  # as trafficcal calibrate keeps it
+    (tmp_path / "reg.json").unlink()
+    out = fit()
+    assert out.returncode == 0, out.stderr
+    assert load_regression(tmp_path / "reg.json").scenes[0]["raw"] == pytest.approx(scene["raw"])
+    bad = fit("--orientation", "sideways")
+    assert bad.returncode == 2 and "--orientation must be one of" in bad.stderr and "[1/1]" not in bad.stderr

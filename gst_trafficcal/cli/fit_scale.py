@@ -5,7 +5,9 @@ runs on its video with the calibration's vanishing points (λ*), against the tru
 scale — for a synthetic scene and for a BrnoCompSpeed replay alike (a replay is rendered with the camera of the
 recording's ManualCalib+ManualScale calibration, so its scale is the ManualScale of the recording); a replay
 folder whose calibration.json has no scale falls back to the ManualScale of ``gt_data.pkl``'s measured
-distances towards VP1 with the calibration's VPs.
+distances towards VP1 with the calibration's VPs.  ``--orientation`` turns the videos as ``trafficcal run``'s
+does (recordings of a camera mounted turned: stored sideways, untagged); without it each folder's calibration.json
+says how its frames were turned (its field ``orientation``), as for ``trafficcal run --calibration``.
 """
 
 from __future__ import annotations
@@ -15,7 +17,7 @@ from pathlib import Path
 
 import click
 
-from .run import check_detector, detector_option
+from .run import check_detector, detector_option, given_orientation, orientation_option
 
 
 def true_scale(folder: Path, calibration) -> tuple[float, str]:
@@ -59,17 +61,22 @@ def true_scale(folder: Path, calibration) -> tuple[float, str]:
 @click.option("--form", type=click.Choice(["ratio", "affine"]), default="ratio", show_default=True,
               help="ratio: λ_reg = α·λ* (β = 0; predicted held-out scenes better on every set measured); "
                    "affine: least-squares α and β, the paper's form (needs scenes of clearly different λ).")
+@orientation_option(" (every training video's; not given: the one each folder's calibration.json keeps, as "
+                    "trafficcal run --calibration takes it, else auto) — recordings of a camera mounted turned")
 def command(train: tuple[Path, ...], out_path: Path, models: str, iou_threshold: float, min_vehicles: int,
-            max_duration: float | None, detector: str, form: str) -> None:
+            max_duration: float | None, detector: str, form: str, orientation: str | None = None) -> None:
     from rich.console import Console
     from rich.table import Table
 
     from ..calibration import load_calibration
     from ..errors import InputError
+    from ..imaging import check_orientation
     from ..scale.regression import fit_regression, save_regression
     from ..scale.streaming import load_align_models
     from ..scale.video import scale_from_video
 
+    if orientation is not None:
+        check_orientation(orientation)  # a bad one: one line, before any work
     folders: list[Path] = []
     for d in train:
         if d.exists() and not d.is_dir():
@@ -101,9 +108,11 @@ def command(train: tuple[Path, ...], out_path: Path, models: str, iou_threshold:
         console.print(f"[{k}/{len(folders)}] {f.name}: measuring its scale", highlight=False)
         cal = load_calibration(f / "calibration.json")
         lam_true, source = true_scale(f, cal)
+        # its frames turned as the calibration's were: a camera mounted turned stores them sideways, untagged
+        turned, _ = given_orientation(orientation, f / "calibration.json")
         res = scale_from_video(f / "video.mp4", cal.with_scale(None), models=align_models,
                                iou_threshold=iou_threshold, min_vehicles=min_vehicles, max_duration=max_duration,
-                               detector=model)
+                               detector=model, orientation=turned)
         r = res.result
         lam = r.raw_scale if r.converged else None
         names.append(f.name)
