@@ -39,21 +39,6 @@ die() { echo "calibrate: error: $*" >&2; exit 2; }
 need=(uridecodebin videoconvert videoflip videoscale vpdetect fakesink)
 
 
-report_missing() {
-    local e
-    for e in "$@"; do
-        case "$e" in
-            vpdetect)
-                echo "calibrate: error: GStreamer element '$e' is not installed (gst-trafficcal element; is the" \
-                     "project set up: scripts/setup.sh, and does 'gst-inspect-1.0 $e' work after" \
-                     "'. scripts/env.sh'?)" >&2 ;;
-            *)
-                echo "calibrate: error: GStreamer element '$e' is not installed (install the GStreamer plugin" \
-                     "that provides it, e.g. gstreamer1.0-plugins-base/-good)" >&2 ;;
-        esac
-    done
-}
-
 [[ "${1:-}" == "--check" ]] && run_check calibrate "${need[@]}"
 
 [[ $# -eq 2 ]] || die "usage: $(basename "$0") INPUT CALIBRATION.json   (or --check, --help)"
@@ -73,12 +58,7 @@ fi
 out_dir="$(dirname "$target")"
 [[ -d "$out_dir" && -w "$out_dir" ]] || die "$output: directory $out_dir does not exist or is not writable"
 
-missing="$(check_elements "${need[@]}")"
-if [[ -n "$missing" ]]; then
-    # shellcheck disable=SC2086
-    report_missing $missing
-    exit 2
-fi
+require_elements calibrate gstreamer1.0-plugins-base/-good "${need[@]}"  # exit code 2, what to install (lib.sh)
 
 tmp="$(mktemp "$out_dir/.calibrate.XXXXXX")"
 log="$(mktemp)"

@@ -1,5 +1,5 @@
 # Shared by the pipeline scripts (sourced, not run): element checks, input URIs and pipeline pieces.
-# The sourcing script defines die() (its own error prefix) before calling input_uri.
+# The sourcing script defines die() (its own error prefix) before calling input_uri or the set_* functions.
 
 # The decoded video as the elements take it, upright and of square pixels, and an H.264 encoder's input of an even
 # size: pipeline pieces trafficcal run uses too, written once in gst_trafficcal/gst/chains.py (env.sh makes it
@@ -10,21 +10,26 @@ set_analysed_video() {  # INPUT: sets `analysed` to (videoflip video-direction=.
     # calibration of the upright picture); a DVR's D1 or a 480x360 stored for a 640x360 picture gets square pixels.
     # ORIENTATION (auto, identity, 90r, 180, 90l, horiz, vert, ul-lr, ur-ll; as trafficcal run --orientation):
     # turns the picture that way whatever the video says (a camera mounted on its side: RTP carries no tag).
-    local words rc=0
-    words="$(python -m gst_trafficcal.gst.chains analysed "$1" "${ORIENTATION:-auto}")" || rc=$?
-    [[ $rc == 3 ]] && die "$words"
+    ask_chains analysed "$1" "${ORIENTATION:-auto}"
+    mapfile -t analysed <<<"$chains_answer"
+}
+
+ask_chains() {  # ARGS...: sets `chains_answer` to what `python -m gst_trafficcal.gst.chains ARGS` prints
+    # Its own refusal (exit code 3: a bad ORIENTATION, a calibration file it cannot read) goes through die() as
+    # it says it; any other failure (no project set up: Python cannot import it) with what to do.
+    local rc=0
+    chains_answer="$(python -m gst_trafficcal.gst.chains "$@")" || rc=$?
+    [[ $rc == 3 ]] && die "$chains_answer"
     [[ $rc == 0 ]] || die "cannot set up the pipeline (is the project set up: scripts/setup.sh?)"
-    mapfile -t analysed <<<"$words"
 }
 
 take_kept_orientation() {  # NAME CALIBRATION: with ORIENTATION unset, the one the calibration file keeps (saying so)
     # As trafficcal run --calibration takes it: calibrate.sh (vpdetect orientation=...) and trafficcal calibrate keep
     # the ORIENTATION / --orientation the picture was turned by in the file's field orientation. A bad field: die.
-    local kept rc=0
+    local kept
     [[ -z "${ORIENTATION:-}" && -n "$2" ]] || return 0
-    kept="$(python -m gst_trafficcal.gst.chains kept-orientation "$2")" || rc=$?
-    [[ $rc == 3 ]] && die "$kept"
-    [[ $rc == 0 ]] || die "cannot set up the pipeline (is the project set up: scripts/setup.sh?)"
+    ask_chains kept-orientation "$2"
+    kept="$chains_answer"
     [[ -n "$kept" ]] || return 0
     ORIENTATION="$kept"
     echo "$1: orientation kept in $2: $kept (ORIENTATION=auto: as the video says)" >&2
@@ -39,8 +44,8 @@ set_orientation_prop() {  # sets `orientation_prop` to vpdetect's orientation=..
 }
 
 set_even_i420() {  # sets `even_i420` to the caps of I420 of an even size (x264 refuses an odd one, 1281x721)
-    even_i420="$(python -m gst_trafficcal.gst.chains even-i420)" || die "cannot set up the pipeline (is the" \
-        "project set up: scripts/setup.sh?)"
+    ask_chains even-i420
+    even_i420="$chains_answer"
 }
 
 check_elements() {  # prints the missing elements, one per line
@@ -48,6 +53,27 @@ check_elements() {  # prints the missing elements, one per line
     for e in "$@"; do
         gst-inspect-1.0 --exists "$e" 2>/dev/null || echo "$e"
     done
+}
+
+require_elements() {  # NAME HINT ELEMENT...: returns when every ELEMENT is installed, else says which are not
+    # (one line each on stderr: a gst-trafficcal element points to the project's set-up, any other to GStreamer's
+    # plugins, HINT naming their packages) and exits with code 2
+    local name="$1" hint="$2" missing e
+    shift 2
+    missing="$(check_elements "$@")"
+    [[ -n "$missing" ]] || return 0
+    for e in $missing; do
+        case "$e" in
+            vpdetect|vehicledetect|tracker|speedometer|trafficoverlay|bbscale)
+                echo "$name: error: GStreamer element '$e' is not installed (gst-trafficcal element; is the" \
+                     "project set up: scripts/setup.sh, and does 'gst-inspect-1.0 $e' work after" \
+                     "'. scripts/env.sh'?)" >&2 ;;
+            *)
+                echo "$name: error: GStreamer element '$e' is not installed (install the GStreamer plugin" \
+                     "that provides it, e.g. $hint)" >&2 ;;
+        esac
+    done
+    exit 2
 }
 
 run_check() {  # NAME ELEMENT...: the scripts' --check mode; exits 0 when every element is installed, else 1
@@ -62,10 +88,20 @@ run_check() {  # NAME ELEMENT...: the scripts' --check mode; exits 0 when every 
     exit 1
 }
 
-input_uri() {  # INPUT: prints the URI uridecodebin plays (a file becomes file:///...); dies on a missing file
-    if [[ "$1" == *://* ]]; then  # its scheme in lower case (RFC 3986: any case), as the checks below match it
+lower_scheme() {  # TEXT: prints a URI with its scheme in lower case (RFC 3986: any case), anything else as it is
+    # RTSP://cam/stream is rtsp://cam/stream and UDP://HOST:PORT is udp://HOST:PORT, as GStreamer reads them; the
+    # scripts' checks then match the lower-case scheme.
+    if [[ "$1" == *://* ]]; then
         local scheme="${1%%://*}"
         echo "${scheme,,}://${1#*://}"
+    else
+        echo "$1"
+    fi
+}
+
+input_uri() {  # INPUT: prints the URI uridecodebin plays (a file becomes file:///...); dies on a missing file
+    if [[ "$1" == *://* ]]; then
+        lower_scheme "$1"
     else
         [[ -f "$1" ]] || die "$1: no such file (give a file or a URI such as rtsp://camera/stream)"
         echo "file://$(uri_path "$(realpath "$1")")"
@@ -100,7 +136,8 @@ analysis_queue() {  # URI: prints the queue in front of the analysis, one word p
 }
 
 is_live_uri() {  # URI: true for a camera's stream (rtsp://, udp://, srt://, rtmp://), false for a file or download
-    case "$1" in
+    # The scheme in any case (RFC 3986): RTSP://cam/stream is live too, whether input_uri lower-cased it or not.
+    case "${1,,}" in
         rtsp://* | rtsps://* | rtspt://* | udp://* | srt://* | rtmp://*) return 0 ;;
         *) return 1 ;;
     esac
@@ -127,7 +164,7 @@ keep_earlier_live() {  # URI OUT_DIR: prints the folder a live stream's earlier 
     # overwriting it. A file can be run again: its results are replaced. Of an output that is a symlink the file
     # it leads to is moved and the link stays for the new run's file (written through it), as `trafficcal run` does.
     local uri="$1" out="$2" kept base n=2 f real
-    [[ "$uri" == file://* || ! -s "$out/vehicles.jsonl" ]] && return 0
+    [[ "${uri,,}" == file://* || ! -s "$out/vehicles.jsonl" ]] && return 0
     base="$out/earlier-$(date -r "$out/vehicles.jsonl" +%Y%m%d-%H%M%S)"
     kept="$base"
     while [[ -e "$kept" ]]; do kept="$base-$n"; n=$((n + 1)); done

@@ -71,21 +71,7 @@ uri="$(input_uri "$input")"
 mkdir -p "$out_dir" 2>/dev/null || die "$out_dir: cannot create the output directory"
 [[ -w "$out_dir" ]] || die "$out_dir: output directory is not writable"
 
-missing="$(check_elements "${need[@]}")"
-if [[ -n "$missing" ]]; then
-    for e in $missing; do
-        case "$e" in
-            vpdetect|vehicledetect|speedometer)
-                echo "measure: error: GStreamer element '$e' is not installed (gst-trafficcal element; is the" \
-                     "project set up: scripts/setup.sh, and does 'gst-inspect-1.0 $e' work after" \
-                     "'. scripts/env.sh'?)" >&2 ;;
-            *)
-                echo "measure: error: GStreamer element '$e' is not installed (install the GStreamer plugin" \
-                     "that provides it, e.g. gstreamer1.0-plugins-base)" >&2 ;;
-        esac
-    done
-    exit 2
-fi
+require_elements measure gstreamer1.0-plugins-base "${need[@]}"  # exit code 2 and what to install (lib.sh)
 
 vp=(vpdetect)
 if [[ -n "$calibration" ]]; then

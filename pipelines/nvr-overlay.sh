@@ -71,10 +71,7 @@ calibration="${3:-}"
 
 uri="$(input_uri "$input")"
 
-if [[ "$output" == *://* ]]; then  # a URI's scheme in any case (RFC 3986: UDP:// is udp://), as GStreamer reads it
-    scheme="${output%%://*}"
-    output="${scheme,,}://${output#*://}"
-fi
+output="$(lower_scheme "$output")"  # a URI's scheme in any case (RFC 3986: UDP:// is udp://), as GStreamer reads it
 sink=(filesink "location=$output")
 case "$output" in
     udp://*)
@@ -99,21 +96,7 @@ if [[ "$output" != *://* ]]; then
     [[ -d "$out_dir" && -w "$out_dir" ]] || die "$output: directory $out_dir does not exist or is not writable"
 fi
 
-missing="$(check_elements "${need[@]}")"
-if [[ -n "$missing" ]]; then
-    for e in $missing; do
-        case "$e" in
-            vpdetect|vehicledetect|tracker|speedometer|trafficoverlay)
-                echo "nvr-overlay: error: GStreamer element '$e' is not installed (gst-trafficcal element; is the" \
-                     "project set up: scripts/setup.sh, and does 'gst-inspect-1.0 $e' work after" \
-                     "'. scripts/env.sh'?)" >&2 ;;
-            *)
-                echo "nvr-overlay: error: GStreamer element '$e' is not installed (install the GStreamer plugin" \
-                     "that provides it, e.g. gstreamer1.0-plugins-good/-bad/-ugly)" >&2 ;;
-        esac
-    done
-    exit 2
-fi
+require_elements nvr-overlay gstreamer1.0-plugins-good/-bad/-ugly "${need[@]}"  # exit code 2, what to install
 
 cal_prop=()
 if [[ -n "$calibration" ]]; then

@@ -575,3 +575,37 @@ def test_measure_turns_an_untagged_video_as_orientation_says(tmp_path):
         "measure: error: ORIENTATION must be one of auto, identity, 90r, 180, 90l, horiz, vert, ul-lr, ur-ll, got "
         "'sideways'")
     assert "ORIENTATION" in script("measure.sh", "--help").stdout
+
+
+def test_lib_takes_uri_schemes_in_any_case(tmp_path):
+    """lib.sh's own checks read a URI's scheme in any case (RFC 3986), not only after input_uri lower-cased it:
+    is_live_uri took RTSP://cam/stream for a file (no leaky queue, no stall watchdog)."""
+    def lib(call: str, *args) -> subprocess.CompletedProcess:
+        return subprocess.run(["bash", "-c", f'die() {{ echo "$*" >&2; exit 2; }}; . "$0/lib.sh"; {call}',
+                               PIPELINES, *map(str, args)], capture_output=True, text=True, timeout=30)
+
+    for uri in ("RTSP://cam/stream", "Udp://239.0.0.1:5000", "SRT://cam:9000", "rtsp://cam/stream"):
+        assert lib('is_live_uri "$1"', uri).returncode == 0, uri
+    for uri in ("FILE:///v.mp4", "HTTP://host/v.mp4", "/data/rtsp.mp4"):
+        assert lib('is_live_uri "$1"', uri).returncode == 1, uri
+    assert "leaky=downstream" in lib('analysis_queue "$1"', "RTSP://cam/stream").stdout
+    assert lib('lower_scheme "$1"', "UDP://Host:5000/Path").stdout == "udp://Host:5000/Path\n"
+    assert lib('lower_scheme "$1"', "/Data/Cam.mp4").stdout == "/Data/Cam.mp4\n"
+    (tmp_path / "vehicles.jsonl").write_text("{}\n")  # a file's earlier results are replaced, not kept aside
+    assert lib('keep_earlier_live "$1" "$2"', "FILE:///v.mp4", tmp_path).stdout == ""
+    assert not list(tmp_path.glob("earlier-*"))
+
+
+def test_lib_says_which_elements_are_missing_and_exits_2():
+    """require_elements (the three scripts' one check): nothing and on for installed elements; else one line each
+    naming the element and where it comes from, and exit code 2."""
+    def require(*elements: str) -> subprocess.CompletedProcess:
+        return subprocess.run(["bash", "-c", '. "$0/lib.sh"; require_elements measure some-package "$@"; echo on',
+                               PIPELINES, *elements], capture_output=True, text=True, timeout=60)
+
+    ok = require("identity", "videoconvert")
+    assert ok.returncode == 0 and ok.stdout == "on\n" and ok.stderr == "", ok.stderr
+    bad = require("identity", "nosuchelement")
+    assert bad.returncode == 2 and bad.stdout == "", bad.stdout
+    assert bad.stderr.splitlines() == ["measure: error: GStreamer element 'nosuchelement' is not installed (install "
+                                       "the GStreamer plugin that provides it, e.g. some-package)"]
