@@ -160,7 +160,7 @@ def run_parts(console, parts, total: int | None, out_dir: Path, calibration_path
         if not live:
             continue
         stderr_console().print(f"[yellow]{why}[/]: connecting again in {wait:g} s (Ctrl-C stops)", highlight=False,
-                      soft_wrap=True)
+                               soft_wrap=True)
         log_line(f"{name}: {why}: connecting again in {wait:g} s")
         if options.status is not None:
             from datetime import datetime, timedelta
