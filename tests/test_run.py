@@ -575,7 +575,8 @@ def test_a_zone_leaves_out_the_other_carriageway(clip, with_truth, tmp_path):
         " ".join(corner.stderr.split()), corner.stderr[-2000:]  # a warning: on stderr
     brief = trafficcal("run", clip / "video.mp4", "--out", tmp_path / "brief", "--no-overlay", "--zone",
                        "0,0 30,0 30,30 0,30", "--calibration", clip / "calibration.json", "--duration", "2")
-    assert brief.returncode == 0 and "no vehicle stood" not in brief.stdout + brief.stderr  # 2 s of it: no vehicle yet is no news
+    # 2 s of it: no vehicle yet is no news
+    assert brief.returncode == 0 and "no vehicle stood" not in brief.stdout + brief.stderr
     line = one_line_error(trafficcal("run", clip / "video.mp4", "--out", tmp_path / "bad", "--zone", "10,10 20,20"))
     assert line == "trafficcal: error: --zone: zone '10,10 20,20': polygon 1 has 2 points; a zone needs at least 3"
     assert not (tmp_path / "bad").exists()

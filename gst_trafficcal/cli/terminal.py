@@ -11,8 +11,8 @@ goes to a :class:`RunLog` too (``--out/run.log``): everything written to ``sys.s
 :func:`say` is given, each line with its date and time (what :func:`say` and :func:`stderr_console` print on stderr
 is not logged as it is shown: a warning goes in once as its plain line, a progress bar's redrawing not at all).
 
-Diagnostics — warnings, progress, how a run ended — go to stderr, results to stdout (docs/run.md).  A run whose SSH session closed, or that was started
-detached, ends with its error there, not only in status.json.
+Diagnostics — warnings, progress, how a run ended — go to stderr, results to stdout (docs/run.md).  A run whose
+SSH session closed, or that was started detached, ends with its error there, not only in status.json.
 """
 
 from __future__ import annotations
