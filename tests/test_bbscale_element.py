@@ -322,6 +322,9 @@ def test_fit_scale_turns_the_videos_of_a_camera_mounted_turned(clip, tmp_path):
                                str(tmp_path / "reg.json"), "--min-vehicles", "3", "--detector", "background", *args],
                               capture_output=True, text=True, timeout=300, env=dict(os.environ, COLUMNS="200"))
 
+    wrong = fit()  # the sideways frames against the upright calibration: said at the first frame, not "no scale"
+    assert wrong.returncode == 2 and "calibration is of 960x540 images but the video's frames are 540x960" in \
+        " ".join(wrong.stderr.split()), wrong.stderr
     out = fit("--orientation", "90r")
     assert out.returncode == 0, out.stderr
     (scene,) = load_regression(tmp_path / "reg.json").scenes

@@ -61,6 +61,15 @@ class VideoScale:
     box_params: np.ndarray  # (V, 5) per vehicle: median 3D box x0, x1, y0, y1, h (plane units), for BMVC14
 
 
+def _check_size(video: Path, calibration: Calibration, size: tuple[int, int]) -> None:
+    """An InputError when ``calibration`` was made for another frame size than ``video``'s frames as analysed
+    (squared and turned): its vanishing points are pixels of that size, and every vehicle would miss the models."""
+    (w, h), (vw, vh) = calibration.image_size, size
+    if (w, h) != (vw, vh):
+        raise InputError(f"{video}: the calibration is of {w}x{h} images but the video's frames are {vw}x{vh} "
+                         "(a camera mounted turned: give its --orientation, or calibrate this video)")
+
+
 def scale_from_video(video: str | Path, calibration: Calibration, *, models=None, iou_threshold: float = 0.85,
                      min_vehicles: int = 5, regression=None, detector: str = "", max_duration: float | None = None,
                      progress: Callable[[float], None] | None = None, box: str = "detector",
@@ -107,6 +116,8 @@ def scale_from_video(video: str | Path, calibration: Calibration, *, models=None
             if not ok:
                 break
             bgr = picture.frame(bgr, par)
+            if n == 0:
+                _check_size(path, calibration, bgr.shape[1::-1])
             t = float(cap.get(cv2.CAP_PROP_POS_MSEC)) / 1000.0
             if max_duration is not None and t > max_duration:
                 break
