@@ -334,8 +334,8 @@ class VehicleCounter:
     _camera: Camera | None = field(default=None, repr=False)  # the latest update's
     _spacing: FrameSpacing = field(default_factory=FrameSpacing, repr=False)  # the trails' windows as durations
     own_directions: bool = False  # no speedometer: a vehicle's direction from its own points, as speedometer's
-    _paths: dict[int, tuple[_Trail, _Trail]] = field(default_factory=dict, repr=False)  # counted ones' reference
-    # points and box centres, with their times
+    _paths: dict[int, tuple[_Trail, _Trail]] = field(default_factory=dict, repr=False)  # own_directions: the
+    # tracks' reference points and box centres since first seen, with their times
 
     MAX_OFFSETS = 64  # per vehicle (its median is all that is used)
     LANE_REFRESH = 25  # per-lane counts are recounted at most every this many updates (or on a new vehicle)
@@ -351,10 +351,15 @@ class VehicleCounter:
         if t is not None:
             self._spacing.add(t)
         for m in marks:
-            if m.track_id is None or not self._counts_now(m, t):
+            if m.track_id is None:
                 continue
+            followed = self._follow(m, camera, t)
+            if not self._counts_now(m, t):
+                continue
+            counted_before = m.track_id in self.seen
             old_dir, old_lane = self.seen.get(m.track_id, (None, None))
-            own = self._own_direction(m, camera, t) if m.direction is None else None
+            own = self._own_direction(m.track_id, camera, not counted_before) if followed and m.direction is None \
+                else None
             self.seen[m.track_id] = (m.direction or own or old_dir, m.lane if m.lane is not None else old_lane)
             self._last_seen[m.track_id] = self._updates
             if m.speed_kmh is not None:
@@ -368,21 +373,31 @@ class VehicleCounter:
         if self._updates % 50 == 0:
             self._forget(self._updates - self.FORGET_AFTER)
 
-    def _own_direction(self, m: VehicleMark, camera: Camera | None, t: float | None) -> str | None:
-        """With ``own_directions`` (no speedometer upstream), the direction of ``m``'s track along the road from
-        what the counter saw of it since it counted (:func:`~gst_trafficcal.measurement.direction_along_road`, as
-        speedometer decides it: its reference points, or its box centres while it has none); None when not
-        known or not due: it is decided again at the 2nd, 4th, 8th... and then every 32nd sighting."""
+    def _follow(self, m: VehicleMark, camera: Camera | None, t: float | None) -> bool:
+        """With ``own_directions`` (no speedometer upstream), keep ``m``'s reference point and box centre (with
+        ``t``) on its track's path, from its first sighting on, for :meth:`_own_direction`; False when not kept."""
         if not self.own_directions or camera is None or t is None:
-            return None
+            return False
         refs, centres = self._paths.setdefault(m.track_id, (_Trail(), _Trail()))
         if m.ref_point is not None:
             refs.add(m.ref_point, t)
         x0, y0, x1, y1 = m.box
         centres.add(((x0 + x1) / 2.0, (y0 + y1) / 2.0), t)
+        return True
+
+    def _own_direction(self, track_id: int, camera: Camera | None, now: bool = False) -> str | None:
+        """The direction of a track along the road from what the counter saw of it (:meth:`_follow`;
+        :func:`~gst_trafficcal.measurement.direction_along_road`, as speedometer decides it: its reference points,
+        or its box centres while it has none); None when not known or not due: it is decided when the track
+        counts (``now``: also at the end of the stream), then again at the 2nd, 4th, 8th... and every 32nd
+        sighting."""
+        path = self._paths.get(track_id)
+        if camera is None or path is None:
+            return None
+        refs, centres = path
         path = refs if len(refs.points) >= 2 else centres
         n = path.seen
-        if n < 2 or (n & (n - 1) and n % 32):
+        if n < 2 or (not now and n & (n - 1) and n % 32):
             return None
         return direction_along_road(camera, np.array(path.points), np.array(path.times))
 
@@ -428,10 +443,14 @@ class VehicleCounter:
         for i, (first, last, u, m) in list(self._first_seen.items()):
             if t is not None and last >= t - still_in_view_s and not self._why_not(last - first, self._trails.get(i),
                                                                                    cut=True):
-                self.seen[i] = (m.direction, m.lane)
+                own = self._own_direction(i, self._camera, now=True) if m.direction is None else None
+                self.seen[i] = (m.direction or own, m.lane)
                 self._last_seen[i] = u
                 if m.speed_kmh is not None:
                     self._speed[i] = (m.speed_kmh, m.label)
+        for i in self._first_seen:
+            if i not in self.seen:
+                self._paths.pop(i, None)
         self._first_seen.clear()
         self._trails.clear()
 
@@ -439,6 +458,7 @@ class VehicleCounter:
         for i in [i for i, (_, _, u, _) in self._first_seen.items() if u < before]:  # never counted: gone for good
             del self._first_seen[i]
             self._trails.pop(i, None)
+            self._paths.pop(i, None)
         gone = [i for i, t in self._last_seen.items() if t < before]
         for i in gone:
             direction, lane = self.seen[i]

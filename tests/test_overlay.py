@@ -511,6 +511,28 @@ def test_vehicle_counter_without_speedometer_counts_directions_from_its_own_poin
     assert plain.summary()["unknown_direction"] == 1
 
 
+def test_vehicle_counter_without_speedometer_gives_a_direction_to_tracks_counted_at_the_end() -> None:
+    """own_directions: a track the counter counts only at the end of the stream (in view 0.3 s, under
+    ``min_seen_s``: the end cut it short) gets the direction its points show, as the tracks counted before did —
+    by its reference points, or its box centres when it has none.  Before, both landed in unknown_direction (their
+    points were kept only from when they counted)."""
+    cam = _camera()
+
+    def at(x: float, y: float) -> tuple[float, float]:
+        return tuple(float(v) for v in cam.world_to_image(np.array([x, y, 0.0])))
+
+    c = VehicleCounter(min_seen_s=0.5, min_passing_m=3.0, own_directions=True)
+    for k in range(8):  # 0.3 s at 25 fps, 10 m/s
+        x = 0.4 * k
+        bx, by = at(30.0 - x, 5.25)  # no reference point: its box moves away from VP1
+        c.update([VehicleMark((0, 0, 1, 1), 1, ref_point=at(5.0 + x, -1.75)),
+                  VehicleMark((bx - 20, by - 10, bx + 20, by + 10), 2)], cam, k / 25)
+    assert c.total == 0
+    c.end(7 / 25, 1.0)
+    assert c.seen[1][0] == "towards_vp1" and c.seen[2][0] == "away_from_vp1", c.seen
+    assert c.summary()["unknown_direction"] == 0 and not c._paths.keys() - c.seen.keys()
+
+
 @pytest.mark.parametrize("fps", [25, 5])
 @pytest.mark.parametrize("jump_m, first_s", [(0.0, 0), (4.5, 43), (-4.5, 43), (4.5, 6), (-4.5, 6)])
 def test_vehicle_counter_never_counts_a_parked_vehicle_whose_point_jumps_for_seconds(jump_m: float, first_s: int,
