@@ -251,15 +251,21 @@ def view_key(cal: Calibration) -> str:
     return cal.with_scale(None).id if cal.camera is not None else cal.id
 
 
-def load_views(folder: str | Path, image_size: tuple[int, int]) -> tuple[list[Calibration], list[str]]:
+def load_views(folder: str | Path, image_size: tuple[int, int],
+               orientation: str | None = None) -> tuple[list[Calibration], list[str]]:
     """The calibrations of a camera's views kept in ``folder`` (``*.json``, each with vanishing points and the
-    ``view`` it was learnt on) for frames of ``image_size``; and a line per file that is not one (unreadable,
-    another frame size, no view).  A missing folder holds none."""
+    ``view`` it was learnt on) for frames of ``image_size`` and, given an ``orientation``, of a picture turned that
+    way (a view's field ``orientation``, auto when it keeps none: a camera re-mounted turned is another view); and a
+    line per file that is not one (unreadable, another frame size or orientation, no view).  A missing folder holds
+    none."""
+    from .imaging import AUTO, orientation_of_file
+
     found, skipped = [], []
     root = Path(folder)
     for path in sorted(root.glob("*.json")) if root.is_dir() else []:
         try:
             cal = load_calibration(path)
+            turned = orientation_of_file(path) or AUTO
         except InputError as exc:
             skipped.append(str(exc))
             continue
@@ -267,14 +273,21 @@ def load_views(folder: str | Path, image_size: tuple[int, int]) -> tuple[list[Ca
             skipped.append(f"{path}: no vanishing points or no view")
         elif tuple(cal.image_size) != tuple(image_size):
             skipped.append(f"{path}: a calibration of {cal.image_size[0]}x{cal.image_size[1]} frames")
+        elif orientation is not None and turned != orientation:
+            skipped.append(f"{path}: a view of the picture turned by orientation {turned}, not {orientation} "
+                           "(a camera mounted another way is another view)")
         else:
             found.append(cal)
     return found, skipped
 
 
-def save_view(cal: Calibration, folder: str | Path) -> Path | None:
-    """Keep ``cal`` (with vanishing points and its view) in the views folder as ``<view_key>.json``; a calibration
-    of the same view with a scale already there is not replaced by one without.  Returns the path written, or None."""
+def save_view(cal: Calibration, folder: str | Path, orientation: str | None = None) -> Path | None:
+    """Keep ``cal`` (with vanishing points and its view) in the views folder as ``<view_key>.json``, with the
+    ``orientation`` its picture was turned by (None: the one the file there keeps, as when a scale is added to a
+    view); a calibration of the same view with a scale already there is not replaced by one without.  Returns the
+    path written, or None."""
+    from .imaging import AUTO, orientation_of_file
+
     if cal.camera is None or cal.view is None:
         return None
     path = Path(folder) / f"{view_key(cal)}.json"
@@ -284,8 +297,13 @@ def save_view(cal: Calibration, folder: str | Path) -> Path | None:
                 return None
         except (InputError, AttributeError):
             pass  # broken: replaced
+    if orientation is None and path.is_file():
+        try:
+            orientation = orientation_of_file(path)
+        except InputError:
+            pass  # broken: replaced
     try:
         Path(folder).mkdir(parents=True, exist_ok=True)
     except OSError as exc:
         raise InputError(f"{folder}: cannot create the views folder ({exc.strerror or exc})") from None
-    return save_calibration(replace(cal, moved_at=None), path)
+    return save_calibration(replace(cal, moved_at=None), path, orientation=orientation or AUTO)

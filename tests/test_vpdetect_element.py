@@ -287,6 +287,40 @@ def test_started_again_it_finds_the_known_view_as_a_new_one_would(learnt, frames
     assert [c.id for c in second.calibrations] == [c.id for c in first.calibrations]
 
 
+def test_a_known_view_is_used_only_for_a_picture_turned_the_same_way(learnt, frames, tmp_path):
+    """views-dir keeps each view with the ``orientation`` its picture was turned by (a camera mounted upside down,
+    ``videoflip video-direction=180 ! vpdetect orientation=180``): a vpdetect of that orientation uses it at the
+    start; one of another orientation (the camera re-mounted, or another one) does not — a camera mounted another
+    way is another view — says why, and learns its own, kept with its own orientation; a scale added to the view
+    (bbscale, speedometer) keeps the view's orientation.  Before, the views folder
+    kept no orientation: the view was used whatever the orientation, and the calibration-file it was written to
+    then said how the picture of the other mounting was turned."""
+    from gst_trafficcal.calibration import load_views, save_view, view_key
+    from gst_trafficcal.imaging import orientation_of_file
+
+    known = load_calibration(learnt)
+    views = tmp_path / "views"
+    views.mkdir()
+    save_calibration(known, views / f"{view_key(known)}.json", orientation="180")  # as save_view(known, views, "180")
+    same = run_pipeline(f"appsrc name=src ! vpdetect {FAST} orientation=180 views-dir={views} ! appsink name=sink",
+                        frames[:75], CAPS, fps=FPS)
+    assert same.calibrations[-1].id == known.id and same.warnings == [], same.warnings
+    other = run_pipeline(f"appsrc name=src ! vpdetect {FAST} views-dir={views} ! appsink name=sink", frames, CAPS,
+                         fps=FPS)
+    assert other.infos == [] and other.calibrations[0].state == "learning", other.infos
+    assert any("views-dir" in w and "orientation 180, not auto" in w and "not used" in w for w in other.warnings), \
+        other.warnings
+    assert other.calibrations[-1].camera is not None
+    # (the rendered scene gives the very same vanishing points, so the new view's file is the old one's: the
+    # view learnt last is kept, with its orientation)
+    assert [c.id for c in load_views(views, known.image_size, "auto")[0]] == [other.calibrations[-1].id]
+    kept = tmp_path / "kept"
+    save_view(known, kept, "180")
+    assert orientation_of_file(kept / f"{view_key(known)}.json") == "180"
+    save_view(known.with_scale(0.05), kept)  # a scale kept with the view later (bbscale): its orientation stays
+    assert orientation_of_file(kept / f"{view_key(known)}.json") == "180"
+
+
 def test_a_mode_set_while_running_applies_from_the_next_start_only():
     """mode=fixed set while the stream runs is answered "applies from the next start", and so it does: a frame-size
     change later in the run is a new view learnt, as in the mode the element started in (before, the new mode was

@@ -20,7 +20,9 @@ Every view the element has had a calibration for in this stream (the file's, eac
 back — that calibration is announced again at once (with ``moved_at``; bbscale gives it back the scale it found
 for it), also while a new view is being learnt, instead of learning it anew for minutes.  With ``views-dir`` the
 views outlive the pipeline: every calibration in the folder (one JSON per view, ``calibration.save_view``) is
-known from the start — the stream's first seconds pick the one it shows — and each one learnt is added to it.
+known from the start — the stream's first seconds pick the one it shows — and each one learnt is added to it,
+with the element's ``orientation``: a view kept with another one is not used (a camera mounted another way is
+another view).
 
 Started again (NULL or READY, then PLAYING: an NVR reconnecting, or re-pointed at another camera) the element
 begins as a new one: what it keeps from a run is in ``calibration-file`` and ``views-dir``, read again at the start.
@@ -83,7 +85,8 @@ class VpDetect(TrafficcalTransform):
         "orientation": (str, "Orientation", "How the picture was turned before vpdetect (the videoflip "
                         "video-direction given, as trafficcal run --orientation: 90r, 180, 90l, horiz, ...): kept in "
                         "calibration-file's field orientation, so a run given the file turns the picture the same "
-                        "way (empty or auto: none kept)", "", _RW),
+                        "way, and in views-dir's views, used only by a vpdetect of the same orientation (empty or "
+                        "auto: none kept)", "", _RW),
     }
     PASSTHROUGH = True
 
@@ -356,7 +359,7 @@ class VpDetect(TrafficcalTransform):
         if self._views_loaded or not self.views_dir or not self.view_check or self.mode == "learn":
             return  # (mode learn learns whatever the folder holds, and adds to it)
         self._views_loaded = True
-        found, skipped = load_views(self.views_dir, tuple(self.frame_size))
+        found, skipped = load_views(self.views_dir, tuple(self.frame_size), self._orientation)
         for why in skipped:
             self.post_warning(f"vpdetect: views-dir: {why}: not used")
         for cal in found:
@@ -488,7 +491,7 @@ class VpDetect(TrafficcalTransform):
                 from gst_trafficcal.calibration import save_view
 
                 try:
-                    save_view(cal, self.views_dir)
+                    save_view(cal, self.views_dir, self._orientation)
                 except Exception as exc:  # the calibration itself is fine: say why the folder did not get it
                     self.post_warning(f"vpdetect: views-dir: {exc}")
         if cal.state == "failed":
