@@ -12,7 +12,10 @@ import numpy as np
 
 
 class RunningForeground:
-    """Foreground mask = |frame - running average| > threshold, cleaned and dilated (uint8 0/255)."""
+    """Foreground mask = |frame - running average| > threshold, cleaned and dilated (uint8 0/255).
+
+    ``warmup``: frames (not seconds) whose plain mean is the first background, nothing called moving meanwhile —
+    fewer frames at a low rate keep the first vehicles as ghosts (docs/vpdetect.md, "Background warm-up")."""
 
     def __init__(self, alpha: float = 0.01, threshold: float = 12.0, warmup: int = 15, dilate: int = 5) -> None:
         self.alpha = alpha
