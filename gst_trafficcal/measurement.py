@@ -548,8 +548,10 @@ class SpeedMeter:
             return self._unmeasured(rec, "no reference point (no 3D box: never fully visible, nor cut by the top edge alone)", cal)
         m = self._speed(px, times)
         # the road it covered: its own points (the longest consistent run) when there are enough of them — a parked
-        # car's points jump to each vehicle that passes it, merging with it for a moment
-        if not m.measured and self._not_counted(rec, px[m.kept] if m.kept.sum() > self.tau else px):
+        # car's points jump to each vehicle that passes it, merging with it for a moment; whether it drove off: its
+        # latest points, all of them, as trafficoverlay judges it (a vehicle that stood, then drove off and was missed
+        # for a moment has two runs: the standing one is the longest)
+        if not m.measured and self._not_counted(rec, px[m.kept] if m.kept.sum() > self.tau else px, px):
             return None
         label, dims = self._label(track)
         if self.keep_measured:
@@ -620,9 +622,10 @@ class SpeedMeter:
             return None
         return self._finish(rec, rec.track().label, None, reason, np.zeros(0), np.zeros((0, 2)), cal, 0)
 
-    def _not_counted(self, rec: _Record, px: np.ndarray) -> bool:
-        """Whether the unmeasured track ``rec`` (its own reference points ``px``, pixels, in time order) was no
-        vehicle passing; counted in :attr:`not_counted` by reason."""
+    def _not_counted(self, rec: _Record, px: np.ndarray, latest: np.ndarray | None = None) -> bool:
+        """Whether the unmeasured track ``rec`` (its own reference points ``px``, pixels, in time order; ``latest``:
+        all its points, for whether it drove off, else ``px``) was no vehicle passing; counted in
+        :attr:`not_counted` by reason."""
         moved = None
         cam = self.camera
         seen_s = rec.observations[-1].t - rec.observations[0].t
@@ -630,7 +633,7 @@ class SpeedMeter:
             # only for a track seen long enough to tell (a vehicle the end of the stream cut after a moment has not
             # gone far yet)
             # or drove off after standing for most of its stay (a queue at lights), as trafficoverlay counts it
-            latest = px[-drive_off_points(self.spacing.seconds):]
+            latest = (px if latest is None else latest)[-drive_off_points(self.spacing.seconds):]
             moved = max(moved_along_road(cam, px), drove_along_road(cam, latest))
         why = not_a_vehicle(np.inf if rec.cut else seen_s, moved, self.min_seen_s, self.min_passing_m)
         if why:
