@@ -6,6 +6,10 @@ interpreter looks for ``python3`` on ``PATH`` to find its prefix: with the venv'
 ``PATH`` it picks up the venv's ``pyvenv.cfg`` and hence its site-packages (numpy, cv2, ...);
 ``PYTHONPATH`` (repository root + venv site-packages) makes the same work even when ``PATH`` is
 not in our favour. ``scripts/env.sh`` sets exactly the same variables. No ``gi`` import here.
+
+Installed from a wheel (``pip install .``), the elements are the package's copy (``gst_trafficcal/elements``,
+gst_trafficcal.resources) and PYTHONPATH starts with the directory the package was installed into; outside a venv,
+VIRTUAL_ENV and PATH are left alone (the system's ``python3`` is the one the loader embeds).
 """
 
 from __future__ import annotations
@@ -18,41 +22,45 @@ from collections.abc import Iterable, Mapping
 from pathlib import Path
 
 from ..errors import InputError
+from ..resources import shipped
 
 VARIABLES = ("VIRTUAL_ENV", "PATH", "GST_PLUGIN_PATH", "PYTHONPATH")
 
 
 def project_root() -> Path:
-    """The repository checkout this package runs from (holds ``elements/`` and ``.venv``)."""
+    """The directory this package is imported from: the repository checkout (holds ``elements/`` and ``.venv``), or
+    the site-packages / ``pip install --target`` directory of an installed wheel."""
     return Path(__file__).resolve().parents[2]
 
 
 def elements_dir(root: Path | None = None) -> Path:
-    """``<root>/elements``: the GST_PLUGIN_PATH entry whose ``python/`` holds our elements."""
-    d = (root or project_root()) / "elements"
+    """The GST_PLUGIN_PATH entry whose ``python/`` holds our elements: ``<root>/elements`` when ``root`` is given,
+    else the installed package's copy or the checkout's ``elements/``."""
+    d = root / "elements" if root is not None else shipped("elements")
     if not (d / "python").is_dir():
-        raise InputError(
-            f"{d / 'python'}: element directory not found (run from a gst-trafficcal checkout installed in editable mode)"
-        )
+        raise InputError(f"{d / 'python'}: element directory not found (reinstall gst-trafficcal: `pip install .` "
+                         "from a checkout, or run from a checkout installed in editable mode)")
     return d
 
 
-def venv_dir(root: Path | None = None) -> Path:
-    """The virtual environment: the running one when inside a venv, else ``<root>/.venv``."""
+def venv_dir(root: Path | None = None) -> Path | None:
+    """The virtual environment: the running one when inside a venv, else ``<root>/.venv`` when it exists (None:
+    the package runs from the system's Python)."""
     if sys.prefix != sys.base_prefix:
         return Path(sys.prefix)
-    return (root or project_root()) / ".venv"
+    venv = (root or project_root()) / ".venv"
+    return venv if venv.is_dir() else None
 
 
-def _site_packages(venv: Path) -> Path:
-    if Path(sys.prefix).resolve() == venv.resolve():
+def _site_packages(venv: Path | None) -> Path:
+    if venv is None or Path(sys.prefix).resolve() == venv.resolve():
         return Path(sysconfig.get_paths()["purelib"])
     ver = f"python{sys.version_info.major}.{sys.version_info.minor}"
     return venv / "lib" / ver / "site-packages"
 
 
-def _prepend(new: Iterable[str], old: str | None) -> str:
-    first = [str(p) for p in new]
+def _prepend(new: Iterable[str | Path], old: str | None) -> str:
+    first = list(dict.fromkeys(str(p) for p in new))  # an installed package's root may be the site-packages
     rest = [p for p in (old or "").split(os.pathsep) if p and p not in first]
     return os.pathsep.join(first + rest)
 
@@ -69,13 +77,14 @@ def gst_environment(
     base = os.environ if base is None else base
     root = project_root()
     venv = venv_dir(root)
-    plugins = [elements_dir(root)] + [Path(p).resolve() for p in plugin_dirs]
-    return {
-        "VIRTUAL_ENV": str(venv),
-        "PATH": _prepend([venv / "bin"], base.get("PATH", os.defpath)),
+    plugins = [elements_dir()] + [Path(p).resolve() for p in plugin_dirs]
+    env = {
         "GST_PLUGIN_PATH": _prepend(plugins, base.get("GST_PLUGIN_PATH")),
         "PYTHONPATH": _prepend([root, _site_packages(venv)], base.get("PYTHONPATH")),
     }
+    if venv is not None:
+        env.update(VIRTUAL_ENV=str(venv), PATH=_prepend([venv / "bin"], base.get("PATH", os.defpath)))
+    return dict(sorted(env.items(), key=lambda kv: VARIABLES.index(kv[0])))
 
 
 def shell_exports(env: Mapping[str, str]) -> str:

@@ -1,5 +1,6 @@
 """The vehicle catalogue: named real models with their published dimensions (and the source of every figure),
-plus per-body-style dimension distributions, read from ``models3d/catalogue.yaml``.
+plus per-body-style dimension distributions, read from ``models3d/catalogue.yaml`` (the repository's, or the copy an
+installed wheel carries: gst_trafficcal.resources).
 
 The synthetic renderer draws vehicles from it and bbscale aligns the same models with detected vehicles, so
 both sides of the scale estimation agree on what an "Octavia combi" is."""
@@ -14,9 +15,10 @@ import numpy as np
 import yaml
 
 from ..errors import InputError
+from ..resources import shipped
 
 BODY_STYLES: tuple[str, ...] = ("sedan", "estate", "hatchback", "suv", "van", "bus", "truck", "motorcycle")
-DEFAULT_CATALOGUE = Path(__file__).resolve().parents[2] / "models3d" / "catalogue.yaml"
+DEFAULT_CATALOGUE = shipped("models3d") / "catalogue.yaml"
 _DIMS = ("length", "width", "height")
 
 
@@ -179,7 +181,7 @@ def _load(path: Path) -> Catalogue:
 
 
 def load_catalogue(path: str | Path | None = None) -> dict[str, VehicleModel]:
-    """Named vehicle models by name (default: the repository's ``models3d/catalogue.yaml``).  Raises InputError
+    """Named vehicle models by name (default: the shipped ``models3d/catalogue.yaml``).  Raises InputError
     naming the file for a missing or malformed catalogue."""
     return dict(_load(Path(path or DEFAULT_CATALOGUE).resolve()).models)
 
