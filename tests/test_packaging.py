@@ -81,6 +81,18 @@ def test_the_installed_wheel_runs_outside_the_checkout(wheel: Path, tmp_path: Pa
     assert python_path.split(":")[0] == str(target)
     assert "vpdetect" in exports.stdout and "Factory Details" in exports.stdout
 
+    # without GStreamer's Python plugin loader (here: a system plugin directory without it) gst-inspect-1.0 finds
+    # none of our elements, and gst-env says why, exporting nothing
+    no_loader = dict(env, GST_PLUGIN_SYSTEM_PATH_1_0=str(tmp_path / "no-plugins"))
+    missing = subprocess.run(["gst-inspect-1.0", "vpdetect"],
+                             env=dict(no_loader, GST_PLUGIN_PATH=plugin_path, PYTHONPATH=python_path),
+                             capture_output=True, text=True, timeout=120, cwd=work)
+    assert missing.returncode != 0 and "No such element" in missing.stdout + missing.stderr
+    refused = subprocess.run(["bash", "-c", f"{trafficcal} gst-env"], env=no_loader, capture_output=True, text=True,
+                             timeout=120, cwd=work)
+    assert refused.returncode != 0 and refused.stdout == ""
+    assert "libgstpython.so" in refused.stderr and "gstreamer1.0-python3-plugin-loader" in refused.stderr
+
     # a render from the catalogue's vehicles, then our elements on it, all from the installed copy
     _run(["bash", "-c", f"{trafficcal} synth --preset highway_day --duration 2 --seed 1 --out clip --no-progress"],
          env=env, cwd=work)

@@ -25,6 +25,9 @@ from ..errors import InputError
 from ..resources import shipped
 
 VARIABLES = ("VIRTUAL_ENV", "PATH", "GST_PLUGIN_PATH", "PYTHONPATH")
+LOADER = "libgstpython.so"
+"""gst-python's plugin loader: without it GStreamer loads no Python element ("No such element or plugin")."""
+LOADER_PACKAGE = "gstreamer1.0-python3-plugin-loader"
 
 
 def project_root() -> Path:
@@ -85,6 +88,40 @@ def gst_environment(
     if venv is not None:
         env.update(VIRTUAL_ENV=str(venv), PATH=_prepend([venv / "bin"], base.get("PATH", os.defpath)))
     return dict(sorted(env.items(), key=lambda kv: VARIABLES.index(kv[0])))
+
+
+def _dirs(value: str | None) -> list[Path]:
+    return [Path(p) for p in (value or "").split(os.pathsep) if p]
+
+
+def plugin_loader(base: Mapping[str, str] | None = None) -> Path | None:
+    """The plugin loader (:data:`LOADER`) in a directory GStreamer scans for plugins, None when there is none.
+
+    The directories as GStreamer 1.22 chooses them: GST_PLUGIN_PATH(_1_0), then GST_PLUGIN_SYSTEM_PATH(_1_0) when
+    set (even empty), else the user's plugin directory and the system's (``<libdir>/gstreamer-1.0``)."""
+    base = os.environ if base is None else base
+    user = base.get("GST_PLUGIN_PATH_1_0", base.get("GST_PLUGIN_PATH"))
+    system = base.get("GST_PLUGIN_SYSTEM_PATH_1_0", base.get("GST_PLUGIN_SYSTEM_PATH"))
+    if system is None:
+        libdirs = {sysconfig.get_config_var("LIBDIR") or "/usr/lib", "/usr/lib", "/usr/local/lib"}
+        if sysconfig.get_config_var("MULTIARCH"):
+            libdirs.add(f"/usr/lib/{sysconfig.get_config_var('MULTIARCH')}")
+        defaults = [Path(base.get("HOME", "~")).expanduser() / ".local/share/gstreamer-1.0/plugins"]
+        system = os.pathsep.join(str(p) for p in defaults + [Path(d) / "gstreamer-1.0" for d in sorted(libdirs)])
+    for d in _dirs(user) + _dirs(system):
+        if (d / LOADER).is_file():
+            return d / LOADER
+    return None
+
+
+def require_plugin_loader(base: Mapping[str, str] | None = None) -> Path:
+    """:func:`plugin_loader`, or an InputError naming the Debian package that installs it."""
+    found = plugin_loader(base)
+    if found is None:
+        raise InputError(f"GStreamer's Python plugin loader ({LOADER}) is not where GStreamer looks for plugins, so gst-launch-1.0 and "
+                         f"gst-inspect-1.0 cannot load our elements: install the Debian package {LOADER_PACKAGE} "
+                         "(apt-get install gstreamer1.0-python3-plugin-loader python3-gst-1.0)")
+    return found
 
 
 def shell_exports(env: Mapping[str, str]) -> str:
