@@ -118,9 +118,9 @@ def require_plugin_loader(base: Mapping[str, str] | None = None) -> Path:
     """:func:`plugin_loader`, or an InputError naming the Debian package that installs it."""
     found = plugin_loader(base)
     if found is None:
-        raise InputError(f"GStreamer's Python plugin loader ({LOADER}) is not where GStreamer looks for plugins, so gst-launch-1.0 and "
-                         f"gst-inspect-1.0 cannot load our elements: install the Debian package {LOADER_PACKAGE} "
-                         "(apt-get install gstreamer1.0-python3-plugin-loader python3-gst-1.0)")
+        raise InputError(f"GStreamer's Python plugin loader ({LOADER}) is not where GStreamer looks for plugins, "
+                         "so gst-launch-1.0 and gst-inspect-1.0 cannot load our elements: install the Debian package "
+                         f"{LOADER_PACKAGE} (apt-get install {LOADER_PACKAGE} python3-gst-1.0)")
     return found
 
 
