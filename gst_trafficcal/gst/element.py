@@ -41,6 +41,8 @@ What the base does:
 - :meth:`publish_calibration` sends a new calibration downstream (sticky event, before the next
   buffer or before EOS) and posts it on the bus; :meth:`post_element_message`, :meth:`post_warning`,
   :meth:`post_error` for the bus; hook :meth:`on_eos` runs before EOS goes downstream;
+- keeps the QoS events of a sink that syncs (frames late) from a file's decoder: a file's every frame is analysed
+  (from a live source they go upstream, which may skip late frames);
 - ``do_stop`` forgets the run (calibration, clock, caps, said-once flags): an element started again (an NVR's
   reconnect) begins as a new one. Subclasses set their own per-run state in ``do_start`` (never in ``__init__``
   alone) and call ``super().do_stop()`` last when they override ``do_stop``.
@@ -134,6 +136,7 @@ class TrafficcalTransform(GstBase.BaseTransform):
         self._refused_caps: set[str] = set()
         self._streaming = False  # caps negotiated, until stopped: READY_ONLY properties are read by now
         self._framed = False  # a frame came in this run
+        self._live: bool | None = None  # whether the source is live (_upstream_live), once asked
         self._held_at_caps: list[tuple[bool, str]] = []  # (an error?, text) about these caps, said at the first frame
 
     # ------------------------------------------------------------------ properties
@@ -393,6 +396,26 @@ class TrafficcalTransform(GstBase.BaseTransform):
                 self.post_error(f"{type(exc).__name__}: {exc}", debug=traceback.format_exc())
             self._push_pending_calibration()  # published at EOS: still reaches downstream
         return GstBase.BaseTransform.do_sink_event(self, event)
+
+    def do_src_event(self, event: Gst.Event) -> bool:
+        """A QoS event (a sink that syncs saying its frames come late: a busy machine, a display) goes upstream only
+        from a live source: there the decoder and videoconvert may skip late frames, as a camera cannot wait. A
+        file waits for us, so it stays with us: every frame is analysed and a file gives the same vehicles, run
+        after run (before, a sink such as autovideosink made the frames upstream of our elements skipped as the
+        machine's load came, and the vehicles and counts changed from run to run)."""
+        if event.type == Gst.EventType.QOS and not self._upstream_live():
+            return True
+        return GstBase.BaseTransform.do_src_event(self, event)
+
+    def _upstream_live(self) -> bool:
+        """Whether what feeds this element is live (answers a latency query as live); asked once per run, and
+        taken as live while it cannot tell (no answer yet: keep GStreamer's own behaviour)."""
+        if self._live is None:
+            query = Gst.Query.new_latency()
+            if not self.sinkpad.peer_query(query):
+                return True
+            self._live = bool(query.parse_latency()[0])
+        return self._live
 
     def _push_pending_calibration(self) -> None:
         if self._pending_calibration is not None:
