@@ -373,7 +373,7 @@ def test_a_file_is_analysed_whole_however_late_the_sink_says_its_frames_are(h264
     """A file's every frame reaches our elements, run after run, behind a sink whose frames are late (a display
     on a busy machine): the QoS events stay with us.  Before, they went on to videoconvert and the decoder, which
     skipped frames as the lateness came, so the vehicles and counts of a file changed from run to run (the
-    trafficoverlay chain of a gst-launch-1.0 on kraten_cars with autovideosink counted 10, 12 and 11 vehicles)."""
+    trafficoverlay chain on kraten_cars into ``fakesink sync=true qos=true`` counted 10, 12 and 11 vehicles)."""
     want = [round(i * 0.04, 2) for i in range(100)]
     for _ in range(2):
         assert [round(t, 2) for t in _frame_times(f"filesrc location={h264_clip} ! decodebin")] == want
