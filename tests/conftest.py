@@ -228,6 +228,28 @@ def switch_after(pipeline, selector_name: str, buffers: int, to_pad: str = "sink
     sel.get_static_pad("src").add_probe(Gst.PadProbeType.BUFFER, switch)
 
 
+def first_frames(pad, frames: int) -> list[float]:
+    """Let exactly ``frames`` frames through ``pad`` (a sink pad), then an end-of-stream and no more, whatever is on
+    its way (``identity eos-after`` refuses one frame and then lets through those on their way: one of them seconds
+    later, varying with the load); the frames' times in seconds, as they pass."""
+    from gst_trafficcal.gst._gi import Gst
+
+    passed: list[float] = []
+    ended = []
+
+    def probe(_pad, info):
+        if len(passed) < frames:
+            passed.append(info.get_buffer().pts / Gst.SECOND)
+            return Gst.PadProbeReturn.OK
+        if not ended:  # the frame after the last: an end-of-stream in its place (as gst.runner cuts a run)
+            ended.append(True)
+            _pad.send_event(Gst.Event.new_eos())
+        return Gst.PadProbeReturn.DROP
+
+    pad.add_probe(Gst.PadProbeType.BUFFER, probe)
+    return passed
+
+
 def seek_once(pipeline, pad, target_s: float, at_s: float = 6.0) -> list[bool]:
     """A flushing, accurate seek of ``pipeline`` to ``target_s`` when the first buffer at or after ``at_s`` passes
     ``pad`` (asked from the pipeline's thread, as a player does); the list returned holds True once it was asked."""

@@ -22,7 +22,7 @@ from gst_trafficcal.gst.env import gst_environment  # noqa: E402
 from gst_trafficcal.gst.pipeline import PipelineError, run_pipeline  # noqa: E402
 from gst_trafficcal.overlay import Style  # noqa: E402
 
-from .conftest import DETECTORS, VIDEOS, require_shared, serve_rtsp, track_spans  # noqa: E402
+from .conftest import DETECTORS, VIDEOS, first_frames, require_shared, serve_rtsp, track_spans  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 PLUGINS = Path(__file__).resolve().parent / "gst_plugins"
@@ -340,9 +340,11 @@ def test_without_speedometer_the_counts_have_directions(tmp_path: Path) -> None:
     register_plugin_file(ROOT / "elements" / "python" / "tracker.py")
     _, cal = _kraten_still(tmp_path)
     video, model = require_shared(VIDEOS / "kraten_cars.mp4"), require_shared(DETECTORS / "nanodet_hpc203.onnx")
-    run = run_pipeline(f"filesrc location={video} ! decodebin ! videoconvert ! video/x-raw,format=I420 ! "
-                       f"identity eos-after=300 ! vehicledetect model={model} ! tracker ! "
-                       f"trafficoverlay calibration-file={cal} ! fakesink")
+    pipeline = Gst.parse_launch(f"filesrc location={video} ! decodebin ! videoconvert ! video/x-raw,format=I420 ! "
+                                f"vehicledetect name=d model={model} ! tracker ! "
+                                f"trafficoverlay calibration-file={cal} ! fakesink")
+    first_frames(pipeline.get_by_name("d").get_static_pad("sink"), 300)  # exactly (identity eos-after is not)
+    run = run_pipeline(pipeline)
     counts = [m.fields for m in run.messages if m.name == "trafficcal-overlay-counts"]
     assert len(counts) == 1, counts
     c = counts[0]
@@ -587,26 +589,6 @@ def test_nvr_overlay_streams_mpeg_ts_over_udp(script_env: dict[str, str], tmp_pa
     assert all(received[k] == 0x47 for k in range(0, len(received), 188))
 
 
-def _first_frames(pad: Gst.Pad, frames: int) -> list[float]:
-    """Let exactly ``frames`` frames through ``pad`` (a sink pad), then an end-of-stream and no more, whatever is on
-    its way (``identity eos-after`` refuses one frame and then lets through those on their way: one of them seconds
-    later, varying with the load); the frames' times in seconds, as they pass."""
-    passed: list[float] = []
-    ended = []
-
-    def probe(_pad, info):
-        if len(passed) < frames:
-            passed.append(info.get_buffer().pts / Gst.SECOND)
-            return Gst.PadProbeReturn.OK
-        if not ended:  # the frame after the last: an end-of-stream in its place (as gst.runner cuts a run)
-            ended.append(True)
-            _pad.send_event(Gst.Event.new_eos())
-        return Gst.PadProbeReturn.DROP
-
-    pad.add_probe(Gst.PadProbeType.BUFFER, probe)
-    return passed
-
-
 @pytest.mark.shared
 def test_a_file_gives_the_same_count_run_after_run_behind_a_late_display(tmp_path: Path) -> None:
     """kraten_cars.mp4's first 150 frames through ``vehicledetect ! tracker ! trafficoverlay calibration-file=...``,
@@ -626,7 +608,7 @@ def test_a_file_gives_the_same_count_run_after_run_behind_a_late_display(tmp_pat
     def play(sink: str) -> tuple[dict, list[float]]:
         pipeline = Gst.parse_launch(f"filesrc location={video} ! decodebin ! videoconvert ! vehicledetect name=d ! "
                                     f"tracker ! trafficoverlay calibration-file={cal} ! {sink}")
-        times = _first_frames(pipeline.get_by_name("d").get_static_pad("sink"), 150)
+        times = first_frames(pipeline.get_by_name("d").get_static_pad("sink"), 150)
         run = run_pipeline(pipeline)
         counts = [m.fields for m in run.messages if m.name == "trafficcal-overlay-counts"]
         assert len(counts) == 1, counts
