@@ -250,6 +250,16 @@ def first_frames(pad, frames: int) -> list[float]:
     return passed
 
 
+def cut_after(description: str, frames: int):
+    """``description`` parsed, with exactly ``frames`` frames let through its ``identity name=cut`` and then an
+    end-of-stream (:func:`first_frames`; ``identity eos-after`` is not an exact cut behind a decoder)."""
+    from gst_trafficcal.gst._gi import Gst
+
+    pipeline = Gst.parse_launch(description)
+    first_frames(pipeline.get_by_name("cut").get_static_pad("sink"), frames)
+    return pipeline
+
+
 def seek_once(pipeline, pad, target_s: float, at_s: float = 6.0) -> list[bool]:
     """A flushing, accurate seek of ``pipeline`` to ``target_s`` when the first buffer at or after ``at_s`` passes
     ``pad`` (asked from the pipeline's thread, as a player does); the list returned holds True once it was asked."""

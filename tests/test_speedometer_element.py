@@ -23,7 +23,7 @@ from gst_trafficcal.gst.pipeline import PipelineError, run_pipeline  # noqa: E40
 from gst_trafficcal.outputs import read_events, read_events_csv  # noqa: E402
 from gst_trafficcal.synth.groundtruth import read_jsonl  # noqa: E402
 
-from .conftest import VIDEOS, require_shared, seek_once, switch_after, track_spans  # noqa: E402
+from .conftest import VIDEOS, cut_after, require_shared, seek_once, switch_after, track_spans  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 ELEMENTS = ROOT / "elements" / "python"
@@ -798,9 +798,9 @@ def test_real_traffic_braking_for_a_junction_is_measured(tmp_path):
     cal.write_text(json.dumps(KRATEN_CALIBRATION))
     out = tmp_path / "out"
     out.mkdir()
-    run_pipeline(f"filesrc location={clip} ! decodebin ! videoconvert ! identity eos-after=625 ! "
-                 f"vehicledetect model=vehicleseg ! speedometer calibration-file={cal} "
-                 f"events-file={out / 'events.jsonl'} ! fakesink")
+    run_pipeline(cut_after(f"filesrc location={clip} ! decodebin ! videoconvert ! identity name=cut ! "
+                           f"vehicledetect model=vehicleseg ! speedometer calibration-file={cal} "
+                           f"events-file={out / 'events.jsonl'} ! fakesink", 625))
     events = read_events(out / "events.jsonl").events
     # vehicles followed long enough on the road for a speed: measured, or refused only for their samples
     judged = [e for e in events if e.speed_kmh is not None or "disagree" in e.reason]
@@ -1041,8 +1041,9 @@ def test_a_scale_found_is_kept_with_its_view_for_a_restart(tmp_path, scaler):
                                                     if scaler == "bbscale" else f"speedometer views-dir={views}")
 
     def play(events: Path, frames: int) -> list:
-        run_pipeline(f"filesrc location={clip} ! decodebin ! videoconvert ! identity eos-after={frames} ! "
-                     f"vpdetect views-dir={views} ! {chain} events-file={events} ! appsink name=sink")
+        run_pipeline(cut_after(f"filesrc location={clip} ! decodebin ! videoconvert ! identity name=cut ! "
+                               f"vpdetect views-dir={views} ! {chain} events-file={events} ! appsink name=sink",
+                               frames))
         return read_events(events).events
 
     first = play(tmp_path / "first.jsonl", 500)
