@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from functools import partial
+
 import cv2
 import numpy as np
 import pytest
@@ -25,6 +27,11 @@ def _camera() -> Camera:
     K = np.array([[300.0, 0, W / 2], [0, 300.0, H / 2], [0, 0, 1]])
     R = rotation_matrix(20.0, 15.0, 0.0)
     return Camera.from_KRt(K, R, -R @ np.array([0.0, 0.0, 6.0]))
+
+
+def _road_point(cam: Camera, x: float, y: float) -> tuple[float, float]:
+    """The image point of road point (x, y) metres."""
+    return tuple(float(v) for v in cam.world_to_image(np.array([x, y, 0.0])))
 
 
 def _corners(cam: Camera, x: float, y: float, size=(4.5, 1.8, 1.5)) -> np.ndarray:
@@ -489,10 +496,7 @@ def test_vehicle_counter_without_speedometer_counts_directions_from_its_own_poin
     reference points, or its box centres while it has none; a direction the marks give wins.  Before, all of them
     counted as unknown_direction."""
     cam = _camera()
-
-    def at(x: float, y: float) -> tuple[float, float]:
-        return tuple(float(v) for v in cam.world_to_image(np.array([x, y, 0.0])))
-
+    at = partial(_road_point, cam)
     c = VehicleCounter(min_seen_s=0.5, min_passing_m=3.0, own_directions=True)
     for k in range(50):  # 2 s at 25 fps, 10 m/s
         x = 0.4 * k
@@ -517,10 +521,7 @@ def test_vehicle_counter_without_speedometer_gives_a_direction_to_tracks_counted
     by its reference points, or its box centres when it has none.  Before, both landed in unknown_direction (their
     points were kept only from when they counted)."""
     cam = _camera()
-
-    def at(x: float, y: float) -> tuple[float, float]:
-        return tuple(float(v) for v in cam.world_to_image(np.array([x, y, 0.0])))
-
+    at = partial(_road_point, cam)
     c = VehicleCounter(min_seen_s=0.5, min_passing_m=3.0, own_directions=True)
     for k in range(8):  # 0.3 s at 25 fps, 10 m/s
         x = 0.4 * k
