@@ -64,6 +64,7 @@ from .tracking.box3d import TypicalHeight, box_heights, corners_fit_hulls, pixel
 from .tracking.tracker import Observation, Track, TrackerConfig, TrackState, measured_boxes, rebuild_boxes
 from .tracking.tracker import shape_min_px, track_dimensions
 from .tracking.tracker import _set_references, _update_direction  # the tracker's own finishing step
+from .uncertainty import calibration_pct, speed_uncertainty
 from .vehicles.classify import MAX_Z, classify_dimensions, refined_label
 
 DEFAULT_MIN_TRACK_LENGTH = 10
@@ -132,6 +133,7 @@ class LiveSpeed:
     confidence: float  # share of τ-pair speeds within 10 % of the vehicle's own motion (speed.vehicle_speed)
     n_samples: int
     label: str = ""  # the class its 3D boxes give so far (vehicles.classify.refined_label of the detector's)
+    uncertainty_kmh: float | None = None  # half-width of the ~95 % interval (gst_trafficcal.uncertainty)
 
 
 def steady_label(shown: str, next_: str, new: str) -> tuple[str, str]:
@@ -243,6 +245,7 @@ class SpeedMeter:
         self.same_time = 0
         self.t: float | None = None
         self.spacing = FrameSpacing()  # the stream's time between frames: min_track_length as a duration below 12.5 fps
+        self._calibration_pct: tuple[Calibration | None, float | None] = (None, None)  # for speed uncertainties
         if calibration is not None:
             self.set_calibration(calibration)
 
@@ -496,7 +499,8 @@ class SpeedMeter:
             rec.live_label, rec.live_label_next = steady_label(  # every frame (0.5 ms per vehicle)
                 rec.live_label, rec.live_label_next, self._label(track)[0])
             rec.live_label_at = n
-        return LiveSpeed(m.speed_kmh, m.agreement, m.n_pairs, rec.live_label)
+        return LiveSpeed(m.speed_kmh, m.agreement, m.n_pairs, rec.live_label,
+                         self.uncertainty(m.speed_kmh, m.spread_kmh, self.calibration))
 
     @property
     def points_needed(self) -> int:
@@ -536,7 +540,8 @@ class SpeedMeter:
             m = self._speed(k.px, k.times)
             dims = None if k.dims_plane is None else k.dims_plane * self.camera.scale
             label, dims = self._label_of(k.label, dims)
-            out.append(self._finish(k.rec, label, m.speed_kmh, m.reason, k.times, k.px, cal, m.n_pairs, m.kept, dims))
+            out.append(self._finish(k.rec, label, m.speed_kmh, m.reason, k.times, k.px, cal, m.n_pairs, m.kept, dims,
+                                    m.spread_kmh))
         return out
 
     def _measure(self, rec: _Record) -> MeasuredVehicle | None:
@@ -558,7 +563,7 @@ class SpeedMeter:
             ends = _Record(rec.id, observations=[rec.observations[0], rec.observations[-1]], last_t=rec.last_t)
             self._measured[rec.id] = _Kept(ends, times, px, track.label,
                                            None if dims is None else dims / self.camera.scale, cal.id)
-        return self._finish(rec, label, m.speed_kmh, m.reason, times, px, cal, m.n_pairs, m.kept, dims)
+        return self._finish(rec, label, m.speed_kmh, m.reason, times, px, cal, m.n_pairs, m.kept, dims, m.spread_kmh)
 
     def _label(self, track: Track) -> tuple[str, np.ndarray | None]:
         """(label, dimensions in metres or None): the detector's label, refined by the vehicle's measured size
@@ -590,9 +595,11 @@ class SpeedMeter:
 
     def _finish(self, rec: _Record, label: str, speed: float | None, reason: str, times: np.ndarray,
                 px: np.ndarray, cal: Calibration | None, n_pairs: int,
-                kept: np.ndarray | None = None, dims: np.ndarray | None = None) -> MeasuredVehicle:
+                kept: np.ndarray | None = None, dims: np.ndarray | None = None,
+                spread_kmh: float = 0.0) -> MeasuredVehicle:
         """The vehicle's event; its reference points (for the BrnoCompSpeed results) only when it was measured,
-        and then the ones its speed came from."""
+        and then the ones its speed came from.  ``spread_kmh``: the 1σ its speed samples give
+        (:attr:`~gst_trafficcal.speed.VehicleSpeed.spread_kmh`), for its uncertainty."""
         cam = cal.camera if cal is not None else None
         direction = lane = None
         if cam is not None and len(px) < 2 and len(rec.observations) >= 2:
@@ -608,6 +615,7 @@ class SpeedMeter:
         event = VehicleEvent(id=rec.id, label=label, first_timestamp_s=min(ts), last_timestamp_s=max(ts),
                              speed_kmh=speed, reason=reason, lane=lane, direction=direction,
                              calibration_id=cal.id if cal is not None else None, n_samples=n_pairs,
+                             speed_uncertainty_kmh=self.uncertainty(speed, spread_kmh, cal),
                              **({} if dims is None else dict(zip(("length_m", "width_m", "height_m"),
                                                                  np.round(dims, 2).tolist()))))
         if speed is None:
@@ -615,6 +623,16 @@ class SpeedMeter:
         if kept is not None:
             times, px = times[kept], px[kept]
         return MeasuredVehicle(event, times, px, tuple(rec.merged))
+
+    def uncertainty(self, speed: float | None, spread_kmh: float, cal: Calibration | None) -> float | None:
+        """Half-width (km/h) of the ~95 % interval around a speed measured with ``cal``
+        (:mod:`gst_trafficcal.uncertainty`; the calibration's part computed once per calibration)."""
+        if speed is None or cal is None:
+            return None
+        if self._calibration_pct[0] is not cal:
+            self._calibration_pct = (cal, calibration_pct(cal))
+        pct = self._calibration_pct[1]
+        return None if pct is None else round(speed_uncertainty(speed, spread_kmh, pct), 2)
 
     def _unmeasured(self, rec: _Record, reason: str, cal: Calibration | None = None) -> MeasuredVehicle | None:
         """The event of a vehicle left unmeasured for ``reason``; None when the track was no vehicle passing."""
@@ -762,7 +780,11 @@ def direction_along_road(camera: Camera, px: np.ndarray, times: np.ndarray) -> s
 
 
 def speed_params(live: LiveSpeed, label: str, model_name: str = "") -> dict[str, Any]:
-    """The ``"speed"`` ROI structure {speed_kmh, label, model_name, confidence} of a vehicle in view."""
-    return {"speed_kmh": float(live.speed_kmh), "label": str(label), "model_name": str(model_name),
-            "confidence": float(live.confidence)}
+    """The ``"speed"`` ROI structure {speed_kmh, label, model_name, confidence, speed_uncertainty_kmh} of a vehicle
+    in view (the last when known: the ~95 % interval's half-width)."""
+    params = {"speed_kmh": float(live.speed_kmh), "label": str(label), "model_name": str(model_name),
+              "confidence": float(live.confidence)}
+    if live.uncertainty_kmh is not None:
+        params["speed_uncertainty_kmh"] = float(live.uncertainty_kmh)
+    return params
 

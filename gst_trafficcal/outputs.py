@@ -44,7 +44,8 @@ from .errors import InputError
 from .fileio import atomic_write, atomic_write_text, replace_target
 
 EVENT_FIELDS: tuple[str, ...] = (
-    "id", "label", "first_timestamp_s", "last_timestamp_s", "speed_kmh", "reason", "lane", "direction",
+    "id", "label", "first_timestamp_s", "last_timestamp_s", "speed_kmh", "speed_uncertainty_kmh", "reason", "lane",
+    "direction",
     "calibration_id", "n_samples", "length_m", "width_m", "height_m", "first_time", "last_time", "run",
 )
 
@@ -91,6 +92,7 @@ class VehicleEvent:
     direction: str | None = None  # TOWARDS_VP1 / AWAY_FROM_VP1 / None (unknown)
     calibration_id: str | None = None
     n_samples: int = 0  # speed samples (point pairs) behind the median
+    speed_uncertainty_kmh: float | None = None  # half-width of the ~95 % interval speed ± U (uncertainty.py)
     length_m: float | None = None  # median 3D-box dimensions (metres), when a calibration with a scale gave them
     width_m: float | None = None
     height_m: float | None = None
@@ -101,7 +103,8 @@ class VehicleEvent:
     def __post_init__(self) -> None:
         object.__setattr__(self, "id", int(self.id))
         object.__setattr__(self, "label", str(self.label))
-        for name in ("first_timestamp_s", "last_timestamp_s", "speed_kmh", "length_m", "width_m", "height_m"):
+        for name in ("first_timestamp_s", "last_timestamp_s", "speed_kmh", "speed_uncertainty_kmh", "length_m",
+                     "width_m", "height_m"):
             object.__setattr__(self, name, _opt_float(getattr(self, name)))
         object.__setattr__(self, "lane", _opt_int(self.lane))
         object.__setattr__(self, "direction", direction_name(self.direction))
@@ -118,6 +121,8 @@ class VehicleEvent:
             reason = "not measured"
         if self.speed_kmh is not None:
             reason = ""
+        else:
+            object.__setattr__(self, "speed_uncertainty_kmh", None)
         object.__setattr__(self, "reason", reason)
 
     @property

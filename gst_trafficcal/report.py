@@ -381,6 +381,13 @@ def _vehicles_section(events: Sequence[VehicleEvent], limit_kmh: SpeedLimit = Sp
     again = (f" {remeasured[0]} of them passed before the calibration settled and were measured again with the "
              f"final one at the end ({remeasured[1]} with a speed)." if remeasured[0] else "")
     out.append(f"<p>{len(events)} vehicles, {len(measured)} with a measured speed.{again}</p>")
+    sure = [(e.speed_uncertainty_kmh, e.speed_kmh) for e in measured if e.speed_uncertainty_kmh is not None]
+    if sure:
+        u = np.array(sure, float)
+        out.append(f"<p>Each speed comes with ± U, the half-width of an interval meant to hold the true speed for "
+                   f"about 95 % of vehicles (the vehicle list's ± column): median U {np.median(u[:, 0]):.1f} km/h "
+                   f"({np.median(100 * u[:, 0] / u[:, 1]):.1f} % of the speed), from the spread of the vehicle's "
+                   f"own speed samples and the calibration's (how firmly the view pins the speeds down).</p>")
     if any(not_counted):
         out.append(f'<p class="muted">{_esc(not_counted_text(*not_counted))}</p>')
     if not events:
@@ -444,13 +451,13 @@ def _vehicles_section(events: Sequence[VehicleEvent], limit_kmh: SpeedLimit = Sp
     several = len(runs) > 1
     rows = [[*([e.run or "–"] if several else []), e.id, e.label, *([e.first_time or "–"] if dated else []),
              _num(e.first_timestamp_s, ".2f"), _num(e.last_timestamp_s, ".2f"), _num(e.speed_kmh, ".1f"),
-             "–" if e.lane is None else e.lane,
+             _num(e.speed_uncertainty_kmh, ".1f"), "–" if e.lane is None else e.lane,
              _direction_label(e.direction), _size(e), e.reason] for e in listed]
     more = f" (the first {MAX_LISTED} of {len(events)})" if len(events) > MAX_LISTED else ""
     out.append(f"<details><summary>Vehicle list{more}</summary>"
                + _table([*(["run"] if several else []), "id", "label", *(["first seen"] if dated else []),
-                         "first [s]", "last [s]", "speed [km/h]", "lane", "direction", "size L × W × H [m]",
-                         "reason"],
+                         "first [s]", "last [s]", "speed [km/h]", "± [km/h], 95 %", "lane", "direction",
+                         "size L × W × H [m]", "reason"],
                         rows, left=3 if several else 2) + "</details>")
     return "\n".join(out)
 

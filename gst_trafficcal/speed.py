@@ -11,6 +11,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .geometry import Camera
+from .uncertainty import sample_spread
 
 DEFAULT_TAU = 5
 MIN_POINTS = DEFAULT_TAU + 1
@@ -141,6 +142,7 @@ class VehicleSpeed:
     reason: str
     kept: np.ndarray  # (N,) bool: the reference points the speed was measured from (the vehicle's own)
     agreement: float = 0.0  # share of τ-pair speeds within 10 % of the vehicle's own motion (median or trend)
+    spread_kmh: float = 0.0  # 1σ of the median from its samples' spread (uncertainty.sample_spread)
 
     @property
     def measured(self) -> bool:
@@ -281,4 +283,6 @@ def vehicle_speed(camera: Camera | None, points_px: np.ndarray, times_s: np.ndar
         return VehicleSpeed(None, int(v.size), f"speed samples disagree (only {100 * agree:.0f} % within "
                             f"{100 * AGREEMENT:.0f} % of the vehicle's own motion, median {med:.1f} km/h, needs "
                             f"{100 * checks.min_agreement:.0f} %)", keep, agree)
-    return VehicleSpeed(med, int(v.size), "", keep, agree)
+    # the pairs lie ``step`` observations apart (τ, or more for a slow vehicle): about (N - 1) / step independent ones
+    step = max(1, len(k) - int(v.size))
+    return VehicleSpeed(med, int(v.size), "", keep, agree, sample_spread(v, (len(k) - 1) / step))

@@ -128,7 +128,8 @@ def test_live_speed_for_the_roi_structure(scene, truth):
         assert live.speed_kmh == pytest.approx(truth[vid][0], abs=0.05)
         assert live.confidence == 1.0 and live.n_samples >= 5
     p = speed_params(next(iter(seen.values())), "car")
-    assert set(p) == {"speed_kmh", "label", "model_name", "confidence"}
+    assert set(p) == {"speed_kmh", "label", "model_name", "confidence", "speed_uncertainty_kmh"}
+    assert 0 < p["speed_uncertainty_kmh"] < 0.1 * p["speed_kmh"]
 
 
 def test_live_speed_uses_a_bounded_window(scene, truth, monkeypatch):

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import math
+
 import os
 import re
 import stat
@@ -189,6 +191,29 @@ def test_every_vehicle_is_in_every_output(implicit, limit, webhook):
     assert [m.fields["tracking"] for m in run.messages if m.name == "trafficcal-speedometer"] == ["internal"]
 
 
+def test_every_measured_speed_comes_with_its_uncertainty(clip, implicit):
+    """speed_uncertainty_kmh (uncertainty.py) in the JSON lines, the CSV and the bus messages: for every measured
+    vehicle, none for the others; with the clip's true calibration (no vpdetect: taken as a manual one) at least the
+    floor and the calibration's part, and it holds the rendered speed of nearly every vehicle."""
+    from gst_trafficcal.uncertainty import DEFAULT_MODEL
+
+    out, run, events, results = implicit
+    measured = [e for e in events if e.measured]
+    assert len(measured) >= 12 and any(not e.measured for e in events)
+    assert all(e.speed_uncertainty_kmh is None for e in events if not e.measured)
+    least = DEFAULT_MODEL.z * math.hypot(DEFAULT_MODEL.track_floor_pct, DEFAULT_MODEL.manual_pct) / 100
+    for e in measured:
+        assert least * e.speed_kmh - 0.01 <= e.speed_uncertainty_kmh < 0.2 * e.speed_kmh, e
+    assert [e.speed_uncertainty_kmh for e in read_events_csv(out / "events.csv")] == [
+        e.speed_uncertainty_kmh for e in events]
+    msgs = [m.fields for m in run.messages if m.name == "trafficcal-speed"]
+    assert [m.get("speed_uncertainty_kmh") for m in msgs] == [e.speed_uncertainty_kmh for e in events]
+    errors = gt_speed_errors(clip, events, results)
+    u = np.array([e.speed_uncertainty_kmh for e in measured])
+    assert len(errors) == len(u)
+    assert np.mean(np.abs(errors) <= u) >= 0.8, (errors, u)
+
+
 def test_speed_structure_on_the_rois(implicit):
     out, run, events, results = implicit
     final = {e.id: e.speed_kmh for e in events}
@@ -197,7 +222,8 @@ def test_speed_structure_on_the_rois(implicit):
         for r in f.rois:
             if "speed" in r.params:
                 s = r.params["speed"]
-                assert set(s) == {"speed_kmh", "label", "model_name", "confidence"} and r.object_id is not None
+                assert set(s) == {"speed_kmh", "label", "model_name", "confidence", "speed_uncertainty_kmh"}
+                assert r.object_id is not None and 0 < s["speed_uncertainty_kmh"] < s["speed_kmh"]
                 assert "trafficcal-vehicle" in r.params
                 last[r.object_id] = s["speed_kmh"]
     assert len(last) >= 12
