@@ -23,10 +23,11 @@ second or never moved 3 m along the road (``min-seen``, ``min-moved``; a fragmen
 ``measurement.not_a_vehicle``; a ``trafficcal-not-counted`` message, fields ``brief`` and ``stationary`` and the
 two thresholds, counts them): the files and counts hold the vehicles that passed.
 
-Output per frame: a ``"speed"`` {speed_kmh, label, model_name, confidence} structure on the ROI of every vehicle
-with a current estimate.  Per vehicle that leaves: a ``trafficcal-speed`` element message (the event's fields, and
-with ``speed-limit`` or ``class-limits`` a boolean ``over_limit``: faster than its class's limit; none without a
-speed), the same as a JSON POST to ``events-url`` (a webhook;
+Output per frame: a ``"speed"`` {speed_kmh, label, model_name, confidence, speed_uncertainty_kmh} structure on the
+ROI of every vehicle with a current estimate (the last: the ~95 % interval's half-width,
+``gst_trafficcal.uncertainty``).  Per vehicle that leaves: a ``trafficcal-speed`` element message (the event's
+fields, and with ``speed-limit`` or ``class-limits`` a boolean ``over_limit``: faster than its class's limit; none
+without a speed), the same as a JSON POST to ``events-url`` (a webhook;
 ``gst_trafficcal.publish``: background thread, retries, a warning when it fails — never an error), and
 the same structure pushed downstream as a custom event (``gst_trafficcal.gst.vehicle_event``: trafficoverlay
 counts a vehicle measured after it left by its final direction, lane and speed), a line in ``events-file`` (JSON
