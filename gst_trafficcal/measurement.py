@@ -245,7 +245,9 @@ class SpeedMeter:
         self.same_time = 0
         self.t: float | None = None
         self.spacing = FrameSpacing()  # the stream's time between frames: min_track_length as a duration below 12.5 fps
-        self._calibration_pct: tuple[Calibration | None, float | None] = (None, None)  # for speed uncertainties
+        # the calibration part of speed uncertainties, for the view it was computed for (its VPs: a new scale alone
+        # does not change it, and the view's conditioning costs ~20 ms)
+        self._calibration_pct: tuple[tuple | None, float | None] = (None, None)
         if calibration is not None:
             self.set_calibration(calibration)
 
@@ -626,11 +628,14 @@ class SpeedMeter:
 
     def uncertainty(self, speed: float | None, spread_kmh: float, cal: Calibration | None) -> float | None:
         """Half-width (km/h) of the ~95 % interval around a speed measured with ``cal``
-        (:mod:`gst_trafficcal.uncertainty`; the calibration's part computed once per calibration)."""
+        (:mod:`gst_trafficcal.uncertainty`; the calibration's part computed once per view: its vanishing points)."""
         if speed is None or cal is None:
             return None
-        if self._calibration_pct[0] is not cal:
-            self._calibration_pct = (cal, calibration_pct(cal))
+        cam = cal.camera
+        view = None if cam is None else (cam.scale is not None, cal.source, cal.image_size,
+                                         *np.concatenate([cam.vp1, cam.vp2, cam.pp]).tolist())
+        if view is None or self._calibration_pct[0] != view:
+            self._calibration_pct = (view, calibration_pct(cal))
         pct = self._calibration_pct[1]
         return None if pct is None else round(speed_uncertainty(speed, spread_kmh, pct), 2)
 

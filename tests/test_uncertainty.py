@@ -2,10 +2,13 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
 from gst_trafficcal.calibration import Calibration
+from gst_trafficcal.measurement import SpeedMeter
 from gst_trafficcal.speed import vehicle_speed
 from gst_trafficcal.uncertainty import (DEFAULT_MODEL, calibration_pct, is_manual, sample_spread, speed_uncertainty,
                                         view_sensitivity)
@@ -68,3 +71,11 @@ def test_the_calibrations_part_grows_with_the_views_sensitivity():
     # no scale: no uncertainty; a view whose conditioning cannot be computed: taken as poorly conditioned
     assert calibration_pct(Calibration(along.with_scale(None), size_along, source="vpdetect")) is None
     assert calibration_pct(auto[0], float("nan")) == calibration_pct(auto[0], DEFAULT_MODEL.unknown_speed_pct)
+    # the speedometer's meter keeps the calibration's part per view: a new scale keeps it, new VPs change it
+    meter = SpeedMeter()
+    u = [meter.uncertainty(80.0, 0.2, c) for c in (auto[0], auto[1], replace(auto[1], camera=along.with_scale(
+        2 * along.scale)), auto[0], manual)]
+    assert u[0] == pytest.approx(speed_uncertainty(80, 0.2, p_oblique), abs=0.01) and u[3] == u[0]
+    assert u[1] == u[2] == pytest.approx(speed_uncertainty(80, 0.2, p_along), abs=0.01)
+    assert u[4] == pytest.approx(speed_uncertainty(80, 0.2, DEFAULT_MODEL.manual_pct), abs=0.01)
+    assert meter.uncertainty(None, 0.2, auto[0]) is None and meter.uncertainty(80.0, 0.2, None) is None
