@@ -109,6 +109,7 @@ def _events() -> list[VehicleEvent]:
                                 float(rng.normal(80, 10)) if measured else None,
                                 "" if measured else ("track too short" if i % 2 else "no calibration with scale"),
                                 lane=[0, 1, 1, None][i % 4], direction=1 if i % 3 else -1, calibration_id="abc",
+                                speed_uncertainty_kmh=2.0 + i / 10 if measured else None,
                                 **({"length_m": 4.52, "width_m": 1.79, "height_m": 1.46} if i % 2 else {})))
     return out
 
@@ -162,6 +163,10 @@ def test_report_without_ground_truth() -> None:
     assert len(listing) == len(events) + 1 and listing[4][4] == "–"  # vehicle 4 was not measured
     size = listing[0].index("size L × W × H [m]")
     assert listing[2][size] == "4.5 × 1.8 × 1.5" and listing[1][size] == "–"  # vehicle 2 has a size, 1 none
+    sure = listing[0].index("± [km/h], 95 %")  # each speed's uncertainty beside it, none without a speed
+    assert sure == listing[0].index("speed [km/h]") + 1 and listing[2][sure] == "2.1" and listing[4][sure] == "–"
+    u = [e.speed_uncertainty_kmh for e in events if e.measured]
+    assert any(f"median U {np.median(u):.1f} km/h" in t for t in page.text)
     calib = {r[0]: r[1] for r in _table_after(page, "")[1:]}
     assert calib["state"] == "calibrated" and calib["scale λ = camera height [m]"] == "7.000"
     # the calibration's evidence in words, its figures as the file has them; a key the report does not know as it is
