@@ -161,7 +161,7 @@ def main(argv: list[str] | None = None) -> int:
         scored += [s] if s.vehicles else []
         sens = "–" if s.speed_pct is None else f"{s.speed_pct:.1f}"
         print(f"| {s.name} | {sens} | {s.calibration_pct:.2f} | {summary(s.vehicles)} |")
-    print(f"| **pooled {a.label}** | | | {summary(pooled)} |")
+    print(f"| **{f'pooled {a.label}'.strip()}** | | | {summary(pooled)} |")
     if a.fit:
         print(fit(scored))
     return 0
