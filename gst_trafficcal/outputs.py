@@ -357,10 +357,12 @@ class CsvEventWriter:
 
     def __init__(self, path: str | Path, append: bool = False, fsync: bool = True,
                  extra_columns: Sequence[str] = (), lazy: bool = False) -> None:
+        self.extra_columns = tuple(extra_columns)
+        # appending to a file of other columns (an earlier version's): it is kept aside whole, a new one begun
+        self.kept_aside = self._aside_if_other(path, self._row(self.extra_columns + EVENT_FIELDS)) if append else None
         self._file = _LineFile(path, append, fsync, lazy)
         self.path = self._file.path
         self.count = 0
-        self.extra_columns = tuple(extra_columns)
         self._headed = False
         if not self._file.pending:
             self.begin()
@@ -374,6 +376,24 @@ class CsvEventWriter:
         elif not self._headed:
             self._check_header(header)
         self._headed = True
+
+    @staticmethod
+    def _aside_if_other(path: str | Path, header: str) -> Path | None:
+        """Where a regular, non-empty file at ``path`` whose first line is not ``header`` was moved
+        (:func:`~gst_trafficcal.fileio.keep_aside`: ``name.earlier-<its last change>.csv``); None when it has our
+        header, is empty, absent or not a regular file (a pipe is never read)."""
+        from .fileio import keep_aside, link_target
+
+        target = link_target(path)
+        try:
+            st = target.stat()
+            if not stat.S_ISREG(st.st_mode) or st.st_size == 0:
+                return None
+            with open(target, newline="") as fh:
+                first = fh.readline()
+        except OSError:
+            return None  # said when the file is opened for writing
+        return None if first.rstrip("\r\n") == header.rstrip("\n") else keep_aside(path)
 
     def _check_header(self, header: str) -> None:
         """Appending rows under another header would shift every column: refused at start, naming the file."""
@@ -449,6 +469,11 @@ class EventWriters:
 
     def begin(self) -> None:
         attempt_all(w.begin for w in self.writers)
+
+    @property
+    def kept_aside(self) -> list[tuple[Path, Path]]:
+        """(path, where its earlier file went) for each CSV appended to that had other columns."""
+        return [(w.path, w.kept_aside) for w in self.writers if getattr(w, "kept_aside", None) is not None]
 
     def write(self, event: VehicleEvent, extra: Mapping[str, Any] | None = None) -> None:
         attempt_all(lambda w=w: w.write(event, extra) for w in self.writers)

@@ -103,18 +103,24 @@ def test_a_run_id_tells_appended_runs_apart(tmp_path: Path) -> None:
         assert len({e.id for e in read}) == 3 and len({(e.run, e.id) for e in read}) == 6
 
 
-def test_appending_under_another_csv_header_is_refused(tmp_path: Path) -> None:
-    """A CSV written with other columns (an earlier version's, without ``run``) is not appended to: every row after
-    would sit under the wrong column. Refused at open, naming the file; the file stays as it was."""
+def test_appending_to_a_csv_of_other_columns_keeps_it_aside_and_begins_anew(tmp_path: Path) -> None:
+    """A CSV written with other columns (an earlier version's, without ``run``) is not appended to — every row after
+    would sit under the wrong column — nor refused (a service upgraded with append=true would not start): it is
+    kept aside whole (``v.earlier-<its last change>.csv``) and a new file with today's columns begun.  Before, the
+    writer refused to open.  A file with our columns is appended to, as before; a pipe is never read."""
     path = tmp_path / "v.csv"
     old = ",".join(f for f in EVENT_FIELDS if f != "run") + "\n1,car,0.0,1.0,50.0,,,,,0,,,,,\n"
     path.write_text(old)
-    with pytest.raises(InputError, match=r"v\.csv: its columns .* are not the ones written now"):
-        CsvEventWriter(path, append=True)
-    assert path.read_text() == old
-    with CsvEventWriter(path) as w:  # without append the file is replaced, as before
+    with CsvEventWriter(path, append=True) as w:
         w.write(_events(1)[0])
-    assert path.read_text().splitlines()[0] == ",".join(EVENT_FIELDS)
+    (kept,) = tmp_path.glob("v.earlier-*.csv")
+    assert w.kept_aside == kept and kept.read_text() == old
+    assert path.read_text().splitlines()[0] == ",".join(EVENT_FIELDS) and len(read_events_csv(path)) == 1
+    with CsvEventWriter(path, append=True) as w:  # our own columns: appended to
+        w.write(_events(2)[1])
+    assert w.kept_aside is None and len(read_events_csv(path)) == 2 and len(list(tmp_path.glob("v.earlier-*"))) == 1
+    with EventWriters.open(csv_path=path, append=True) as both:
+        assert both.kept_aside == []
 
 
 def test_runs_appended_to_one_file_go_on_one_clock() -> None:

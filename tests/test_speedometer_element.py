@@ -471,6 +471,19 @@ def test_append_keeps_what_a_run_into_the_same_files_measured_before(clip, impli
     # without append: replaced, nothing more kept
     run3, again, _ = measure(clip, tmp_path, detector(clip), f"{cal} start-datetime=2026-12-05T08:02:00")
     assert len(again) == n and run3.infos == [] and len(list(tmp_path.glob("*.earlier-*"))) == 2
+    # a CSV an earlier version wrote (without a column added since): kept aside whole, a new one begun, a warning;
+    # before, speedometer refused to start (a service upgraded with append=true stayed down)
+    from gst_trafficcal.outputs import EVENT_FIELDS
+
+    older = ",".join(f for f in EVENT_FIELDS if f != "speed_uncertainty_kmh") + "\n1,car\n"
+    (tmp_path / "events.csv").write_text(older)
+    run4, more, _ = measure(clip, tmp_path, detector(clip), f"{cal} append=true")
+    assert len(more) == 2 * n
+    (csv_kept,) = tmp_path.glob("events.earlier-*.csv")
+    assert csv_kept.read_text() == older
+    with open(tmp_path / "events.csv", newline="") as f:
+        assert len(list(csv.DictReader(f))) == n
+    assert any(f"had other columns (an earlier version's); it is kept as {csv_kept}" in w for w in run4.warnings)
 
 
 def test_bad_calibration_file_is_a_clear_error(clip, tmp_path):

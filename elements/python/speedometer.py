@@ -263,6 +263,9 @@ class Speedometer(TrafficcalTransform):
                     kept = keep_aside(path) if path else None
                     if kept is not None:
                         self.post_info(f"speedometer: the earlier {path} is kept as {kept}")
+                for path, kept in self._outputs.events.kept_aside:  # moved when opened (do_start): said now
+                    self.post_warning(f"speedometer: {path} had other columns (an earlier version's); it is kept "
+                                      f"as {kept} and a new one begun")
             self._outputs.begin()
             if self._frames is not None:
                 self._frames.begin()
