@@ -279,7 +279,7 @@ class SpeedMeter:
         if not self.can_measure or not self._pending:
             return out
         pending, self._pending = self._pending, []
-        return out + _vehicles(self._measure(r) for r in pending)
+        return out + _vehicles(self._measure(r) for r in self._stitch_waiting(pending))
 
     def _camera_moved(self, t_move: float) -> list[MeasuredVehicle]:
         """End what the previous calibration saw: the vehicles in view, cut at ``t_move``, and the ones waiting for a
@@ -421,8 +421,23 @@ class SpeedMeter:
             out += _vehicles(self._unmeasured(r, why) for r in old)
         return out
 
-    def _stitch(self, rec: _Record) -> bool:
-        """Hand a vehicle that left over to the live track that continues it, if one does: a track that started
+    def _stitch_waiting(self, waiting: list[_Record]) -> list[_Record]:
+        """The vehicles that left before a calibration with scale, less those a later track continues: each is
+        stitched now, as :meth:`_end` does once a scale exists, into the track that continues it — one that left
+        after it and waited too, or one still in view.  Before stop 54 these were never stitched, and a vehicle the
+        detector lost for a moment while vpdetect was still learning (the first 25 s of a file) was counted twice."""
+        if self.stitch_gap <= 0:
+            return waiting
+        waiting = sorted(waiting, key=lambda r: (r.last_t, r.id))
+        kept = []
+        for k, rec in enumerate(waiting):
+            if not self._stitch(rec, [*waiting[k + 1:], *self._live.values()]):
+                kept.append(rec)
+        return kept
+
+    def _stitch(self, rec: _Record, candidates: Iterable[_Record] | None = None) -> bool:
+        """Hand a vehicle that left over to the live track that continues it, if one does (or to one of
+        ``candidates``: :meth:`_stitch_waiting`): a track that started
         within ``stitch_gap`` seconds after it was last seen, whose first reference point lies where this one's
         motion (its median road velocity) predicts, within the jump tolerance of :class:`SpeedChecks` plus 15 % of
         the distance predicted along the road and ``STITCH_LATERAL_M`` across it (the same lane).  The detector lost the vehicle for a moment and the tracker gave it a new id; the
@@ -435,7 +450,7 @@ class SpeedMeter:
         world = cam.to_world(px)[:, :2]
         v = _median_velocity(world, times, self.tau)
         best, best_d = None, np.inf
-        for other in self._live.values():
+        for other in self._live.values() if candidates is None else candidates:
             first = other.observations[0].t
             gap = first - rec.last_t
             if not 0 < gap <= self.stitch_gap:
