@@ -103,6 +103,10 @@ def test_the_traffic_count_is_scored_against_the_vehicles_that_passed(load_bench
             if f < 9:  # large and visible, but in nine frames only
                 fh.write(json.dumps({"frame": f, "id": 4, "box": [0, 0, 60, 40], "visible": 1.0}) + "\n")
     assert b.passing_vehicles(frames, size) == 1
+    with open(frames, "a") as fh:  # a replay's second car of the same recorded id (session0_center's ids 11, 25)
+        for f in range(12):
+            fh.write(json.dumps({"frame": f, "id": 1, "box": [100, 0, 140, 30], "visible": 1.0, "model": "b"}) + "\n")
+    assert b.passing_vehicles(frames, size) == 2
     assert b.passing_vehicles(tmp_path / "none.jsonl", size) is None
     rows = [b.Row("a", "replay", "auto", vehicles=22, rendered=20), b.Row("b", "replay", "auto", vehicles=9,
                                                                              rendered=10),
