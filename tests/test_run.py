@@ -42,8 +42,9 @@ def user_lines(stderr: str) -> list[str]:
 
 
 def one_line_error(proc: subprocess.CompletedProcess) -> str:
+    """The run's one error line on stderr (beside the progress bar's last state, also on stderr since stop 54)."""
     assert proc.returncode == 2, proc.stdout[-1500:] + proc.stderr[-1500:]
-    lines = user_lines(proc.stderr)
+    lines = [ln for ln in user_lines(proc.stderr) if "━" not in ln]
     assert len(lines) == 1 and lines[0].startswith("trafficcal: error: "), proc.stderr
     assert "Traceback" not in proc.stderr
     return lines[0]
