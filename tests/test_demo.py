@@ -62,7 +62,11 @@ def test_demo_with_the_manual_baseline_writes_every_output(tmp_path):
     # the manual baseline on exact synthetic road markings is close to perfect
     assert evaluation["calibration"]["ratio_error"]["mean"] < 0.02
     assert "recall" in evaluation and "false_positives" in evaluation
-    assert read_events(out / "vehicles.jsonl").events, "the pipeline tracked no vehicle"
+    events = read_events(out / "vehicles.jsonl").events
+    assert events, "the pipeline tracked no vehicle"
+    shown = [e for e in events[:15] if e.speed_kmh is not None]
+    if shown:  # each shown speed with its ± U (speed_uncertainty_kmh)
+        assert "± km/h" in printed and f" {shown[0].speed_kmh:.1f} │ {shown[0].speed_uncertainty_kmh:.1f} │" in printed
     cap = cv2.VideoCapture(str(out / "overlay.mp4"))
     frames = int(cap.get(cv2.CAP_PROP_FRAME_COUNT))
     ok, frame = cap.read()

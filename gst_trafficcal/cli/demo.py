@@ -139,12 +139,14 @@ def command(out_dir: Path, preset: str, duration: float, seed: int, calibration_
         plot_cumulative_errors({"demo": errors}, out_dir / "speed_errors.png")
 
     if any(e.measured for e in events):
-        table = Table(title="Vehicles (first 15)")
-        for col in ("id", "label", "direction", "lane", "speed km/h", "note"):
+        table = Table(title="Vehicles (first 15; ± U holds the true speed for about 95 % of vehicles)")
+        for col in ("id", "label", "direction", "lane", "speed km/h", "± km/h", "note"):
             table.add_column(col)
         for e in events[:15]:
+            u = getattr(e, "speed_uncertainty_kmh", None)
             table.add_row(str(e.id), e.label, str(e.direction or ""), "" if e.lane is None else str(e.lane),
-                          "" if e.speed_kmh is None else f"{e.speed_kmh:.1f}", e.reason or "")
+                          "" if e.speed_kmh is None else f"{e.speed_kmh:.1f}", "" if u is None else f"{u:.1f}",
+                          e.reason or "")
         console.print(table)
     else:  # nothing measured: one line per reason, not the same note fifteen times
         for reason, n in Counter(e.reason for e in events).most_common():
