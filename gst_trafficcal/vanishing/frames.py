@@ -10,9 +10,9 @@ rounding, and their calibrations of one clip differed.
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 from contextlib import contextmanager
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from fractions import Fraction
 from pathlib import Path
 
@@ -58,9 +58,9 @@ class LumaFrames:
     planar: bool
     first_bgr: np.ndarray | None
     par: Fraction = Fraction(1)
-    fixup: Callable[[np.ndarray], np.ndarray] | None = None  # imaging.OpenCVPicture.fixup: a mirrored file's flip
-    # the stored pixels' ``par`` inverted for a picture turned a quarter (imaging.OpenCVPicture), as videoflip does
-    picture: OpenCVPicture | None = None
+    # how the frames are turned (a mirrored file's flip, --orientation) and, for a quarter turn, the stored pixels'
+    # ``par`` inverted, as videoflip does (imaging.OpenCVPicture)
+    picture: OpenCVPicture = field(default_factory=OpenCVPicture)
 
     def __iter__(self) -> Iterator[tuple[float, np.ndarray]]:
         with _quiet():
@@ -78,7 +78,7 @@ class LumaFrames:
                 msec = cap.get(cv2.CAP_PROP_POS_MSEC)
                 t = msec / 1000.0 if n and msec > 0 else n / self.fps
                 img = img if self.planar else luma(img)
-                yield t, (self.picture or OpenCVPicture(self.fixup)).frame(img, self.par)
+                yield t, self.picture.frame(img, self.par)
                 n += 1
         finally:
             cap.release()
@@ -120,7 +120,7 @@ def luma_frames(path: str | Path, orientation: str = "auto") -> LumaFrames:
                       and float(np.mean(np.abs(y.astype(np.int16) - luma(first).astype(np.int16)))) < 3.0)
     picture = opencv_picture(path, orientation)
     return LumaFrames(path, fps, count, picture.size((w, h), par), planar,
-                      None if first_bgr is None else picture.frame(first_bgr, par), par, picture.fixup, picture)
+                      None if first_bgr is None else picture.frame(first_bgr, par), par, picture)
 
 
 def _open(path: Path, planar: bool) -> cv2.VideoCapture:
