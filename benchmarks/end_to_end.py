@@ -292,13 +292,15 @@ def run_scene(scene: Scene, mode: str, work: Path, fresh: bool = False, detector
     return row
 
 
-def passing_vehicles(frames_jsonl: Path, size: tuple[int, int], min_frames: int = 10,
-                     min_area: float = 0.0015) -> int | None:
-    """How many rendered vehicles a traffic count of the video should hold: those seen at least half visible and
-    at least as large as the detectors' smallest vehicle (``min_area`` of the image) in ``min_frames`` frames or
-    more; None without a frames.jsonl.  A vehicle is its id with its model, lane and direction: a replay's ids are
-    the recording's car ids, and BrnoCompSpeed's session0_center gives one id to two or three cars (ids 11 and 25
-    there: 23 vehicles passed, not 20)."""
+def vehicle_key(r: dict) -> tuple:
+    """A rendered vehicle of a frames.jsonl record: its id with its model, lane and direction (a replay's ids are the
+    recording's car ids, and BrnoCompSpeed's session0_center gives one id to two or three cars: ids 11 and 25)."""
+    return r["id"], r.get("model"), r.get("lane"), r.get("direction")
+
+
+def rule_frames(frames_jsonl: Path, size: tuple[int, int], min_area: float = 0.0015) -> Counter | None:
+    """Per rendered vehicle (:func:`vehicle_key`), the frames it is seen at least half visible and at least as large
+    as the detectors' smallest vehicle (``min_area`` of the image); None without a frames.jsonl."""
     if not frames_jsonl.is_file():
         return None
     frames: Counter = Counter()
@@ -308,8 +310,17 @@ def passing_vehicles(frames_jsonl: Path, size: tuple[int, int], min_frames: int 
             r = json.loads(line)
             x0, y0, x1, y1 = r["box"]
             if r.get("visible", 1.0) >= 0.5 and (x1 - x0) * (y1 - y0) >= least:
-                frames[r["id"], r.get("model"), r.get("lane"), r.get("direction")] += 1
-    return sum(n >= min_frames for n in frames.values())
+                frames[vehicle_key(r)] += 1
+    return frames
+
+
+def passing_vehicles(frames_jsonl: Path, size: tuple[int, int], min_frames: int = 10,
+                     min_area: float = 0.0015) -> int | None:
+    """How many rendered vehicles a traffic count of the video should hold: those seen as :func:`rule_frames` says
+    in ``min_frames`` frames or more (session0_center's reused ids make 23 vehicles there, not 20); None without a
+    frames.jsonl."""
+    frames = rule_frames(frames_jsonl, size, min_area)
+    return None if frames is None else sum(n >= min_frames for n in frames.values())
 
 
 def as_measured_by(gt, camera):
