@@ -134,15 +134,19 @@ def count_frames(path: Path) -> int:
 
 
 def encoded(dst: Path, caps: str, frames: int = 100, src: Path | None = None) -> Path:
-    """An H.264 MP4 ``dst`` of ``frames`` frames of raw video ``caps`` (e.g. ``width=480,height=360,
-    pixel-aspect-ratio=4/3``: stored squeezed, as a DVR's D1): the first frames of the video ``src``, or of
-    videotestsrc's still colour bars."""
-    import subprocess
+    """An H.264 MP4 ``dst`` of exactly ``frames`` frames of raw video ``caps`` (e.g. ``width=480,height=360,
+    pixel-aspect-ratio=4/3``: stored squeezed, as a DVR's D1): the first frames of the video ``src`` (cut by
+    :func:`cut_after`: ``identity eos-after`` behind a decoder lets more through, varying with the load), or of
+    videotestsrc's still colour bars (``num-buffers``: its one thread makes no more)."""
+    from gst_trafficcal.gst.pipeline import run_pipeline
 
-    source = ["filesrc", f"location={src}", "!", "decodebin"] if src else ["videotestsrc", "pattern=smpte"]
-    subprocess.run(["gst-launch-1.0", "-q", *source, "!", "identity", f"eos-after={frames + 1}", "!", "videoconvert",
-                    "!", "videoscale", "!", f"video/x-raw,{caps}", "!", "x264enc", "speed-preset=ultrafast", "!",
-                    "mp4mux", "!", "filesink", f"location={dst}"], check=True, timeout=120)
+    tail = (f"videoconvert ! videoscale ! video/x-raw,{caps} ! x264enc speed-preset=ultrafast ! mp4mux ! "
+            f"filesink location=\"{dst}\"")
+    if src is None:
+        run_pipeline(f"videotestsrc pattern=smpte num-buffers={frames} ! {tail}", timeout=120)
+    else:
+        run_pipeline(cut_after(f"filesrc location=\"{src}\" ! decodebin ! identity name=cut ! {tail}", frames),
+                     timeout=120)
     return dst
 
 

@@ -17,7 +17,7 @@ from gst_trafficcal.gst.element import register_plugin_file  # noqa: E402
 from gst_trafficcal.gst.env import gst_environment  # noqa: E402
 from gst_trafficcal.gst.pipeline import PipelineError, run_pipeline  # noqa: E402
 
-from .conftest import DETECTORS, ROOT, VIDEOS, require_shared  # noqa: E402
+from .conftest import DETECTORS, ROOT, VIDEOS, cut_after, require_shared  # noqa: E402
 
 ELEMENT = ROOT / "elements" / "python" / "vehicledetect.py"
 CLIP = "abhishek_highway.mp4"
@@ -86,11 +86,11 @@ def test_full_hd_frames_reach_an_onnx_model_reduced_from_their_yuv_planes(model,
         with frame_bgr(buffer, info) as bgr:
             expected.append(lib(bgr))
 
-    run = run_pipeline(f"filesrc location={require_shared(VIDEOS / CLIP)} ! decodebin ! videoconvert ! videoscale ! "
-                       "video/x-raw,format=I420,width=1920,height=1080 ! identity eos-after=60 ! "
-                       f"vehicledetect model={DETECTORS / model} threshold=0.4 ! appsink name=sink",
+    run = run_pipeline(cut_after(f"filesrc location={require_shared(VIDEOS / CLIP)} ! decodebin ! videoconvert ! "
+                                 "videoscale ! video/x-raw,format=I420,width=1920,height=1080 ! identity name=cut ! "
+                                 f"vehicledetect model={DETECTORS / model} threshold=0.4 ! appsink name=sink", 60),
                        on_buffer=full_frame)
-    assert len(run.frames) == len(expected) >= 60
+    assert len(run.frames) == len(expected) == 60
     same = matched = total = 0
     for frame, exp in zip(run.frames, expected):
         got = np.array([r.box for r in frame.rois], float).reshape(-1, 4)
