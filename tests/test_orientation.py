@@ -65,7 +65,10 @@ def test_a_calibration_file_keeps_its_orientation(stored, turned_run, tmp_path):
     proc = trafficcal("run", stored, "--out", tmp_path / "again",
                       "--calibration", out / "calibration.json", "--no-overlay")
     assert proc.returncode == 0, proc.stdout[-2000:] + proc.stderr[-2000:]
-    assert "Orientation kept in" in proc.stdout and "90r (--orientation auto" in " ".join(proc.stdout.split())
+    # a note, not a result: on stderr (`run ... > results.txt` keeps it out of the file) and in run.log
+    assert "Orientation kept in" in proc.stderr and "90r (--orientation auto" in " ".join(proc.stderr.split())
+    assert "kept in" not in proc.stdout
+    assert f"Orientation kept in {out / 'calibration.json'}: 90r" in (tmp_path / "again" / "run.log").read_text()
     assert "videoflip video-direction=90r ! videoscale" in proc.stdout
     auto = trafficcal("run", stored, "--out", tmp_path / "auto", "--calibration", out / "calibration.json",
                       "--no-overlay", "--orientation", "auto")

@@ -874,14 +874,18 @@ def command(videos: tuple[str, ...], out_dir: Path, calibration_path: Path | Non
 
     # a bad one: one line now, not an element error after the pipeline started; none given: the calibration's
     where = given_or_kept(zone, "--zone", calibration_path)
+    notes: list[tuple[str, str]] = []  # where a setting came from: diagnostics (stderr), and run.log once made
     if where is not None and not zone.strip():
-        console.print(f"[bold]Zone[/] kept in {calibration_path}: {where} (--zone all: the whole frame)",
-                      highlight=False)
+        notes.append(("Zone", f"kept in {calibration_path}: {where} (--zone all: the whole frame)"))
     zone = "" if where is None else str(where)
     orientation, kept_orientation = given_orientation(orientation, calibration_path)  # bad: one line, before work
     if kept_orientation:
-        console.print(f"[bold]Orientation[/] kept in {calibration_path}: {orientation} (--orientation auto: as the "
-                      "video says)", highlight=False)
+        notes.append(("Orientation", f"kept in {calibration_path}: {orientation} (--orientation auto: as the "
+                                     "video says)"))
+    from .terminal import stderr_console
+
+    for head, text in notes:
+        stderr_console().print(f"[bold]{head}[/] {text}", highlight=False)
     if reconnect and not is_uri(inputs[0]):
         raise InputError("--reconnect is for a live stream (a URI): a file is read to its end once")
     split_s = None
@@ -918,6 +922,8 @@ def command(videos: tuple[str, ...], out_dir: Path, calibration_path: Path | Non
     log = RunLog(out_dir / "run.log")  # what the screen said that must outlive it: warnings, errors, the end
     log.line(f"trafficcal run started: {status.status.source} into {out_dir} (process {status.status.pid} on "
              f"{status.status.host})")
+    for head, text in notes:
+        log.line(f"{head} {text}")
     with quiet_when_the_terminal_is_gone(log):  # (the terminal gone with the SSH session: the outputs still complete)
         with stop_signals_as_ctrl_c():  # a service stopped (systemctl/docker stop, Kubernetes), or the SSH session
             # that started the run closed, loses nothing either

@@ -140,8 +140,7 @@ def run_parts(console, parts, total: int | None, out_dir: Path, calibration_path
                             "calibration": "" if cal is None else cal.id, "status": status})
             _write_parts(out_dir / "parts.csv", records)
             if split:  # the next period's connection at once
-                console.print(f"[bold]--split-every[/]: {name} ends here; the next period's connection starts",
-                              highlight=False)
+                say(console, f"{name} ends here; the next period's connection starts", "bold", "--split-every")
                 wait = 1.0
                 continue
             if summary.stopped:
