@@ -5,6 +5,7 @@ alike; the orientation kept in the calibration file and status.json."""
 from __future__ import annotations
 
 import json
+import re
 from pathlib import Path
 
 import cv2
@@ -183,3 +184,31 @@ def test_calibrate_and_run_agree_on_non_square_pixels_turned(squeezed, tmp_path)
     run = trafficcal("run", squeezed, "--out", tmp_path / "out", "--calibration", cal, "--no-overlay")
     assert run.returncode == 0, run.stdout[-2000:] + run.stderr[-2000:]
     assert load_calibration(tmp_path / "out" / "calibration.json").image_size == (270, 480)
+
+
+def test_a_run_of_several_files_keeps_its_views_with_its_orientation(stored, portrait, tmp_path):
+    """trafficcal run of several files keeps the camera's views in --out/views/ (vpdetect views-dir): with
+    --orientation 90r they are views of the picture turned by 90r — the view kept there is used, and each view the
+    run adds is kept with 90r.  Before, the run gave vpdetect no orientation: the view kept with 90r was refused
+    ("a view of the picture turned by orientation 90r, not auto ...: not used") and the calibration's view, with its
+    scale, was written back as auto, for a run of the stored picture to take up."""
+    from dataclasses import replace
+
+    from gst_trafficcal.calibration import load_views, save_calibration, save_view
+    from gst_trafficcal.imaging import orientation_of_file
+    from gst_trafficcal.vanishing.view import encode_view
+
+    thumbnail = np.tile(np.linspace(0, 255, 90, dtype=np.uint8), (160, 1))  # the upright picture's, 90 x 160
+    cal = load_calibration(portrait)
+    cal = replace(cal, view=encode_view(thumbnail, 360))
+    given = save_calibration(cal, tmp_path / "given.json", orientation="90r")
+    out = tmp_path / "out"
+    save_view(cal, out / "views", "90r")
+    proc = trafficcal("run", stored, stored, "--out", out, "--calibration", given, "--no-overlay")
+    assert proc.returncode == 0, proc.stdout[-2000:] + proc.stderr[-2000:]
+    said = " ".join((proc.stdout + proc.stderr).split())
+    assert "not used" not in said, said[-2000:]
+    assert re.search(r"vpdetect mode=fixed [^!]*orientation=90r", said)
+    views, skipped = load_views(out / "views", (360, 640), "90r")
+    assert skipped == [] and len(views) == 1
+    assert [orientation_of_file(p) for p in (out / "views").glob("*.json")] == ["90r"]

@@ -240,7 +240,8 @@ def pipeline_description(video: Path | str, paths: RunPaths, calibration: Path |
     learnt anew if the camera moved); ``views_dir``: vpdetect's folder of the camera's views; ``zone``
     (:mod:`gst_trafficcal.zone`) to vpdetect, vehicledetect and trafficoverlay, which draws it.  The elements get
     the video upright and of square pixels (:func:`~gst_trafficcal.gst.chains.analysed_video`; ``orientation``: as
-    :func:`direction_of` takes it); overlay.mp4 is of an
+    :func:`direction_of` takes it, and to vpdetect when not auto, which keeps it with the views it learns and in
+    its calibration-file); overlay.mp4 is of an
     even size (:data:`~gst_trafficcal.gst.chains.EVEN_I420`): a video of an odd one (1281x721, which VP8/VP9 and
     MJPEG allow) is scaled by a pixel there, since x264 cannot encode 4:2:0 of an odd size (it refused, and the
     whole run failed).
@@ -254,6 +255,8 @@ def pipeline_description(video: Path | str, paths: RunPaths, calibration: Path |
     vp = f"vpdetect mode={calibration_mode} calibration-file={quote(calibration)}" if calibration else "vpdetect"
     if views_dir is not None:
         vp += f" views-dir={quote(views_dir)}"
+    if orientation != "auto":  # kept with the views it learns, and in its calibration-file (a carried calibration)
+        vp += f" orientation={orientation}"
     model = model_of(detector)
     det = f"vehicledetect model={quote(model)}" if model else "vehicledetect"
     where = f" zone={quote(zone)}" if zone else ""

@@ -116,7 +116,7 @@ def run_parts(console, parts, total: int | None, out_dir: Path, calibration_path
                 try:  # (a scale given with the view, as a carried calibration's: bbscale passes it on)
                     kept = cal if ", kept from " in cal.source or ", carried over from " in cal.source else \
                         dc_replace(cal, source=f"{cal.source}, kept from {label}")
-                    save_view(kept, options.views_dir)
+                    save_view(kept, options.views_dir, options.orientation)
                 except InputError as exc:
                     say(console, str(exc))
             if opts.start is not None and not live:
