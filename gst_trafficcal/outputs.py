@@ -358,8 +358,15 @@ class CsvEventWriter:
     def __init__(self, path: str | Path, append: bool = False, fsync: bool = True,
                  extra_columns: Sequence[str] = (), lazy: bool = False) -> None:
         self.extra_columns = tuple(extra_columns)
-        # appending to a file of other columns (an earlier version's): it is kept aside whole, a new one begun
-        self.kept_aside = self._aside_if_other(path, self._row(self.extra_columns + EVENT_FIELDS)) if append else None
+        header = self._row(self.extra_columns + EVENT_FIELDS)
+        # appending: the file's first line, read once here (begin() checks it); a file of other columns (an
+        # earlier version's) is kept aside whole and a new one begun
+        self._first = self._first_line(path) if append else None
+        self.kept_aside = None
+        if isinstance(self._first, str) and self._first.rstrip("\r\n") != header.rstrip("\n"):
+            from .fileio import keep_aside
+
+            self.kept_aside, self._first = keep_aside(path), None  # (its place: a new file, headed at begin())
         self._file = _LineFile(path, append, fsync, lazy)
         self.path = self._file.path
         self.count = 0
@@ -378,31 +385,35 @@ class CsvEventWriter:
         self._headed = True
 
     @staticmethod
-    def _aside_if_other(path: str | Path, header: str) -> Path | None:
-        """Where a regular, non-empty file at ``path`` whose first line is not ``header`` was moved
-        (:func:`~gst_trafficcal.fileio.keep_aside`: ``name.earlier-<its last change>.csv``); None when it has our
-        header, is empty, absent or not a regular file (a pipe is never read)."""
-        from .fileio import keep_aside, link_target
+    def _first_line(path: str | Path) -> str | OSError | None:
+        """The first line of a regular, non-empty file at ``path`` (through a symlink); None when it is empty,
+        absent or not a regular file (a pipe is never read); the OSError when it cannot be read (said by
+        :meth:`_check_header`, as one that cannot be opened is when it is opened for writing)."""
+        from .fileio import link_target
 
         target = link_target(path)
         try:
             st = target.stat()
-            if not stat.S_ISREG(st.st_mode) or st.st_size == 0:
-                return None
-            with open(target, newline="") as fh:
-                first = fh.readline()
         except OSError:
-            return None  # said when the file is opened for writing
-        return None if first.rstrip("\r\n") == header.rstrip("\n") else keep_aside(path)
+            return None
+        if not stat.S_ISREG(st.st_mode) or st.st_size == 0:
+            return None
+        try:
+            with open(target, newline="") as fh:
+                return fh.readline()
+        except OSError as exc:
+            return exc
 
     def _check_header(self, header: str) -> None:
-        """Appending rows under another header would shift every column: refused at start, naming the file."""
-        try:
-            with open(self.path, newline="") as fh:
-                first = fh.readline()
-        except OSError as exc:
+        """Appending rows under another header would shift every column: refused at start, naming the file.
+        The first line is the one read at start (read now only if the file was empty, absent or not a regular
+        one then and has lines now)."""
+        first = self._first if self._first is not None else self._first_line(self.path)
+        if first is None:
+            return  # not a regular file: nothing to check
+        if isinstance(first, OSError):
             self._file.close()
-            raise InputError(f"{self.path}: cannot read its header to append ({exc.strerror or exc})") from None
+            raise InputError(f"{self.path}: cannot read its header to append ({first.strerror or first})") from None
         if first.rstrip("\r\n") != header.rstrip("\n"):
             self._file.close()
             raise InputError(f"{self.path}: its columns ({first.strip()[:200]}) are not the ones written now "
