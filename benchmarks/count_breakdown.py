@@ -42,8 +42,22 @@ sys.exit(main(sys.argv[1:]))
 """
 
 
+def scene_fps(scene: Path) -> float:
+    """The scene's frame rate: its gt_data.pkl's (as end_to_end.py scores it), else its scenario.json's
+    imaging.fps, else 25 (the renderer's default; said on stderr, since frame numbers then rest on it)."""
+    from gst_trafficcal.brnocompspeed import load_gt_data
+
+    if (scene / "gt_data.pkl").is_file():
+        return float(load_gt_data(scene / "gt_data.pkl").fps)
+    try:
+        return float(json.loads((scene / "scenario.json").read_text())["imaging"]["fps"])
+    except (OSError, ValueError, KeyError, TypeError):
+        print(f"{scene}: no gt_data.pkl and no imaging.fps in scenario.json: taking 25 fps", file=sys.stderr)
+        return 25.0
+
+
 def breakdown(scene: Path, run: Path) -> tuple[Counter, list[str], int, int]:
-    fps = json.loads((scene / "scenario.json").read_text())["imaging"]["fps"]
+    fps = scene_fps(scene)
     truth: dict[int, dict[tuple, dict]] = defaultdict(dict)
     for line in open(scene / "frames.jsonl"):
         r = json.loads(line)
