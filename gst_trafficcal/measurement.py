@@ -194,6 +194,27 @@ class FrameOutput:
     finished: list[MeasuredVehicle]
 
 
+@dataclass(frozen=True)
+class _PctKey:
+    """What :func:`~gst_trafficcal.uncertainty.calibration_pct` reads of a calibration, as the key of the one it
+    was computed for: whether it has a scale (not its value: bbscale refining it leaves the part as it is), its
+    source (manual or vpdetect's) and its view (image size, vanishing points, principal point).  Not an
+    ``lru_cache`` on the calibration: it holds numpy arrays (unhashable), and a new scale makes a new one."""
+
+    scaled: bool
+    source: str
+    image_size: tuple[int, int]
+    points: tuple[float, ...]  # VP1, VP2, pp
+
+    @classmethod
+    def of(cls, cal: Calibration) -> "_PctKey | None":
+        cam = cal.camera
+        if cam is None:
+            return None
+        return cls(cam.scale is not None, cal.source, tuple(cal.image_size),
+                   tuple(np.concatenate([cam.vp1, cam.vp2, cam.pp]).tolist()))
+
+
 class SpeedMeter:
     """Online speed measurement (see the module doc).  Feed :meth:`update` once per frame, in time order."""
 
@@ -247,7 +268,7 @@ class SpeedMeter:
         self.spacing = FrameSpacing()  # the stream's time between frames: min_track_length as a duration below 12.5 fps
         # the calibration part of speed uncertainties, for the view it was computed for (its VPs: a new scale alone
         # does not change it, and the view's conditioning costs ~20 ms)
-        self._calibration_pct: tuple[tuple | None, float | None] = (None, None)
+        self._calibration_pct: tuple[_PctKey | None, float | None] = (None, None)
         if calibration is not None:
             self.set_calibration(calibration)
 
@@ -646,9 +667,7 @@ class SpeedMeter:
         (:mod:`gst_trafficcal.uncertainty`; the calibration's part computed once per view: its vanishing points)."""
         if speed is None or cal is None:
             return None
-        cam = cal.camera
-        view = None if cam is None else (cam.scale is not None, cal.source, cal.image_size,
-                                         *np.concatenate([cam.vp1, cam.vp2, cam.pp]).tolist())
+        view = _PctKey.of(cal)
         if view is None or self._calibration_pct[0] != view:
             self._calibration_pct = (view, calibration_pct(cal))
         pct = self._calibration_pct[1]
