@@ -408,7 +408,7 @@ class VehicleCounter:
         if i in self.seen or (self.min_seen_s <= 0 and self.min_passing_m <= 0) or t is None:
             return True
         first = self._first_seen.get(i, (t,))[0]
-        trail = self._trails.setdefault(i, _Trail())
+        trail = self._trails.get(i) or self._trails.setdefault(i, _Trail.counting())
         if m.ref_point is not None:
             trail.add(m.ref_point)
         if not self._why_not(t - first, trail, cut=False):
@@ -610,20 +610,27 @@ class VehicleCounter:
 class _Trail:
     """A track's reference points (pixels, in time order) for :func:`~gst_trafficcal.measurement.moved_along_road`:
     every ``stride``-th one, at most ``MAX``, so that a parked car in view for hours keeps an even sample of its whole
-    stay in bounded memory and time; and its latest ``RECENT`` at full rate for
+    stay in bounded memory and time; and, given a ``recent`` deque (:meth:`counting`: the counter's trails, not
+    own_directions' paths, which read the even sample only), its latest ``RECENT`` at full rate for
     :func:`~gst_trafficcal.measurement.drove_along_road` (a vehicle that stood, then drove off)."""
 
     points: list[tuple[float, float]] = field(default_factory=list)
     times: list[float] = field(default_factory=list)  # the points' stream times (seconds), where given
     stride: int = 1
     seen: int = 0
-    recent: deque[tuple[float, float]] = field(default_factory=lambda: deque(maxlen=_Trail.RECENT))
+    recent: deque[tuple[float, float]] | None = None
 
     MAX = 128
     RECENT = 128  # 5.1 s at 25 fps (below 12.5 fps the latest points that cover that time: frames_needed)
 
+    @classmethod
+    def counting(cls) -> "_Trail":
+        """A trail that also keeps its latest ``RECENT`` points (the counter's: :meth:`VehicleCounter._why_not`)."""
+        return cls(recent=deque(maxlen=cls.RECENT))
+
     def add(self, point: tuple[float, float], t: float | None = None) -> None:
-        self.recent.append(point)
+        if self.recent is not None:
+            self.recent.append(point)
         if self.seen % self.stride == 0:
             self.points.append(point)
             if t is not None:
