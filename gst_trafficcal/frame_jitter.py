@@ -1,12 +1,14 @@
 """Whether a stream's frame times jitter: times of arrival (a source with ``do-timestamp=true``, frames decoded in
 bursts) rather than of capture.  A speed is road distance over the time between two sightings, so a frame time off
-by some milliseconds puts the speed off; the speedometer says so once (:class:`FrameJitter`).
+by some milliseconds puts the speed off; the speedometer says so once (:class:`FrameJitter`) and, by default, then
+takes the τ-pairs' durations from the times smoothed by a line fit (:class:`FrameRetimer`, speedometer ``retime``).
 
 Measured with ``.venv/bin/python benchmarks/frame_jitter.py`` (the speedometer tests' cuboid clip, 12.5 fps, the
 true boxes; each frame delayed by a random 0..J ms, seeds 0-2): the mean speed error of 0.16 km/h (15 of 18 vehicles
 measured) became 0.19-0.26 at 0-20 ms, 0.27-0.40 at 0-40 ms and 0.39-0.75 km/h at 0-80 ms with 13 measured; the
 warning came at 0-40 and 0-80 ms.  Smoothed by a line fit over the last 50 frames' times (possible for a
-constant-rate stream without dropped frames; not done by the elements) the 0-80 ms runs measured 15 again at 0.29-0.35.
+constant-rate stream without dropped frames, done by the test element tcjitter) the 0-80 ms runs measured 15 again
+at 0.29-0.35.
 """
 
 from __future__ import annotations
@@ -17,6 +19,9 @@ import numpy as np
 
 WINDOW = 100  # frame intervals looked at together
 LIMIT = 0.1  # the intervals' median deviation from their median, as a fraction of it, above which they jitter
+RETIME_WINDOW = 50  # frames the smoothing line is fitted to (4 s at 12.5 fps, 2 s at 25 fps)
+RECOUNT = 5  # latest frames that, all a frame interval off the smoothing line, are counted again
+RETIME_MODES = ("auto", "off", "always")  # speedometer retime: smooth once FrameJitter found jitter, never, always
 
 
 @dataclass
@@ -29,6 +34,7 @@ class FrameJitter:
     interval: float | None = None  # the caps' frame interval (s) when they give a rate, else the intervals' median
     window: int = WINDOW
     limit: float = LIMIT
+    smoothed: bool = False  # the speeds' durations come from smoothed times (FrameRetimer): the warning says so
     said: bool = False
     _last: float | None = None
     _intervals: list[float] = field(default_factory=list)
@@ -53,6 +59,94 @@ class FrameJitter:
         return (f"the frame times jitter: intervals of {median * 1000:.0f} ms vary by {spread * 1000:.0f} ms (median "
                 f"deviation over {len(dts)} frames, from {dts.min() * 1000:.0f} to {dts.max() * 1000:.0f} ms), as "
                 "times of arrival do (a source with do-timestamp=true, frames decoded in bursts), not times of "
-                "capture; a speed is distance over time, so the speeds scatter and fewer vehicles are measured: "
-                "time the frames by the camera's own timestamps (drop do-timestamp=true; an RTSP camera's rtspsrc "
-                "gives them); said once")
+                "capture; a speed is distance over time, so such times scatter the speeds and lose vehicles: "
+                + ("the speeds' durations are now taken from the times smoothed by a line fit over the last "
+                   f"{RETIME_WINDOW} frames (speedometer retime); the camera's own timestamps are better still"
+                   if self.smoothed else "smooth them (speedometer retime=auto) or time the frames by the camera's "
+                   "own timestamps")
+                + " (drop do-timestamp=true; an RTSP camera's rtspsrc gives them); said once")
+
+
+@dataclass
+class FrameRetimer:
+    """Frame times in, smoothed times out (seconds): each frame's time on a robust line (Theil-Sen: the median of
+    the pairwise slopes, the median intercept) fitted to the last :data:`RETIME_WINDOW` frames' (frame count,
+    time), its own included, so the jitter of times of arrival leaves the τ-pairs' durations.  Streaming: one fit
+    over the window per frame, no later frame looked at.
+
+    Frames dropped on the way (a leaky queue, the camera) stay gaps: the frame count goes on by the whole number
+    of the caps' frame intervals between the time a line of that slope through the window gives the frame before
+    and this frame's time, at least one; when the latest :data:`RECOUNT` frames all lie a frame off that line
+    (one frame delayed by over half an interval was taken for a drop) they are counted again.  Delays that spread
+    over a frame interval or more (bursts of many frames) cannot be told from dropped frames.  The smoothed times
+    keep increasing."""
+
+    interval: float  # the caps' frame interval (s)
+    window: int = RETIME_WINDOW
+
+    def __post_init__(self) -> None:
+        if not self.interval > 0:
+            raise ValueError(f"the frame interval must be positive, got {self.interval}")
+    _k: np.ndarray = field(default_factory=lambda: np.zeros(0))  # frame counts of the window's frames
+    _t: np.ndarray = field(default_factory=lambda: np.zeros(0))  # ... and their times
+    _line: tuple[float, float] | None = None  # (slope, intercept) of the latest fit
+    _last: float | None = None  # the latest time given
+    _out: float | None = None  # the latest smoothed time
+
+    def add(self, t: float) -> float:
+        """The smoothed time of the frame at ``t`` (a time not after the one before: the smoothed time before)."""
+        if self._last is not None and t <= self._last:
+            return float(self._out)
+        if self._last is None:
+            k = 0.0
+        else:  # the frames since the one before, counted against the line of slope one frame interval
+            frame, offset = self._counting_line()
+            k = self._k[-1] + max(1.0, float(np.round((t - offset - frame * self._k[-1]) / frame)))
+        self._last = t
+        self._k = np.append(self._k[-(self.window - 1):], k)
+        self._t = np.append(self._t[-(self.window - 1):], t)
+        out = t
+        if len(self._k) >= 3:
+            self._fit()
+            self._recount()
+            slope, intercept = self._line
+            out = intercept + slope * self._k[-1]
+        if self._out is not None:
+            out = max(out, self._out + 1e-6)
+        self._out = out
+        return out
+
+    def _fit(self) -> None:
+        i, j = np.triu_indices(len(self._k), 1)
+        slope = float(np.median((self._t[j] - self._t[i]) / (self._k[j] - self._k[i])))
+        self._line = (slope, float(np.median(self._t - slope * self._k)))
+
+    def _counting_line(self) -> tuple[float, float]:
+        """(slope, intercept) of the line frames are counted against: its slope is the caps' frame interval — not
+        the window's fitted slope, whose error the window's length would multiply and which frames counted wrong
+        would pull further off — and its intercept the median over the window."""
+        return self.interval, float(np.median(self._t - self.interval * self._k))
+
+    def _recount(self) -> None:
+        """A frame delayed by over half an interval is counted as a drop, one early by as much misses one: the
+        latest :data:`RECOUNT` frames then all lie a frame interval off the counting line, and are counted
+        again."""
+        if len(self._k) <= 2 * RECOUNT:
+            return
+        frame, offset = self._counting_line()
+        off = float(np.round(np.median(self._t[-RECOUNT:] - offset - frame * self._k[-RECOUNT:]) / frame))
+        if off == 0:
+            return
+        # from the latest count step that can take the change (a step stays at least one frame)
+        steps = np.diff(self._k)[-RECOUNT:]  # steps into the latest RECOUNT frames
+        fits = np.flatnonzero(steps + off >= 1)
+        if fits.size == 0:
+            return
+        self._k[len(self._k) - RECOUNT + fits[-1 if off < 0 else 0]:] += off
+        self._fit()
+
+
+def retimed(times: np.ndarray, interval: float, window: int = RETIME_WINDOW) -> np.ndarray:
+    """Frame times (seconds, increasing) smoothed one after another as :class:`FrameRetimer` does in a stream."""
+    retimer = FrameRetimer(interval, window)
+    return np.array([retimer.add(float(t)) for t in times], np.float64)

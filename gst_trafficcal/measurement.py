@@ -12,10 +12,12 @@ vanishing points was in force) and, whenever it changes, the current calibration
   tracker could give frame by frame.  Vehicles seen before the vanishing points were known carry only their hull
   (or hull box); their 3D boxes are built from it once a calibration with vanishing points exists.
 * **Speed**: ``v = median_i λ‖P(i+τ) − P(i)‖ / (t(i+τ) − t(i))`` over the reference points that are the
-  vehicle's own, times from buffer timestamps (:func:`gst_trafficcal.speed.vehicle_speed`): a 3D box far outside
-  its hull gives no point; points that do not continue the vehicle's motion (an ID switch, a merge, a degenerate
-  box) are dropped, the longest consistent run is the vehicle; a vehicle whose τ-pair speeds disagree or whose
-  points span too little road is reported unmeasured with the reason instead of with a wrong speed.  Only
+  vehicle's own, times from buffer timestamps (:func:`gst_trafficcal.speed.vehicle_speed`) — or, with
+  :attr:`SpeedMeter.smooth_times`, the frames' smoothed times given to :meth:`SpeedMeter.update` (times of arrival
+  that jitter: :class:`~gst_trafficcal.frame_jitter.FrameRetimer`; the events keep the buffers' times): a 3D box
+  far outside its hull gives no point; points that do not continue the vehicle's motion (an ID switch, a merge, a
+  degenerate box) are dropped, the longest consistent run is the vehicle; a vehicle whose τ-pair speeds disagree
+  or whose points span too little road is reported unmeasured with the reason instead of with a wrong speed.  Only
   measured vehicles carry points for the BrnoCompSpeed results (the ones their speed came from), so the official
   evaluation measures what was published.
 * **Calibration not there yet**: vehicles that leave before a calibration with scale exists are kept (points and
@@ -162,6 +164,7 @@ class _Kept:
 
     rec: "_Record"  # id, and its first and last observation only (the event's timestamps)
     times: np.ndarray
+    fit_times: np.ndarray  # the same frames' smoothed times where given (SpeedMeter.update's fit_t), else times
     px: np.ndarray  # the reference points found with the vanishing points of the time
     label: str  # the detector's label
     dims_plane: np.ndarray | None  # length, width, height in road-plane units (metres / λ)
@@ -265,6 +268,10 @@ class SpeedMeter:
         # too fast, and its points disagree with the vehicle's own motion (every 4th frame so: no vehicle measured)
         self.same_time = 0
         self.t: float | None = None
+        # speeds from the frames' smoothed times (update's fit_t) where they were given, not their own: set by the
+        # caller once it knows the times jitter (speedometer retime); read when a speed is computed, so a vehicle in
+        # view then is measured wholly from smoothed times
+        self.smooth_times = False
         self.spacing = FrameSpacing()  # the stream's time between frames: min_track_length as a duration below 12.5 fps
         # the calibration part of speed uncertainties, for the view it was computed for (its VPs: a new scale alone
         # does not change it, and the view's conditioning costs ~20 ms)
@@ -329,8 +336,9 @@ class SpeedMeter:
         self._measured.clear()  # measured in the old view: never again with another view's calibration
         return out
 
-    def update(self, t: float, sightings: Iterable[Sighting]) -> FrameOutput:
+    def update(self, t: float, sightings: Iterable[Sighting], fit_t: float | None = None) -> FrameOutput:
         """Add one frame (time ``t``, seconds) of tracked vehicles; vehicles unseen for ``end_after`` s leave.
+        ``fit_t``: the frame's smoothed time, for the speeds' durations while :attr:`smooth_times` is set.
         ValueError for a time that is no finite number (a frame without a timestamp: the caller passes it by, as the
         speedometer does) or goes backwards; one sighting per track id is used (:meth:`_one_per_id`)."""
         if not math.isfinite(t):
@@ -352,6 +360,7 @@ class SpeedMeter:
                 rec.last_t = s.t
                 continue
             obs = _observation(s, self.camera)
+            obs.fit_t = None if fit_t is None else float(fit_t)
             if obs.box3d is None and obs.hull is not None and (not obs.truncated or obs.cut_top) and not obs.occluded:
                 rec.unboxed.append(len(rec.observations))
             rec.observations.append(obs)
@@ -465,7 +474,7 @@ class SpeedMeter:
         two pieces together are measured as one vehicle (under the later id), often the only way it is seen
         across the whole measured stretch of road."""
         cam = self.camera
-        times, px, _ = self._reference_points(rec, cam)
+        times, px, _, _ = self._reference_points(rec, cam)
         if len(px) < 2:
             return False
         world = cam.to_world(px)[:, :2]
@@ -476,7 +485,7 @@ class SpeedMeter:
             gap = first - rec.last_t
             if not 0 < gap <= self.stitch_gap:
                 continue
-            t2, px2, _ = self._reference_points(other, cam)
+            t2, px2, _, _ = self._reference_points(other, cam)
             if len(px2) == 0:
                 continue
             miss = cam.to_world(px2[:1])[0, :2] - world[-1] - v * (t2[0] - times[-1])
@@ -499,9 +508,9 @@ class SpeedMeter:
         return "the calibration has no scale (the stream ended before the scale was known)"
 
     def _reference_points(self, rec: _Record, camera: Camera, last: int | None = None
-                          ) -> tuple[np.ndarray, np.ndarray, Track]:
-        """(times (M,), pixels (M, 2), track) of the finished-track reference points available with ``camera``,
-        from every observation or from the ``last`` ones."""
+                          ) -> tuple[np.ndarray, np.ndarray, Track, np.ndarray]:
+        """(times (M,), pixels (M, 2), track, the times for the speeds' durations (M,)) of the finished-track
+        reference points available with ``camera``, from every observation or from the ``last`` ones."""
         obs = rec.observations
         if rec.unboxed:  # seen without a 3D box (no vanishing points at the time): build it from the hull now
             idx, rec.unboxed = rec.unboxed, []
@@ -520,7 +529,10 @@ class SpeedMeter:
         px, _ = track.reference_points()
         times = track.timestamps
         ok = np.all(np.isfinite(px), axis=1)
-        return times[ok], px[ok], track
+        fit = times
+        if self.smooth_times:
+            fit = np.array([o.t if o.fit_t is None else o.fit_t for o in obs], np.float64)
+        return times[ok], px[ok], track, fit[ok]
 
     def _live_speed(self, rec: _Record) -> LiveSpeed | None:
         """The current estimate, from the last LIVE_WINDOW observations (bounded cost, also for a vehicle standing
@@ -528,8 +540,8 @@ class SpeedMeter:
         reported unmeasured.  Made every LIVE_EVERY observations, and at each one that came without a 3D box (its
         box is built at the first call after the calibration, so the order in which the vehicles' late boxes are
         built stays that of their sightings)."""
-        times, px, track = self._reference_points(rec, self.camera, last=LIVE_WINDOW)
-        m = self._speed(px, times)
+        _, px, track, fit = self._reference_points(rec, self.camera, last=LIVE_WINDOW)
+        m = self._speed(px, fit)
         if not m.measured:
             return None
         n = len(rec.observations)
@@ -575,7 +587,7 @@ class SpeedMeter:
         out = []
         for k in sorted((k for k in kept.values() if k.calibration_id != cal.id),
                         key=lambda k: (k.rec.last_t, k.rec.id)):
-            m = self._speed(k.px, k.times)
+            m = self._speed(k.px, k.fit_times)
             dims = None if k.dims_plane is None else k.dims_plane * self.camera.scale
             label, dims = self._label_of(k.label, dims)
             out.append(self._finish(k.rec, label, m.speed_kmh, m.reason, k.times, k.px, cal, m.n_pairs, m.kept, dims,
@@ -586,10 +598,10 @@ class SpeedMeter:
         """The vehicle's event, measured with the calibration in force; None when the track was no vehicle
         passing (:func:`not_a_vehicle`)."""
         cal = self.calibration
-        times, px, track = self._reference_points(rec, self.camera)
+        times, px, track, fit = self._reference_points(rec, self.camera)
         if len(px) == 0:
             return self._unmeasured(rec, "no reference point (no 3D box: never fully visible, nor cut by the top edge alone)", cal)
-        m = self._speed(px, times)
+        m = self._speed(px, fit)
         # the road it covered: its own points (the longest consistent run) when there are enough of them — a parked
         # car's points jump to each vehicle that passes it, merging with it for a moment; whether it drove off: its
         # latest points, all of them, as trafficoverlay judges it (a vehicle that stood, then drove off and was missed
@@ -599,7 +611,7 @@ class SpeedMeter:
         label, dims = self._label(track)
         if self.keep_measured:
             ends = _Record(rec.id, observations=[rec.observations[0], rec.observations[-1]], last_t=rec.last_t)
-            self._measured[rec.id] = _Kept(ends, times, px, track.label,
+            self._measured[rec.id] = _Kept(ends, times, fit, px, track.label,
                                            None if dims is None else dims / self.camera.scale, cal.id)
         return self._finish(rec, label, m.speed_kmh, m.reason, times, px, cal, m.n_pairs, m.kept, dims, m.spread_kmh)
 

@@ -73,6 +73,8 @@ class Observation:
     shape_fit: np.ndarray | None = field(default=None, repr=False)  # (S,) misfit of each shape (radians)
     shape_ok: bool = field(default=False, repr=False)  # the hull's tangents were valid
     length_px: float = field(default=0.0, repr=False)  # pixels a car's length would span along the road here
+    # the frame's smoothed time (frame_jitter.FrameRetimer: speedometer retime) for speed durations; None: t
+    fit_t: float | None = field(default=None, repr=False)
 
 
 @dataclass
