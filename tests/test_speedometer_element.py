@@ -139,18 +139,44 @@ def test_speeds_match_the_ground_truth(clip, implicit):
     assert results.calibration is not None and results.calibration.scale == pytest.approx(cal.camera.brno_scale())
 
 
-def test_frame_times_of_arrival_are_said_to_jitter(clip, implicit, tmp_path):
-    """Frames timed when they arrive (a source with do-timestamp=true: here each delayed by a random 0-80 ms, the
-    clip's frame interval) scatter the speeds and lose vehicles (benchmarks/frame_jitter.py); the speedometer says
-    once that the frame times jitter and what to do.  The clip's own timestamps are regular: nothing said."""
+@pytest.fixture(scope="module")
+def jittered(clip, tmp_path_factory):
+    """The clip's frames timed when they arrive (a source with do-timestamp=true: each delayed by a random 0-80 ms,
+    the clip's frame interval), measured with the buffers' own times (retime=off)."""
+    out = tmp_path_factory.mktemp("jittered")
+    return measure(clip, out, f"{detector(clip)} ! tcjitter jitter=0.08",
+                   f"calibration-file={clip / 'calibration.json'} retime=off")
+
+
+def test_frame_times_of_arrival_are_said_to_jitter(clip, implicit, jittered):
+    """Frames timed when they arrive scatter the speeds and lose vehicles (benchmarks/frame_jitter.py); the
+    speedometer says once that the frame times jitter and what to do.  The clip's own timestamps are regular:
+    nothing said (and retime=auto, the default, smooths nothing)."""
     out, run, events, results = implicit
     assert not [w for w in run.warnings if "jitter" in w], run.warnings
-    run2, events2, results2 = measure(clip, tmp_path, f"{detector(clip)} ! tcjitter jitter=0.08",
-                                      f"calibration-file={clip / 'calibration.json'}")
+    run2, events2, results2 = jittered
     said = [w for w in run2.warnings if "frame times jitter" in w]
-    assert len(said) == 1 and "do-timestamp=true" in said[0], said
+    assert len(said) == 1 and "do-timestamp=true" in said[0] and "retime=auto" in said[0], said
     assert re.search(r"intervals of (79|80|81) ms vary by", said[0]), said
     assert len(gt_speed_errors(clip, events2, results2)) < len(gt_speed_errors(clip, events, results))
+
+
+def test_jittering_frame_times_are_smoothed_for_the_speeds(clip, jittered, tmp_path):
+    """retime=auto (the default): once the times are found to jitter, the vehicles' τ-pair durations come from
+    times smoothed by a line fit over the frame count (frame_jitter.FrameRetimer), the ones in view then too: more
+    vehicles are measured, closer to the truth, than from the times of arrival; the warning says the times are
+    smoothed; the events keep the buffers' times.  A bad value is an error at start."""
+    run_off, events_off, results_off = jittered
+    run, events, results = measure(clip, tmp_path, f"{detector(clip)} ! tcjitter jitter=0.08",
+                                   f"calibration-file={clip / 'calibration.json'}")
+    said = [w for w in run.warnings if "frame times jitter" in w]
+    assert len(said) == 1 and "smoothed by a line fit over the last 50 frames" in said[0], said
+    off, auto = np.abs(gt_speed_errors(clip, events_off, results_off)), np.abs(gt_speed_errors(clip, events, results))
+    assert len(auto) > len(off) and auto.mean() < off.mean(), (off, auto)
+    ends = lambda evs: {e.id: (e.first_timestamp_s, e.last_timestamp_s) for e in evs}  # noqa: E731
+    assert ends(events) == ends(events_off)  # the same tracks, timed by their buffers
+    with pytest.raises(PipelineError, match="speedometer: retime must be one of auto, off, always, got 'sometimes'"):
+        run_pipeline("videotestsrc num-buffers=1 ! speedometer retime=sometimes ! fakesink")
 
 
 def test_every_vehicle_is_in_every_output(implicit, limit, webhook):

@@ -44,7 +44,7 @@ each vehicle measured again at the end is sent once more — a ``trafficcal-spee
 ``events-url`` POST, its new fields with ``revised: true`` — so a receiver replaces what it got for that run and id.
 """
 
-from gst_trafficcal.frame_jitter import FrameJitter
+from gst_trafficcal.frame_jitter import RETIME_MODES, FrameJitter, FrameRetimer
 from gst_trafficcal.gst._gi import GObject, Gst
 from gst_trafficcal.gst.element import READY_ONLY, TrafficcalTransform, upstream_element
 from gst_trafficcal.gst.untracked import UNTRACKED_AFTER_S, UntrackedWatch
@@ -136,6 +136,10 @@ class Speedometer(TrafficcalTransform):
         "vehicle-timeout": (float, "Vehicle timeout", "Seconds without a sighting after which a vehicle has "
                             "left and is reported (0: the tracker's max-lost + 0.4 s; never less than that)", 0.0,
                             3600.0, 0.0, _RW),
+        "retime": (str, "Retime", "Frame times for the speeds' durations: auto = smoothed by a line fit over the "
+                   "last 50 frames once the times are found to jitter (times of arrival: do-timestamp=true), off = "
+                   "the buffers' own, always = smoothed from the start; needs caps with a frame rate; buffer times "
+                   "and the events' timestamps stay the buffers'", "auto", _RW),
     }
 
     def __init__(self):
@@ -170,6 +174,7 @@ class Speedometer(TrafficcalTransform):
         self._said_out_of_order = False  # said that frames come out of order (StreamClock.out_of_order)
         self._dts = []
         self._jitter = FrameJitter()  # frame times of arrival, not of capture (do-timestamp=true): said once
+        self._retimer = None  # FrameRetimer: smoothed frame times for the speeds (retime; caps with a frame rate)
         self._own_stage = None  # bbscale's stage, built at start
         self._stage = None  # ... in use: no bbscale upstream, no scale given (decided at the first frame)
         self._scaled = None  # the upstream calibration with the λ that stage found
@@ -196,6 +201,8 @@ class Speedometer(TrafficcalTransform):
             self.claim_files({name: self.get_property(name) for name in (
                 "events-file", "csv-file", "frames-file", "results-file", "intervals-file")})
 
+            if self.retime not in RETIME_MODES:
+                raise ValueError(f"retime must be one of {', '.join(RETIME_MODES)}, got {self.retime!r}")
             if self.min_track_length < self.tau + 1:  # the library says the same with its own argument names
                 raise ValueError(f"min-track-length must be at least tau + 1 = {self.tau + 1}, got "
                                  f"{self.min_track_length}")
@@ -286,6 +293,13 @@ class Speedometer(TrafficcalTransform):
             self.refuse_size(f"speedometer: {wrong}")  # at the first frame: a stream's rotation may turn it
         # frames dropped on the way (a leaky queue) leave whole multiples of the caps' interval: no jitter
         self._jitter.interval = info.fps_d / info.fps_n if info.fps_n > 0 and info.fps_d > 0 else None
+        # smoothed against the caps' frame interval (dropped frames stay gaps); a new rate: smoothed anew
+        interval = self._jitter.interval if self.retime != "off" else None
+        if interval is None:
+            self._retimer = None
+        elif self._retimer is None or self._retimer.interval != interval:
+            self._retimer = FrameRetimer(interval)
+        self._jitter.smoothed = self._retimer is not None
         if info.fps_n > 0 and info.fps_d > 0 and self._outputs is not None and self._outputs.brno is not None:
             self._caps_fps = info.fps_n / info.fps_d
             self._outputs.brno.fps = self._caps_fps  # BrnoCompSpeed frame numbers = t * fps (checked: _fix_fps)
@@ -311,6 +325,8 @@ class Speedometer(TrafficcalTransform):
             return
         if self._tracking:
             self._tracking.flush()
+        if self._retimer is not None:  # the times after the jump are on a line of their own
+            self._retimer = FrameRetimer(self._retimer.interval)
         self._emit(self._meter.cut())
 
     # ------------------------------------------------------------------ calibration
@@ -385,6 +401,9 @@ class Speedometer(TrafficcalTransform):
         jitter = self._jitter.add(t)
         if jitter:
             self.post_warning(f"speedometer: {jitter}")
+        fit_t = self._retimer.add(t) if self._retimer is not None else None
+        # auto: the vehicles measured from now on, those in view too, are measured from the smoothed times
+        self._meter.smooth_times = self._retimer is not None and (self.retime == "always" or self._jitter.said)
         if self._start is None and self.start_datetime:
             from gst_trafficcal.clock import NOW, start_from_now
 
@@ -425,7 +444,7 @@ class Speedometer(TrafficcalTransform):
         if self._stage is not None:  # bbscale's stage, on what bbscale would read here: the tracked ROIs
             self._scale_frame(buffer, t, tracked)
         said, said_same_time = self._meter.duplicates, self._meter.same_time
-        out = self._meter.update(t, [s for _, s in labelled])
+        out = self._meter.update(t, [s for _, s in labelled], fit_t)
         if self._meter.same_time and not said_same_time:  # the stream's fault, said once
             self.post_warning(f"speedometer: a frame has the time of the frame before it (at {t:.2f} s: a repeated "
                               "timestamp, or a frame out of order): the vehicles' sightings in such frames are left "
