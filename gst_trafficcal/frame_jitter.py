@@ -5,10 +5,9 @@ takes the τ-pairs' durations from the times smoothed by a line fit (:class:`Fra
 
 Measured with ``.venv/bin/python benchmarks/frame_jitter.py`` (the speedometer tests' cuboid clip, 12.5 fps, the
 true boxes; each frame delayed by a random 0..J ms, seeds 0-2): the mean speed error of 0.16 km/h (15 of 18 vehicles
-measured) became 0.19-0.26 at 0-20 ms, 0.27-0.40 at 0-40 ms and 0.39-0.75 km/h at 0-80 ms with 13 measured; the
-warning came at 0-40 and 0-80 ms.  Smoothed by a line fit over the last 50 frames' times (possible for a
-constant-rate stream without dropped frames, done by the test element tcjitter) the 0-80 ms runs measured 15 again
-at 0.29-0.35.
+measured) became 0.19-0.27 at 0-20 ms, 0.27-0.40 at 0-40 ms and 0.38-0.75 km/h at 0-80 ms with 13 measured; the
+warning came at 0-40 and 0-80 ms.  With the times smoothed once the warning came (speedometer retime=auto, the
+default) 0.19-0.22 at 0-40 ms and 0.29-0.40 km/h at 0-80 ms with 14 measured (docs/speedometer.md has the table).
 """
 
 from __future__ import annotations
