@@ -7,7 +7,7 @@ Measured with ``.venv/bin/python benchmarks/frame_jitter.py`` (the speedometer t
 true boxes; each frame delayed by a random 0..J ms, seeds 0-2): the mean speed error of 0.16 km/h (15 of 18 vehicles
 measured) became 0.19-0.27 at 0-20 ms, 0.27-0.40 at 0-40 ms and 0.38-0.75 km/h at 0-80 ms with 13 measured; the
 warning came at 0-40 and 0-80 ms.  With the times smoothed once the warning came (speedometer retime=auto, the
-default) 0.19-0.22 at 0-40 ms and 0.29-0.40 km/h at 0-80 ms with 14 measured (docs/speedometer.md has the table).
+default) 0.17-0.19 at 0-40 ms and 0.24-0.36 km/h at 0-80 ms with 14 measured (docs/speedometer.md has the table).
 """
 
 from __future__ import annotations
@@ -70,8 +70,11 @@ class FrameJitter:
 class FrameRetimer:
     """Frame times in, smoothed times out (seconds): each frame's time on a robust line (Theil-Sen: the median of
     the pairwise slopes, the median intercept) fitted to the last :data:`RETIME_WINDOW` frames' (frame count,
-    time), its own included, so the jitter of times of arrival leaves the τ-pairs' durations.  Streaming: one fit
-    over the window per frame, no later frame looked at.
+    time), its own included, so the jitter of times of arrival leaves the τ-pairs' durations — until that many
+    frames came, on the line of the caps' interval's slope through their median (a free slope fitted to a few
+    frames puts the latest time far off: at 12.5 fps and 0-40 ms of delay the first 10 frames' 5-frame durations
+    were off by 12 ms (1σ, 20 seeds), on this line by 7, as they arrived by 16).  Streaming: one fit over the
+    window per frame, no later frame looked at.
 
     Frames dropped on the way (a leaky queue, the camera) stay gaps: the frame count goes on by the whole number
     of the caps' frame intervals between the time a line of that slope through the window gives the frame before
@@ -116,6 +119,9 @@ class FrameRetimer:
         return out
 
     def _fit(self) -> None:
+        if len(self._k) < self.window:  # a few frames: their free slope would put the latest time far off
+            self._line = self._counting_line()
+            return
         i, j = np.triu_indices(len(self._k), 1)
         slope = float(np.median((self._t[j] - self._t[i]) / (self._k[j] - self._k[i])))
         self._line = (slope, float(np.median(self._t - slope * self._k)))
