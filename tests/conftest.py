@@ -218,15 +218,24 @@ class Receiver:
 
 def switch_after(pipeline, selector_name: str, buffers: int, to_pad: str = "sink_1") -> None:
     """Switch the ``input-selector`` ``selector_name`` of ``pipeline`` to its pad ``to_pad`` once ``buffers`` buffers
-    have left it (asked from the application's side, as a user's camera switch is)."""
+    have left it (asked from the application's side, as a user's camera switch is; that buffer waits until it is
+    done: on a loaded machine the old source's last frames went through before the switch came, and nothing was
+    switched)."""
+    import threading
+
     from gst_trafficcal.gst._gi import Gst
 
-    sel, passed = pipeline.get_by_name(selector_name), []
+    sel, passed, switched = pipeline.get_by_name(selector_name), [], threading.Event()
+
+    def ask(_pipeline):
+        sel.set_property("active-pad", sel.get_static_pad(to_pad))
+        switched.set()
 
     def switch(_pad, _info):
         passed.append(True)
         if len(passed) == buffers:
-            pipeline.call_async(lambda p: sel.set_property("active-pad", sel.get_static_pad(to_pad)))
+            pipeline.call_async(ask)
+            switched.wait(30)  # (input-selector pushes without its lock: the switch does not wait for this frame)
         return Gst.PadProbeReturn.OK
 
     sel.get_static_pad("src").add_probe(Gst.PadProbeType.BUFFER, switch)
