@@ -218,27 +218,31 @@ class Receiver:
 
 def switch_after(pipeline, selector_name: str, buffers: int, to_pad: str = "sink_1") -> None:
     """Switch the ``input-selector`` ``selector_name`` of ``pipeline`` to its pad ``to_pad`` once ``buffers`` buffers
-    have left it (asked from the application's side, as a user's camera switch is; that buffer waits until it is
-    done: on a loaded machine the old source's last frames went through before the switch came, and nothing was
-    switched)."""
+    have gone through it (asked from the application's side, as a user's camera switch is).  The active pad's next
+    buffer waits before the selector until the switch is done, and is then dropped there as an inactive pad's: the
+    switch comes after exactly ``buffers`` frames, and no frame of the old source is on its way downstream when the
+    new one starts (asked as the buffer left, on a loaded machine the old source's last frames went through before
+    the switch came, or one was still on its way and reached the elements among the new source's first)."""
     import threading
 
     from gst_trafficcal.gst._gi import Gst
 
-    sel, passed, switched = pipeline.get_by_name(selector_name), [], threading.Event()
+    sel, entered, switched = pipeline.get_by_name(selector_name), [], threading.Event()
 
     def ask(_pipeline):
         sel.set_property("active-pad", sel.get_static_pad(to_pad))
         switched.set()
 
-    def switch(_pad, _info):
-        passed.append(True)
-        if len(passed) == buffers:
+    def hold(_pad, _info):
+        entered.append(True)
+        if len(entered) == buffers + 1:
             pipeline.call_async(ask)
-            switched.wait(30)  # (input-selector pushes without its lock: the switch does not wait for this frame)
+            switched.wait(30)
         return Gst.PadProbeReturn.OK
 
-    sel.get_static_pad("src").add_probe(Gst.PadProbeType.BUFFER, switch)
+    for pad in sel.sinkpads:  # (the active one: the selector chooses it as data comes)
+        if pad.get_name() != to_pad:
+            pad.add_probe(Gst.PadProbeType.BUFFER, hold)
 
 
 def first_frames(pad, frames: int) -> list[float]:
