@@ -128,6 +128,9 @@ class TrafficcalTransform(GstBase.BaseTransform):
         self._stream_id: tuple[str, int | None] | None = None  # the last STREAM_START's stream-id and group-id
         self._new_stream = 0  # frames left to look at after another stream started (NEW_STREAM_FRAMES)
         self._flushed_mid_run = False  # a FLUSH_STOP (a flushing seek) after frames: on_jump at the next timed one
+        # the last FLUSH_STOP's seqnum and how many of that seqnum came: a seek the source performs twice (asked of a
+        # pipeline with a tee, by both sinks) flushes twice with one seqnum, and each flush is decided on anew
+        self._flushes: tuple[int, int] | None = None
         self._given_offset: GivenClock | None = None  # the clock an element upstream gave the next frame
         self._said_untimed = False  # warn_untimed: said once per run
         self._said_non_square = False  # warn_non_square: said once per run
@@ -389,6 +392,8 @@ class TrafficcalTransform(GstBase.BaseTransform):
         elif event.type == Gst.EventType.FLUSH_STOP:  # a flushing seek: the next frame is another moment
             self._flushed_mid_run = self._flushed_mid_run or self.stream_clock.last is not None
             self._given_offset = None
+            flush = event.get_seqnum()
+            self._flushes = (flush, self._flushes[1] + 1 if self._flushes and self._flushes[0] == flush else 1)
         elif event.type == Gst.EventType.EOS:
             try:
                 self.on_eos()
@@ -439,18 +444,21 @@ class TrafficcalTransform(GstBase.BaseTransform):
             switched = given is not None or (not self._flushed_mid_run and not clock.continues(pts_s))
             if switched:  # decided: the frames after it are this stream's
                 self._flushed_mid_run, self._new_stream = True, 0
+        jump_key = self._jump_key(seqnum)
         with SEGMENTS.lock:  # one decision per flushing seek for the elements of every branch (segment_clocks)
             if given is not None and pts_s is not None:  # an element upstream timed this frame after a jump
                 self.buffer_t = clock.follow(pts_s, _followed_offset(given, pts_s, seqnum))
-            elif self._flushed_mid_run and _goes_on(clock, pts_s, decided := SEGMENTS.decided(seqnum)):
+            elif self._flushed_mid_run and _goes_on(clock, pts_s, decided := SEGMENTS.decided(jump_key)):
                 self.buffer_t = clock.follow(pts_s, decided)  # an element on another branch of a tee timed it first
                 tell = True
-            else:  # (a second flush into the same segment: the pipeline sent the seek to a tee's two sinks)
-                if self._flushed_mid_run:  # go on after the latest frame of any branch, not only after ours
+            else:
+                if self._flushed_mid_run:  # go on after the latest frame of any branch, not only after ours (also of
+                    # this segment's, timed by another branch before the source performed its seek a second time)
                     clock.catch_up(SEGMENTS.reached(self._timed_seqnum))
+                    clock.catch_up(SEGMENTS.reached(seqnum))
                 self.buffer_t = clock(pts_s, flushed=self._flushed_mid_run)
                 if self.buffer_t is not None and self._flushed_mid_run:
-                    SEGMENTS.decide(seqnum, clock.offset)
+                    SEGMENTS.decide(jump_key, clock.offset)
                 # the elements downstream go on from another last frame (frames were flushed between): tell them
                 tell = self.buffer_t is not None and (self._flushed_mid_run or clock.offset != offset)
             if self.buffer_t is not None:
@@ -468,6 +476,13 @@ class TrafficcalTransform(GstBase.BaseTransform):
         except Exception as exc:  # a Python exception must stop the pipeline with a readable error
             self.post_error(f"{type(exc).__name__}: {exc}", debug=traceback.format_exc())
             return Gst.FlowReturn.ERROR
+
+    def _jump_key(self, seqnum: int | None) -> tuple[int, int] | None:
+        """What the decision at a jump into segment ``seqnum`` is shared under (segment_clocks): the segment and
+        which of its flushes it follows (0: none, e.g. another stream after an input-selector switch)."""
+        if seqnum is None:
+            return None
+        return seqnum, self._flushes[1] if self._flushes and self._flushes[0] == seqnum else 0
 
     def do_stop(self) -> bool:
         """The run is over: its state goes (a start again begins as a new element would) and the READY_ONLY

@@ -6,7 +6,10 @@ from the last frame *it* had seen — the branches' queues held different frames
 branches would give the same frame times seconds apart.  So the elements of a process share, per segment (its
 seqnum, which a flushing seek gives every branch alike), the latest time any of them gave a frame in it and the
 offset decided at the jump into it: the first element to time a frame after the seek goes on after the latest time
-of the segment before, and every other one takes the offset it decided.
+of the segment before, and every other one takes the offset it decided.  A source may perform one seek twice (asked
+of a pipeline, it reaches the source from both sinks of a tee): two flushes with one seqnum, and a branch may have timed
+frames between them; the offset is decided anew for each flush (keyed by the seqnum and the flushes of it seen), going
+on after the latest time of the segment before and of this one.
 """
 
 from __future__ import annotations
@@ -25,7 +28,7 @@ class SegmentClocks:
     def __init__(self) -> None:
         self.lock = threading.Lock()
         self._reached: OrderedDict[int, float] = OrderedDict()
-        self._decided: OrderedDict[int, float] = OrderedDict()
+        self._decided: OrderedDict[tuple[int, int], float] = OrderedDict()
 
     def reached(self, seqnum: int | None) -> float | None:
         """The latest time any element gave a frame of segment ``seqnum``."""
@@ -36,16 +39,17 @@ class SegmentClocks:
         if seqnum is not None and t > self._reached.get(seqnum, float("-inf")):
             _put(self._reached, seqnum, t)
 
-    def decided(self, seqnum: int | None) -> float | None:
-        """The offset decided at the jump into segment ``seqnum`` (None: not decided yet)."""
-        return None if seqnum is None else self._decided.get(seqnum)
+    def decided(self, key: tuple[int, int] | None) -> float | None:
+        """The offset decided at the jump ``key`` = (segment seqnum, its flushes seen: a source may perform one seek
+        twice, flushing twice with one seqnum) (None: not decided yet)."""
+        return None if key is None else self._decided.get(key)
 
-    def decide(self, seqnum: int | None, offset: float) -> None:
-        if seqnum is not None:
-            _put(self._decided, seqnum, offset)
+    def decide(self, key: tuple[int, int] | None, offset: float) -> None:
+        if key is not None:
+            _put(self._decided, key, offset)
 
 
-def _put(table: OrderedDict[int, float], key: int, value: float) -> None:
+def _put(table: OrderedDict, key, value: float) -> None:
     table[key] = value
     table.move_to_end(key)
     while len(table) > KEEP:
