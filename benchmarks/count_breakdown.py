@@ -26,7 +26,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import numpy as np  # noqa: E402
-from end_to_end import rule_frames, vehicle_key  # noqa: E402
+from end_to_end import rule_frames, scene_fps, vehicle_key  # noqa: E402
 
 from gst_trafficcal.detection.records import box_iou, clip_boxes  # noqa: E402
 
@@ -40,20 +40,6 @@ def _with_frames(video, paths, *a, **k):
 R.pipeline_description = _with_frames
 sys.exit(main(sys.argv[1:]))
 """
-
-
-def scene_fps(scene: Path) -> float:
-    """The scene's frame rate: its gt_data.pkl's (as end_to_end.py scores it), else its scenario.json's
-    imaging.fps, else 25 (the renderer's default; said on stderr, since frame numbers then rest on it)."""
-    from gst_trafficcal.brnocompspeed import load_gt_data
-
-    if (scene / "gt_data.pkl").is_file():
-        return float(load_gt_data(scene / "gt_data.pkl").fps)
-    try:
-        return float(json.loads((scene / "scenario.json").read_text())["imaging"]["fps"])
-    except (OSError, ValueError, KeyError, TypeError):
-        print(f"{scene}: no gt_data.pkl and no imaging.fps in scenario.json: taking 25 fps", file=sys.stderr)
-        return 25.0
 
 
 def breakdown(scene: Path, run: Path) -> tuple[Counter, list[str], int, int]:

@@ -298,6 +298,20 @@ def vehicle_key(r: dict) -> tuple:
     return r["id"], r.get("model"), r.get("lane"), r.get("direction")
 
 
+def scene_fps(scene: Path) -> float:
+    """The scene's frame rate: its gt_data.pkl's (as the scores here take it), else its scenario.json's
+    imaging.fps, else 25 (the renderer's default; said on stderr, since frame numbers then rest on it)."""
+    from gst_trafficcal.brnocompspeed import load_gt_data
+
+    if (scene / "gt_data.pkl").is_file():
+        return float(load_gt_data(scene / "gt_data.pkl").fps)
+    try:
+        return float(json.loads((scene / "scenario.json").read_text())["imaging"]["fps"])
+    except (OSError, ValueError, KeyError, TypeError):
+        print(f"{scene}: no gt_data.pkl and no imaging.fps in scenario.json: taking 25 fps", file=sys.stderr)
+        return 25.0
+
+
 def rule_frames(frames_jsonl: Path, size: tuple[int, int], min_area: float = 0.0015) -> Counter | None:
     """Per rendered vehicle (:func:`vehicle_key`), the frames it is seen at least half visible and at least as large
     as the detectors' smallest vehicle (``min_area`` of the image); None without a frames.jsonl."""

@@ -54,18 +54,10 @@ class Scene:
     vehicles: list[Vehicle]
 
 
-def scene_fps(folder: Path) -> float:
-    """The render's frame rate (scenario.json imaging.fps; 25 without one)."""
-    try:
-        return float(json.loads((folder / "scenario.json").read_text())["imaging"]["fps"])
-    except (OSError, KeyError, ValueError, TypeError):
-        return 25.0
-
-
 def score_scene(run: Path, truth: Path, model: UncertaintyModel = DEFAULT_MODEL, recompute: bool = False
                 ) -> Scene | None:
     """The scene's matched vehicles with their U; None when the run left no calibration or no vehicles."""
-    from end_to_end import truth_matches
+    from end_to_end import scene_fps, truth_matches
 
     if not all((run / f).is_file() for f in ("vehicles.jsonl", "system.json", "calibration.json")):
         return None

@@ -1,8 +1,14 @@
 """benchmarks/end_to_end.py: the split of a run's speed error into its scale part (λ err) and its vanishing-point
 part (road err at the true λ), on the rendered cuboid clip's per-frame truth, and the per-scene table that shows
-both."""
+both; scene_fps."""
+
+import json
+import shutil
+from pathlib import Path
 
 import numpy as np
+
+from .conftest import BRNO, require_shared
 
 
 def test_road_error_is_the_vanishing_points_part_alone(load_benchmark, cuboid_clip_dense, tmp_path):
@@ -113,3 +119,35 @@ def test_the_traffic_count_is_scored_against_the_vehicles_that_passed(load_bench
             b.Row("c", "replay", "auto", vehicles=5, rendered=None)]
     line = b.count_table(rows).splitlines()[2]
     assert line == "| replay (2) | auto | 31 | 30 | +3.3 % | 10.0 % (a +10 %) |"
+
+
+# scene_fps: a scene's frame rate for the benchmarks that read its truth by frame (count_breakdown,
+# speed_uncertainty): the one the scores take (gt_data.pkl), then the render's scenario.json, then 25 said on stderr
+
+
+def _scenario_fps(scene: Path, fps: float) -> None:
+    (scene / "scenario.json").write_text(json.dumps({"imaging": {"fps": fps}}))
+
+
+def test_scene_fps_takes_the_ground_truths_frame_rate_before_the_scenarios(load_benchmark, tmp_path, capsys):
+    gt = require_shared(BRNO / "session0_center" / "gt_data.pkl")
+    shutil.copy(gt, tmp_path / "gt_data.pkl")
+    _scenario_fps(tmp_path, 12.5)  # another rate: which of the two was read shows
+    assert load_benchmark("end_to_end").scene_fps(tmp_path) == 25.0  # the recording's own (real BrnoCompSpeed)
+    assert capsys.readouterr().err == ""
+
+
+def test_scene_fps_without_a_ground_truth_is_the_scenarios(load_benchmark, tmp_path, capsys):
+    _scenario_fps(tmp_path, 12.5)
+    assert load_benchmark("end_to_end").scene_fps(tmp_path) == 12.5
+    assert capsys.readouterr().err == ""
+
+
+def test_scene_fps_without_either_is_25_and_says_so(load_benchmark, tmp_path, capsys):
+    (tmp_path / "scenario.json").write_text("{not json")
+    assert load_benchmark("end_to_end").scene_fps(tmp_path) == 25.0
+    err = capsys.readouterr().err
+    assert str(tmp_path) in err and "taking 25 fps" in err
+    (tmp_path / "scenario.json").unlink()  # none at all: the same
+    assert load_benchmark("end_to_end").scene_fps(tmp_path) == 25.0
+    assert "taking 25 fps" in capsys.readouterr().err
