@@ -553,6 +553,7 @@ class ReportInputs:
     not_counted: tuple[int, int] = (0, 0)  # tracks that were no vehicle passing: (brief, stationary)
     paths: Sequence[tuple[int | None, np.ndarray]] = ()  # (lane, reference points in pixels) of measured vehicles
     zone: Zone | None = None  # the detection zone the run used (outlined in the calibration picture)
+    warnings: Sequence[str] = ()  # what the run warned about (trafficcal run: as on its terminal and in run.log)
 
 
 def render_report(inputs: ReportInputs) -> str:
@@ -562,6 +563,8 @@ def render_report(inputs: ReportInputs) -> str:
     if inputs.source:
         parts.append(f'<p class="muted">Video: {_esc(inputs.source)}</p>')
     parts.append(f'<p class="muted">{_esc(_run_line(inputs))}</p>')
+    if inputs.warnings:  # read before the figures they qualify (frame times smoothed, a short video, a camera move)
+        parts.append(_warnings_section(inputs.warnings))
     parts.append(_calibration_section(inputs.calibration, inputs.frame, inputs.grid_spacing_m, inputs.zone))
     limit = as_limit(inputs.speed_limit_kmh)
     size = inputs.calibration.image_size if inputs.calibration is not None else None
@@ -578,6 +581,12 @@ def render_report(inputs: ReportInputs) -> str:
         parts.append(_evaluation_section(inputs.evaluation, inputs.ground_truth_name))
     parts.append("</body></html>\n")
     return "\n".join(parts)
+
+
+def _warnings_section(warnings: Sequence[str]) -> str:
+    """What the run warned about, each once, in the order it came (also in run.log, dated)."""
+    items = "".join(f'<p class="warn">{_esc(w)}</p>' for w in dict.fromkeys(warnings))
+    return f"<h2>Warnings</h2><p class=\"muted\">What the run warned about (also in run.log, dated).</p>{items}"
 
 
 def _run_line(inputs: ReportInputs) -> str:

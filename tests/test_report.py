@@ -286,6 +286,20 @@ def test_report_is_self_contained_and_escaped() -> None:
     assert _decode(page.images[0]).shape == (H, W, 3)  # no frame: the grid on a plain canvas
 
 
+def test_report_lists_the_runs_warnings_once_each_before_the_figures() -> None:
+    """trafficcal run's warnings (as on its terminal): a section of their own, before the calibration and the
+    vehicles they qualify, each once, escaped; none, no section."""
+    jitter = "speedometer0: speedometer: the frame times jitter: intervals of 40 ms vary by 12 ms <...>"
+    short = "clip.mp4: the video ended after 12.0 s"
+    text = render_report(ReportInputs([], _calibration(), warnings=[jitter, short, jitter]))
+    page = _parse(text)
+    assert page.headings[1] == "Warnings" and page.headings[2] == "Calibration"
+    shown = [t.strip() for t in page.text if "frame times jitter" in t or "ended after" in t]
+    assert shown == [jitter, short]
+    assert "&lt;...&gt;" in text
+    assert "Warnings" not in _parse(render_report(ReportInputs([], _calibration()))).headings
+
+
 def test_report_with_nothing_measured() -> None:
     page = _parse(render_report(ReportInputs([], None)))
     assert page.images == []

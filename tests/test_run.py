@@ -153,7 +153,10 @@ def test_stream_ending_before_calibration_converges(clip, tmp_path):
     assert f"not measured: {len(events)} x no calibration\n" in proc.stdout  # one line for one cause
     assert not (tmp_path / "overlay.mp4").exists()
     assert "did not converge" in proc.stderr and cal.reason in " ".join(proc.stderr.split())
-    assert "no calibration" in (tmp_path / "report.html").read_text()
+    report = (tmp_path / "report.html").read_text()
+    assert "no calibration" in report
+    # the run's warnings in the report too, as on the terminal (bbscale's says only there why there is no scale)
+    assert "<h2>Warnings</h2>" in report and "bbscale: no scale: waiting for the vanishing points" in report
 
 
 def test_a_video_of_an_odd_size_runs_with_its_overlay(clip, tmp_path):

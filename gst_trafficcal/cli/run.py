@@ -17,6 +17,7 @@ calibration the run ended with), ``system.json`` (BrnoCompSpeed results), ``vehi
 from __future__ import annotations
 
 from collections import Counter
+from collections.abc import Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -1083,6 +1084,14 @@ class RunOptions:
     orientation: str = "auto"  # --orientation: how the picture is turned (imaging.check_orientation)
 
 
+def report_warnings(warnings: Sequence[str]) -> list[str]:
+    """The run's warnings for report.html: all but vpdetect's on a poorly conditioned view, which the report's
+    calibration section says itself."""
+    from ..vanishing.conditioning import ADVICE
+
+    return [w for w in warnings if ADVICE not in w]
+
+
 def run_one(console, video: Path | str, out_dir: Path, calibration_path: Path | None, options: RunOptions,
             calibration_mode: str = "fixed", first: Any = None) -> "RunSummary":
     """One input of ``trafficcal run``: play it, print what it found, write intervals.csv and report.html;
@@ -1181,7 +1190,7 @@ def run_one(console, video: Path | str, out_dir: Path, calibration_path: Path | 
             covered=[(0.0, summary.watched_s)] if summary.watched_s else None,
             remeasured=(summary.remeasured, summary.remeasured_speeds), not_counted=summary.not_counted,
             paths=() if summary.moves else lane_paths(paths.results, summary.events),  # moved: not on this frame
-            zone=zone))
+            zone=zone, warnings=report_warnings(summary.warnings)))
     except InputError as exc:
         summary.errors.append(str(exc))
     written = [n for n in OUTPUTS if (out_dir / n).exists()]
