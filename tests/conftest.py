@@ -137,10 +137,11 @@ def encoded(dst: Path, caps: str, frames: int = 100, src: Path | None = None) ->
     """An H.264 MP4 ``dst`` of exactly ``frames`` frames of raw video ``caps`` (e.g. ``width=480,height=360,
     pixel-aspect-ratio=4/3``: stored squeezed, as a DVR's D1): the first frames of the video ``src`` (cut by
     :func:`cut_after`: ``identity eos-after`` behind a decoder lets more through, varying with the load), or of
-    videotestsrc's still colour bars (``num-buffers``: its one thread makes no more)."""
+    videotestsrc's still colour bars (``num-buffers``: its one thread makes no more).  x264enc on one thread: with
+    two its frames differ from run to run (as trafficcal synth's encoder says), and what is measured on them too."""
     from gst_trafficcal.gst.pipeline import run_pipeline
 
-    tail = (f"videoconvert ! videoscale ! video/x-raw,{caps} ! x264enc speed-preset=ultrafast ! mp4mux ! "
+    tail = (f"videoconvert ! videoscale ! video/x-raw,{caps} ! x264enc speed-preset=ultrafast threads=1 ! mp4mux ! "
             f"filesink location=\"{dst}\"")
     if src is None:
         run_pipeline(f"videotestsrc pattern=smpte num-buffers={frames} ! {tail}", timeout=120)

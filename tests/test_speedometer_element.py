@@ -1359,8 +1359,8 @@ def _kraten_reencoded(clip: Path, muxer: str, times: list[float | None]) -> Path
     from gst_trafficcal.gst.encode import AppsrcH264Writer
 
     cap = cv2.VideoCapture(str(require_shared(VIDEOS / "kraten_cars.mp4")))
-    writer = AppsrcH264Writer(clip, (640, 360), 25.0, "videoconvert ! x264enc speed-preset=ultrafast ! h264parse ! "
-                                                      f"{muxer} ! filesink")
+    writer = AppsrcH264Writer(clip, (640, 360), 25.0, "videoconvert ! x264enc speed-preset=ultrafast threads=1 ! "
+                                                      f"h264parse ! {muxer} ! filesink")
     for t in times:
         ok, frame = cap.read()
         assert ok
