@@ -10,6 +10,14 @@ warned of jittering frame times, and per setting and jitter the means over the s
 
     .venv/bin/python benchmarks/frame_jitter.py [--jitter 0 0.02 0.04 0.08] [--seeds 3] [--smooth 0]
         [--retime off auto always]
+
+``--series N`` instead (no rendering; about a minute for 50): N simulated time series of each kind — times of
+arrival (capture times on a steady rate, each delayed by a random 0..J s, some frames dropped) and variable frame
+rates timed at capture — and per kind in how many FrameJitter says the times jitter (so that retime=auto smooths
+them), and how far the 5-frame durations a speed divides by are from the capture times', as they come and smoothed
+(FrameRetimer)::
+
+    .venv/bin/python benchmarks/frame_jitter.py --series 50
 """
 
 from __future__ import annotations
@@ -27,6 +35,7 @@ sys.path.insert(0, str(ROOT))
 import tests.test_speedometer_element as T  # noqa: E402  (helpers and element registration of the tests)
 from tests.conftest import CUBOID_SCENE  # noqa: E402
 
+from gst_trafficcal.frame_jitter import FrameJitter, retimed  # noqa: E402
 from gst_trafficcal.gst.pipeline import run_pipeline  # noqa: E402
 from gst_trafficcal.outputs import read_events  # noqa: E402
 from gst_trafficcal.brnocompspeed import load_results  # noqa: E402
@@ -35,13 +44,76 @@ from gst_trafficcal.synth.scenario import scenario_from_dict  # noqa: E402
 from gst_trafficcal.synth.traffic import cuboid_models  # noqa: E402
 
 
+FRAMES = 1500  # frames of each simulated series
+
+
+def _arrival(fps: float, delay: float, drop: float):
+    """Capture times at ``fps``, a fraction ``drop`` of the frames dropped, and their times of arrival (each delayed
+    by a random 0..``delay`` s, kept increasing)."""
+    def make(rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray, float]:
+        kept = rng.random(FRAMES) >= drop
+        kept[0] = True
+        capture = np.arange(FRAMES)[kept] / fps
+        return capture, np.maximum.accumulate(capture + rng.uniform(0, delay, len(capture))), 1 / fps
+    return make
+
+
+def _variable_rate(drifting: bool):
+    """Capture times of a rate that varies itself (caps 30 fps): 30-45 ms intervals at random, or drifting between
+    33 and 40 ms; timed at capture (arrival = capture)."""
+    def make(rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray, float]:
+        k = np.arange(FRAMES)
+        dts = (0.0365 + 0.0035 * np.sin(k / 80 + rng.uniform(0, 6.3)) + rng.normal(0, 0.001, FRAMES) if drifting
+               else rng.uniform(0.030, 0.045, FRAMES))
+        capture = np.concatenate([[0.0], np.cumsum(dts)])
+        return capture, capture, 1 / 30
+    return make
+
+
+SERIES = {  # name: maker of (capture times, times as the speedometer gets them, the caps' frame interval)
+    "arrival 25 fps, 0-40 ms": _arrival(25, 0.04, 0.0),
+    "arrival 25 fps, 0-40 ms, 2 % dropped": _arrival(25, 0.04, 0.02),
+    "arrival 25 fps, 0-40 ms, 10 % dropped": _arrival(25, 0.04, 0.10),
+    "arrival 12.5 fps, 0-20 ms": _arrival(12.5, 0.02, 0.0),
+    "arrival 12.5 fps, 0-40 ms": _arrival(12.5, 0.04, 0.0),
+    "arrival 12.5 fps, 0-40 ms, 5 % dropped": _arrival(12.5, 0.04, 0.05),
+    "arrival 12.5 fps, 0-80 ms": _arrival(12.5, 0.08, 0.0),
+    "variable rate 30-45 ms at random": _variable_rate(False),
+    "variable rate drifting 33-40 ms": _variable_rate(True),
+}
+
+
+def series_table(n: int) -> list[tuple[str, int, float, float]]:
+    """Per kind of :data:`SERIES`: (name, series of ``n`` said to jitter, median |relative error| of the 5-frame
+    durations as they come, the same smoothed), the errors against the capture times over all ``n`` series."""
+    rows = []
+    for name, make in SERIES.items():
+        said, raw, smooth = 0, [], []
+        for seed in range(n):
+            capture, times, interval = make(np.random.default_rng(seed))
+            jitter = FrameJitter(interval)
+            said += any(jitter.add(float(t)) for t in times)
+            true = capture[5:] - capture[:-5]
+            for got, out in ((times, raw), (retimed(times, interval), smooth)):
+                out.append(np.abs((got[5:] - got[:-5]) / true - 1)[100:])  # once the smoothing line is fitted
+        rows.append((name, said, float(np.median(np.concatenate(raw))), float(np.median(np.concatenate(smooth)))))
+    return rows
+
+
 def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--jitter", type=float, nargs="+", default=[0.0, 0.02, 0.04, 0.08])
     ap.add_argument("--seeds", type=int, default=3)
     ap.add_argument("--smooth", type=int, nargs="+", default=[0])
     ap.add_argument("--retime", nargs="+", default=["off", "auto", "always"], choices=["off", "auto", "always"])
+    ap.add_argument("--series", type=int, default=0, metavar="N",
+                    help="simulated time series instead of the rendered clip: N of each kind (see above)")
     args = ap.parse_args(argv)
+    if args.series:
+        print(f"{'series':40s} said  5-frame durations off (median): as they come / smoothed")
+        for name, said, raw, smooth in series_table(args.series):
+            print(f"{name:40s} {said:3d}/{args.series}  {raw * 100:5.1f} % / {smooth * 100:5.1f} %")
+        return
     for name in ("speedometer.py", "tracker.py"):
         T.register_plugin_file(T.ELEMENTS / name)
     for name in ("tcgtdetect", "tcjitter"):
