@@ -57,7 +57,7 @@ class FrameJitter:
         # machine, a camera's own drops) leave whole multiples of the caps' interval, however many they are
         off = dts - median * np.maximum(np.round(dts / median), 1)
         spread = float(np.median(np.abs(off)))
-        if median <= 0 or spread <= self.limit * median or not reverts(dts - dts.mean()):
+        if median <= 0 or spread <= self.limit * median or not reverts(dts):
             return None
         self.said = True
         return (f"the frame times jitter: intervals of {median * 1000:.0f} ms vary by {spread * 1000:.0f} ms (median "
@@ -71,18 +71,18 @@ class FrameJitter:
                 + " (drop do-timestamp=true; an RTSP camera's rtspsrc gives them); said once")
 
 
-def reverts(off: np.ndarray, span: int = SPAN) -> bool:
-    """Whether frame times whose intervals are ``off`` (seconds) from their mean come back to a line, as
+def reverts(intervals: np.ndarray, span: int = SPAN) -> bool:
+    """Whether frame times with these ``intervals`` (seconds) come back to a line, as
     times of arrival do: a frame delayed makes its interval long and the next one short, so the durations over
     ``span`` frames vary about as much as single intervals (the variance ratio is 1/span), while a rate that varies
     itself adds the intervals' variations up (the ratio is 1 for independent intervals, more for a drifting rate).
     Only times that come back to a line are smoothed well by one (at 0-40 ms of delay the ratio is 0.2; the times of
     30-45 ms intervals at random, smoothed, gave 5-frame durations 5.7 % off at the median: ``benchmarks/
     frame_jitter.py --series``)."""
-    if len(off) <= 2 * span or not np.var(off) > 0:
+    if len(intervals) <= 2 * span or not np.var(intervals) > 0:
         return False
-    walk = np.cumsum(off)
-    return float(np.var(walk[span:] - walk[:-span]) / (span * np.var(off))) < REVERTS
+    walk = np.cumsum(intervals)  # (variances: the mean interval takes no part)
+    return float(np.var(walk[span:] - walk[:-span]) / (span * np.var(intervals))) < REVERTS
 
 
 @dataclass
