@@ -109,6 +109,8 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--series", type=int, default=0, metavar="N",
                     help="simulated time series instead of the rendered clip: N of each kind (see above)")
     args = ap.parse_args(argv)
+    if args.series < 0:
+        ap.error(f"--series must be a number of series (1 or more), got {args.series}")
     if args.series:
         print(f"{'series':40s} said  5-frame durations off (median): as they come / smoothed")
         for name, said, raw, smooth in series_table(args.series):
