@@ -26,9 +26,10 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import numpy as np  # noqa: E402
-from end_to_end import rule_frames, scene_fps, vehicle_key  # noqa: E402
+from end_to_end import rule_frames, scene_fps  # noqa: E402
 
 from gst_trafficcal.detection.records import box_iou, clip_boxes  # noqa: E402
+from gst_trafficcal.synth.truth_match import vehicle_key  # noqa: E402
 
 RUN_WITH_FRAMES = """
 import sys

@@ -50,6 +50,8 @@ from pathlib import Path
 
 import numpy as np
 
+from gst_trafficcal.synth.truth_match import vehicle_key
+
 ROOT = Path(__file__).resolve().parents[1]
 TRAFFICCAL = [sys.executable, "-m", "gst_trafficcal"]
 BRNO = ROOT.parent / "shared" / "data" / "brnocompspeed"
@@ -290,12 +292,6 @@ def run_scene(scene: Scene, mode: str, work: Path, fresh: bool = False, detector
     row.errors_kmh = [float(v) for v in sp.errors_abs_kmh]
     row.recall, row.false_positives, row.matched_valid = sp.recall, sp.false_positives, sp.matched_valid
     return row
-
-
-def vehicle_key(r: dict) -> tuple:
-    """A rendered vehicle of a frames.jsonl record: its id with its model, lane and direction (a replay's ids are the
-    recording's car ids, and BrnoCompSpeed's session0_center gives one id to two or three cars: ids 11 and 25)."""
-    return r["id"], r.get("model"), r.get("lane"), r.get("direction")
 
 
 def scene_fps(scene: Path) -> float:

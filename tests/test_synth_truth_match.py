@@ -44,3 +44,22 @@ def test_each_measured_vehicle_is_matched_to_the_rendered_one_it_follows(tmp_pat
     assert len(match_measured(frames, events, results, SIZE, max_distance=0.005)) == 2
     assert match_measured(frames, events, results, SIZE, max_distance=0.0005) == []
     assert match_measured(tmp_path / "none.jsonl", events, results, SIZE) == []
+
+
+def test_two_rendered_vehicles_with_one_id_are_two_vehicles(tmp_path):
+    """BrnoCompSpeed's session0_center gives one car id to two or three cars, and a replay renders each with its
+    recorded id: the truth is keyed by id, model, lane and direction, so each measured vehicle is scored against the
+    car it follows.  Keyed by id alone, the second car's records replaced the first's in the frames both are in."""
+    with open(tmp_path / "frames.jsonl", "w") as fh:
+        for f in range(10):
+            for lane, x, speed in ((0, 100.0, 80.0), (1, 600.0, 60.0)):
+                fh.write(json.dumps({"frame": f, "id": 11, "model": "octavia", "lane": lane, "direction": "towards",
+                                     "class": "sedan", "ref": [x, 300.0 + 5 * f], "size": [4.5, 1.7, 1.4],
+                                     "speed_kmh": speed}) + "\n")
+    writer = BrnoResultsWriter(tmp_path / "system.json", fps=25.0)
+    for k, x in enumerate((101.0, 599.0), 1):
+        writer.add(k, np.arange(10) / 25.0, [[x, 300.0 + 5 * f] for f in range(10)])
+    writer.write(Calibration(default_camera(SIZE), SIZE, source="test"))
+    events = [VehicleEvent(1, "car", 0.0, 0.36, 81.0), VehicleEvent(2, "car", 0.0, 0.36, 59.0)]
+    got = match_measured(tmp_path / "frames.jsonl", events, load_results(tmp_path / "system.json"), SIZE)
+    assert [(m.vehicle_id, m.rendered_id, m.speed_error_kmh) for m in got] == [(1, 11, 1.0), (2, 11, -1.0)]

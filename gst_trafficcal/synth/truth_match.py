@@ -33,6 +33,12 @@ class TruthMatch:
     size: tuple[float, float, float] | None  # the reported ones, None when none was reported
 
 
+def vehicle_key(r: dict) -> tuple:
+    """A rendered vehicle of a frames.jsonl record: its id with its model, lane and direction (a replay's ids are the
+    recording's car ids, and BrnoCompSpeed's session0_center gives one id to two or three cars: ids 11 and 25)."""
+    return r["id"], r.get("model"), r.get("lane"), r.get("direction")
+
+
 def match_measured(frames_jsonl: str | Path, events: Sequence[VehicleEvent], results: Results,
                    image_size: tuple[int, int], max_distance: float = 0.05) -> list[TruthMatch]:
     """Every measured vehicle whose BrnoCompSpeed track (``results``: its reference points and frames) follows a
@@ -42,13 +48,13 @@ def match_measured(frames_jsonl: str | Path, events: Sequence[VehicleEvent], res
     path = Path(frames_jsonl)
     if not path.is_file():
         return []
-    truth: dict[int, dict[int, tuple[float, float, float]]] = {}
-    about: dict[int, tuple[str, tuple[float, float, float]]] = {}
+    truth: dict[tuple, dict[int, tuple[float, float, float]]] = {}  # by vehicle_key: ids may repeat
+    about: dict[tuple, tuple[str, tuple[float, float, float]]] = {}
     for r in read_jsonl(path):
-        truth.setdefault(int(r["id"]), {})[int(r["frame"])] = (*r["ref"], float(r["speed_kmh"]))
+        key = vehicle_key(r)
+        truth.setdefault(key, {})[int(r["frame"])] = (*r["ref"], float(r["speed_kmh"]))
         style = str(r.get("class", ""))
-        about[int(r["id"])] = (LABEL_OF_STYLE.get(style, style),
-                               tuple(float(v) for v in r.get("size", (np.nan,) * 3)))
+        about[key] = (LABEL_OF_STYLE.get(style, style), tuple(float(v) for v in r.get("size", (np.nan,) * 3)))
     tracks = {t.id: t for t in results.cars}
     out = []
     for e in events:
@@ -67,7 +73,7 @@ def match_measured(frames_jsonl: str | Path, events: Sequence[VehicleEvent], res
                 best, best_id, best_speed = d, vid, float(np.median(ref[:, 2]))
         if best_id is not None:
             size = (e.length_m, e.width_m, e.height_m)
-            out.append(TruthMatch(e.id, best_id, e.speed_kmh - best_speed, about[best_id][0], e.label,
+            out.append(TruthMatch(e.id, int(best_id[0]), e.speed_kmh - best_speed, about[best_id][0], e.label,
                                   about[best_id][1], None if any(v is None for v in size) else size))
     return out
 
