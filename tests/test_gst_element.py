@@ -364,6 +364,8 @@ def test_a_seek_performed_twice_gives_a_frame_one_time_on_both_branches_of_a_tee
         event.set_seqnum(seqnum)  # the same seek again, as the source performs it for the second sink
         source.send_event(event if again else first_seek)
 
+    a_flushing = [threading.Event(), threading.Event()]  # the first and the second FLUSH_START reached a
+
     def on_a(_pad, info):  # the first seek at 6 s; the second once a timed three frames after the first flush
         pts = info.get_buffer().pts
         if not asked and pts >= 6 * Gst.SECOND:
@@ -372,10 +374,17 @@ def test_a_seek_performed_twice_gives_a_frame_one_time_on_both_branches_of_a_tee
         elif len(asked) == 1 and flushes["a"] == 1 and pts >= int(4.08 * Gst.SECOND):
             asked.append(True)
             pipeline.call_async(seek, True)
+        else:
+            return Gst.PadProbeReturn.OK
+        # this frame waits until the seek asked is performed: on a loaded machine the asking thread came late and
+        # the stream had ended first (CI run beside benchmarks: flushes a 1, b 1)
+        a_flushing[len(asked) - 1].wait(20)
         return Gst.PadProbeReturn.OK
 
     def flush(_pad, info, name):
         event = info.get_event()
+        if event.type == Gst.EventType.FLUSH_START and name == "a":
+            next((e for e in a_flushing if not e.is_set()), threading.Event()).set()
         if event.type == Gst.EventType.FLUSH_START and name == "b" and flushes["b"] == 1:
             second_flush_started.set()
         elif event.type == Gst.EventType.FLUSH_STOP:
