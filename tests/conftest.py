@@ -280,17 +280,29 @@ def cut_after(description: str, frames: int):
 
 def seek_once(pipeline, pad, target_s: float, at_s: float = 6.0) -> list[bool]:
     """A flushing, accurate seek of ``pipeline`` to ``target_s`` when the first buffer at or after ``at_s`` passes
-    ``pad`` (asked from the pipeline's thread, as a player does); the list returned holds True once it was asked."""
+    ``pad`` (asked from the pipeline's thread, as a player does); the list returned holds True once it was asked.
+    That buffer waits at ``pad`` until the seek's flush passes it: on a loaded machine the asking thread may come
+    late, and the stream could end first."""
+    import threading
+
     from gst_trafficcal.gst._gi import Gst
 
     sought: list[bool] = []
+    flushing = threading.Event()
 
     def probe(_pad, info):
         if not sought and info.get_buffer().pts >= at_s * Gst.SECOND:
             sought.append(True)
             pipeline.call_async(lambda p: p.seek_simple(Gst.Format.TIME, Gst.SeekFlags.FLUSH | Gst.SeekFlags.ACCURATE,
                                                         int(target_s * Gst.SECOND)))
+            flushing.wait(20)
+        return Gst.PadProbeReturn.OK
+
+    def flush(_pad, info):
+        if info.get_event().type == Gst.EventType.FLUSH_START:
+            flushing.set()
         return Gst.PadProbeReturn.OK
 
     pad.add_probe(Gst.PadProbeType.BUFFER, probe)
+    pad.add_probe(Gst.PadProbeType.EVENT_FLUSH, flush)
     return sought
