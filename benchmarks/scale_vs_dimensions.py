@@ -17,6 +17,8 @@ from pathlib import Path
 import numpy as np
 from scipy.stats import pearsonr, spearmanr
 
+from gst_trafficcal.outputs import read_events
+
 
 def scene_rows(rows: list[dict], work: Path) -> list[tuple[str, float, float, np.ndarray, np.ndarray]]:
     """(scene, λ err %, road err %, median log measured L W H of its measured cars, median log(measured / rendered))
@@ -25,9 +27,9 @@ def scene_rows(rows: list[dict], work: Path) -> list[tuple[str, float, float, np
     for r in rows:
         if r["mode"] != "auto" or r["scale_err_pct"] is None:
             continue
-        events = [json.loads(line) for line in open(work / r["scene"] / "auto" / "vehicles.jsonl")]
-        cars = np.array([(e["length_m"], e["width_m"], e["height_m"]) for e in events
-                         if e.get("label") == "car" and e.get("length_m") and e.get("speed_kmh") is not None])
+        events = read_events(work / r["scene"] / "auto" / "vehicles.jsonl").events
+        cars = np.array([(e.length_m, e.width_m, e.height_m) for e in events
+                         if e.label == "car" and e.length_m and e.measured])
         own = np.median(np.log(cars), axis=0) if len(cars) else np.full(3, np.nan)
         rel = np.median(np.array(r["dims_log_ratio"]), axis=0) if r["dims_log_ratio"] else np.full(3, np.nan)
         out.append((r["scene"], float(r["scale_err_pct"]), float(r["road_err_pct"]), own, rel))

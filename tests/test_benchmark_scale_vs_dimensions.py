@@ -4,6 +4,8 @@ import json
 
 import numpy as np
 
+from gst_trafficcal.outputs import VehicleEvent
+
 
 def test_a_correction_by_a_median_the_errors_follow_exactly_leaves_no_error(load_benchmark):
     b = load_benchmark("scale_vs_dimensions")
@@ -16,12 +18,12 @@ def test_a_correction_by_a_median_the_errors_follow_exactly_leaves_no_error(load
 def test_scene_rows_take_the_measured_cars_of_fully_automatic_runs(load_benchmark, tmp_path):
     b = load_benchmark("scale_vs_dimensions")
     (tmp_path / "s1" / "auto").mkdir(parents=True)
-    cars = [{"label": "car", "length_m": 4.0, "width_m": 1.8, "height_m": 1.5, "speed_kmh": 80.0},
-            {"label": "car", "length_m": 5.0, "width_m": 2.0, "height_m": 1.4, "speed_kmh": 70.0},
-            {"label": "car", "length_m": 4.5, "width_m": 1.9, "height_m": 1.6, "speed_kmh": 75.0},
-            {"label": "truck", "length_m": 12.0, "width_m": 2.5, "height_m": 3.5, "speed_kmh": 70.0},
-            {"label": "car", "length_m": 9.0, "width_m": 9.0, "height_m": 9.0, "speed_kmh": None}]
-    (tmp_path / "s1" / "auto" / "vehicles.jsonl").write_text("".join(json.dumps(c) + "\n" for c in cars))
+    cars = [("car", 4.0, 1.8, 1.5, 80.0), ("car", 5.0, 2.0, 1.4, 70.0), ("car", 4.5, 1.9, 1.6, 75.0),
+            ("truck", 12.0, 2.5, 3.5, 70.0), ("car", 9.0, 9.0, 9.0, None)]
+    events = [VehicleEvent(k, label, 0.0, 1.0, speed, reason="" if speed else "track too short", length_m=length,
+                           width_m=width, height_m=height)
+              for k, (label, length, width, height, speed) in enumerate(cars)]
+    (tmp_path / "s1" / "auto" / "vehicles.jsonl").write_text("".join(json.dumps(e.to_dict()) + "\n" for e in events))
     rows = [{"scene": "s1", "mode": "auto", "scale_err_pct": 1.5, "road_err_pct": -0.5,
              "dims_log_ratio": [[0.1, 0.0, 0.0], [0.3, 0.0, 0.0]]},
             {"scene": "s1", "mode": "manual", "scale_err_pct": 0.0, "road_err_pct": 0.0, "dims_log_ratio": []},
