@@ -62,19 +62,19 @@ def match_measured(frames_jsonl: str | Path, events: Sequence[VehicleEvent], res
         if not e.measured or tr is None:
             continue
         frames = np.round(tr.frames).astype(int)
-        best, best_id, best_speed = max_distance * image_size[0], None, 0.0
-        for vid, recs in truth.items():
+        best, best_key, best_speed = max_distance * image_size[0], None, 0.0
+        for key, recs in truth.items():
             common = [(k, f) for k, f in enumerate(frames) if f in recs]
             if len(common) < max(2, len(frames) // 2):
                 continue
             ref = np.array([recs[f] for _, f in common])
             d = float(np.median(np.hypot(*(ref[:, :2] - tr.pos[[k for k, _ in common]]).T)))
             if d < best:
-                best, best_id, best_speed = d, vid, float(np.median(ref[:, 2]))
-        if best_id is not None:
+                best, best_key, best_speed = d, key, float(np.median(ref[:, 2]))
+        if best_key is not None:
             size = (e.length_m, e.width_m, e.height_m)
-            out.append(TruthMatch(e.id, int(best_id[0]), e.speed_kmh - best_speed, about[best_id][0], e.label,
-                                  about[best_id][1], None if any(v is None for v in size) else size))
+            out.append(TruthMatch(e.id, int(best_key[0]), e.speed_kmh - best_speed, about[best_key][0], e.label,
+                                  about[best_key][1], None if any(v is None for v in size) else size))
     return out
 
 
