@@ -104,15 +104,15 @@ class FrameRetimer:
 
     interval: float  # the caps' frame interval (s)
     window: int = RETIME_WINDOW
-
-    def __post_init__(self) -> None:
-        if not self.interval > 0:
-            raise ValueError(f"the frame interval must be positive, got {self.interval}")
     _k: np.ndarray = field(default_factory=lambda: np.zeros(0))  # frame counts of the window's frames
     _t: np.ndarray = field(default_factory=lambda: np.zeros(0))  # ... and their times
     _line: tuple[float, float] | None = None  # (slope, intercept) of the latest fit
     _last: float | None = None  # the latest time given
     _out: float | None = None  # the latest smoothed time
+
+    def __post_init__(self) -> None:
+        if not self.interval > 0:
+            raise ValueError(f"the frame interval must be positive, got {self.interval}")
 
     def add(self, t: float) -> float:
         """The smoothed time of the frame at ``t`` (a time not after the one before: the smoothed time before)."""
