@@ -103,6 +103,14 @@ def breakdown(scene: Path, run: Path) -> tuple[Counter, list[str], int, int]:
     return rows, notes, len(events), len(passing)
 
 
+def run_with_frames(video: Path, run: Path) -> None:
+    """``trafficcal run VIDEO --out RUN --no-overlay`` with the speedometer's frames-file (RUN/frames.jsonl), unless
+    RUN holds one already."""
+    if not (run / "frames.jsonl").is_file():
+        subprocess.run([sys.executable, "-c", RUN_WITH_FRAMES, "run", str(video), "--out", str(run), "--no-overlay"],
+                       check=True, stdout=subprocess.DEVNULL)
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("scenes", nargs="+", type=Path, help="rendered scene folders (video.mp4, frames.jsonl)")
@@ -115,9 +123,7 @@ def main() -> None:
     print("|---|---|---|---|---|---|")
     for scene in a.scenes:
         run = a.run or work / scene.name
-        if not (run / "frames.jsonl").is_file():
-            subprocess.run([sys.executable, "-c", RUN_WITH_FRAMES, "run", str(scene / "video.mp4"), "--out", str(run),
-                            "--no-overlay"], check=True, stdout=subprocess.DEVNULL)
+        run_with_frames(scene / "video.mp4", run)
         rows, notes, reported, passed = breakdown(scene, run)
         print(f"| {scene.name} | {reported} / {passed} ({reported - passed:+d}) | {rows['split']} | "
               f"{rows['no rendered vehicle']} | {rows['left out by the rule']} | {rows['missed']} |")
