@@ -188,20 +188,30 @@ launch() {  # [--until FILE] ARGS...: gst-launch-1.0 -e ARGS, with SIGTERM handl
     # Safe under set -e however it is called (bare or `launch ... || rc=$?`): an interrupted wait does not end the
     # script, which always waits for gst-launch-1.0 and returns its exit code. --until FILE: the stream is ended
     # the same way (EOS) once FILE is not empty (calibrate.sh: vpdetect has saved its calibration).
-    local stop=0 until=""
+    # A stop whose end of stream went through (gst-launch-1.0 said "EOS received") succeeds even when the source
+    # failed after it, while it was closed: many cameras drop the connection on RTSP PAUSE, and nothing was lost.
+    local stop=0 until="" said copy tee_pid name
     if [[ "${1:-}" == "--until" ]]; then
         until="$2"
         shift 2
     fi
+    said="$(mktemp "${TMPDIR:-/tmp}/gst-launch.XXXXXX")"
+    # its output passed on as it comes and kept in $said, by a tee that ignores both signals (so that it outlives
+    # gst-launch-1.0's last lines: a tee killed by Ctrl-C would end gst-launch-1.0 by SIGPIPE before the end)
+    exec {copy}> >(trap '' INT TERM; exec tee -- "$said")
+    tee_pid=$!
     launch_pid=
     trap 'stop=1; [[ -z "$launch_pid" ]] || kill -INT "$launch_pid" 2>/dev/null || true' INT TERM
-    gst-launch-1.0 -e "$@" &
+    # LANGUAGE=en: its messages untranslated, as looked for below
+    LANGUAGE=en gst-launch-1.0 -e "$@" >&"$copy" &
     launch_pid=$!
+    exec {copy}>&-
     [[ $stop == 0 ]] || kill -INT "$launch_pid" 2>/dev/null || true  # a signal came before its pid was known
     while kill -0 "$launch_pid" 2>/dev/null; do
         if [[ -n "$until" ]]; then
             if [[ -s "$until" ]]; then
                 kill -INT "$launch_pid" 2>/dev/null || true
+                stop=1
                 until=""
             else
                 sleep 0.2
@@ -213,6 +223,14 @@ launch() {  # [--until FILE] ARGS...: gst-launch-1.0 -e ARGS, with SIGTERM handl
     trap - INT TERM
     local rc=0
     wait "$launch_pid" || rc=$?  # its exit code (bash keeps it)
+    wait "$tee_pid" 2>/dev/null || true  # its last lines in $said
+    if [[ $rc -ne 0 && $stop == 1 ]] && grep -q '^EOS received - stopping pipeline' "$said"; then
+        name="${0##*/}"
+        echo "${name%.sh}: note: the stream was ended and every output completed before the source failed as it" \
+             "was closed (the error above): a clean stop" >&2
+        rc=0
+    fi
+    rm -f -- "$said"
     return "$rc"
 }
 

@@ -38,17 +38,19 @@ def load_benchmark():
     return load
 
 
-def serve_rtsp(launch: str, mount: str):
+def serve_rtsp(launch: str, mount: str, drop_on_pause: bool = False):
     """Serve ``launch`` (a gst-rtsp-server media description, payloader ``pay0``) over RTSP from a server running
     in this process; yields its ``rtsp://127.0.0.1:PORT/mount`` URL.  For generator fixtures: skips the test
-    without Debian's gir1.2-gst-rtsp-server-1.0."""
+    without Debian's gir1.2-gst-rtsp-server-1.0.  ``drop_on_pause``: the server closes a client's connection when
+    it asks PAUSE (as many cameras do), so rtspsrc fails while it is stopped."""
     import threading
 
     import gi
 
     try:
         gi.require_version("GstRtspServer", "1.0")
-        from gi.repository import GstRtspServer
+        gi.require_version("GstRtsp", "1.0")
+        from gi.repository import GstRtsp, GstRtspServer
     except (ValueError, ImportError):
         pytest.skip("needs the GstRtspServer introspection data (Debian: gir1.2-gst-rtsp-server-1.0)")
     from gst_trafficcal.gst._gi import GLib
@@ -60,6 +62,12 @@ def serve_rtsp(launch: str, mount: str):
     factory = GstRtspServer.RTSPMediaFactory.new()
     factory.set_launch(launch)
     server.get_mount_points().add_factory(f"/{mount}", factory)
+    if drop_on_pause:
+        def drop(client, _context):
+            client.close()
+            return GstRtsp.RTSPStatusCode.OK
+
+        server.connect("client-connected", lambda _server, client: client.connect("pre-pause-request", drop))
     server.attach(ctx)
     thread = threading.Thread(target=loop.run, daemon=True)
     thread.start()
