@@ -542,7 +542,9 @@ def test_a_camera_dropping_the_connection_as_it_is_stopped_is_a_clean_stop(name,
 
     out = tmp_path / ("overlay.mkv" if name == "nvr-overlay.sh" else "out")
     done = out if name == "nvr-overlay.sh" else out / "vehicles.jsonl"
-    args = [rtsp_clip_dropped_on_pause, str(out)] + ([] if name == "nvr-overlay.sh" else [str(clip / "calibration.json")])
+    args = [rtsp_clip_dropped_on_pause, str(out)]
+    if name == "measure.sh":
+        args.append(str(clip / "calibration.json"))
     with open(tmp_path / "stdout", "w") as o, open(tmp_path / "stderr", "w") as e:
         proc = subprocess.Popen(["bash", str(PIPELINES / name), *args], stdout=o, stderr=e,
                                 env=dict(os.environ, GST_REGISTRY=str(REGISTRY)))
