@@ -189,7 +189,7 @@ launch() {  # [--until FILE] ARGS...: gst-launch-1.0 -e ARGS, with SIGTERM handl
     # script, which always waits for gst-launch-1.0 and returns its exit code. --until FILE: the stream is ended
     # the same way (EOS) once FILE is not empty (calibrate.sh: vpdetect has saved its calibration).
     # A stop whose end of stream went through (gst-launch-1.0 said "EOS received") succeeds even when the source
-    # failed after it, while it was closed: many cameras drop the connection on RTSP PAUSE, and nothing was lost.
+    # failed after it, while it was closed (a camera dropping the connection on PAUSE or TEARDOWN): nothing lost.
     local stop=0 until="" said copy tee_pid name
     if [[ "${1:-}" == "--until" ]]; then
         until="$2"

@@ -38,11 +38,11 @@ def load_benchmark():
     return load
 
 
-def serve_rtsp(launch: str, mount: str, drop_on_pause: bool = False):
+def serve_rtsp(launch: str, mount: str, drop_on_stop: bool = False):
     """Serve ``launch`` (a gst-rtsp-server media description, payloader ``pay0``) over RTSP from a server running
     in this process; yields its ``rtsp://127.0.0.1:PORT/mount`` URL.  For generator fixtures: skips the test
-    without Debian's gir1.2-gst-rtsp-server-1.0.  ``drop_on_pause``: the server closes a client's connection when
-    it asks PAUSE (as many cameras do), so rtspsrc fails while it is stopped."""
+    without Debian's gir1.2-gst-rtsp-server-1.0.  ``drop_on_stop``: the server closes a client's connection when
+    it asks PAUSE or TEARDOWN (as a camera may), so rtspsrc fails while it is stopped, whichever it sends."""
     import threading
 
     import gi
@@ -62,12 +62,16 @@ def serve_rtsp(launch: str, mount: str, drop_on_pause: bool = False):
     factory = GstRtspServer.RTSPMediaFactory.new()
     factory.set_launch(launch)
     server.get_mount_points().add_factory(f"/{mount}", factory)
-    if drop_on_pause:
+    if drop_on_stop:
         def drop(client, _context):
             client.close()
             return GstRtsp.RTSPStatusCode.OK
 
-        server.connect("client-connected", lambda _server, client: client.connect("pre-pause-request", drop))
+        def watch(_server, client):
+            client.connect("pre-pause-request", drop)
+            client.connect("pre-teardown-request", drop)
+
+        server.connect("client-connected", watch)
     server.attach(ctx)
     thread = threading.Thread(target=loop.run, daemon=True)
     thread.start()

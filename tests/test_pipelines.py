@@ -522,19 +522,20 @@ def test_nvr_overlay_stopped_by_sigterm_completes_the_recording(rtsp_clip, tmp_p
 
 
 @pytest.fixture
-def rtsp_clip_dropped_on_pause(clip):
-    """The clip served live over RTSP by a server that closes the connection when the client asks PAUSE."""
+def rtsp_clip_dropped_on_stop(clip):
+    """The clip served live over RTSP by a server that closes the connection when the client asks PAUSE or
+    TEARDOWN."""
     from .conftest import serve_rtsp
 
     yield from serve_rtsp(f"( filesrc location={clip / 'video.mp4'} ! qtdemux ! h264parse ! rtph264pay name=pay0 "
-                          "pt=96 )", "clip", drop_on_pause=True)
+                          "pt=96 )", "clip", drop_on_stop=True)
 
 
 @pytest.mark.parametrize("name", ["nvr-overlay.sh", "measure.sh"])
-def test_a_camera_dropping_the_connection_as_it_is_stopped_is_a_clean_stop(name, clip, rtsp_clip_dropped_on_pause,
+def test_a_camera_dropping_the_connection_as_it_is_stopped_is_a_clean_stop(name, clip, rtsp_clip_dropped_on_stop,
                                                                             tmp_path):
-    """SIGTERM: the stream is ended (EOS) and every output completed; then gst-launch-1.0 pauses the source and a
-    camera that closes the connection on PAUSE makes rtspsrc fail. That used to end the script with gst-launch's
+    """SIGTERM: the stream is ended (EOS) and every output completed; then gst-launch-1.0 stops the source, and a
+    camera that closes the connection on its PAUSE or TEARDOWN (rtspsrc sends either) makes rtspsrc fail. That used to end the script with gst-launch's
     exit code 1 (a service stopped shown as failed; now and then in CI, from the test server); it says so and
     succeeds."""
     import signal
@@ -542,7 +543,7 @@ def test_a_camera_dropping_the_connection_as_it_is_stopped_is_a_clean_stop(name,
 
     out = tmp_path / ("overlay.mkv" if name == "nvr-overlay.sh" else "out")
     done = out if name == "nvr-overlay.sh" else out / "vehicles.jsonl"
-    args = [rtsp_clip_dropped_on_pause, str(out)]
+    args = [rtsp_clip_dropped_on_stop, str(out)]
     if name == "measure.sh":
         args.append(str(clip / "calibration.json"))
     with open(tmp_path / "stdout", "w") as o, open(tmp_path / "stderr", "w") as e:
