@@ -535,9 +535,9 @@ def rtsp_clip_dropped_on_stop(clip):
 def test_a_camera_dropping_the_connection_as_it_is_stopped_is_a_clean_stop(name, clip, rtsp_clip_dropped_on_stop,
                                                                             tmp_path):
     """SIGTERM: the stream is ended (EOS) and every output completed; then gst-launch-1.0 stops the source, and a
-    camera that closes the connection on its PAUSE or TEARDOWN (rtspsrc sends either) makes rtspsrc fail. That used to end the script with gst-launch's
-    exit code 1 (a service stopped shown as failed; now and then in CI, from the test server); it says so and
-    succeeds."""
+    camera that closes the connection on its PAUSE or TEARDOWN (rtspsrc sends either) makes rtspsrc fail. That used
+    to end the script with gst-launch's exit code 1 (a service stopped shown as failed; now and then in CI, from the
+    test server); it says so and succeeds."""
     import signal
     import time
 
